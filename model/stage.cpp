@@ -1,0 +1,124 @@
+#include "model/stage.h"
+
+#include <cmath>
+#include <set>
+#include <sstream>
+
+#include "model/yaml_util.h"
+
+namespace idm::model {
+
+namespace {
+
+void check(bool ok, const std::string& where, const std::string& key, double value,
+           const std::string& range) {
+  if (ok && std::isfinite(value)) return;
+  std::ostringstream msg;
+  msg.precision(9);
+  msg << where << "." << key << ": " << value << " is out of range, allowed " << range;
+  throw InputError(msg.str());
+}
+
+// One table of the stage keys: name, member, range. Used for reading, writing and validating.
+struct StageKey {
+  const char* name;
+  double StageParams::*member;
+  double lo;
+  double hi;
+  bool lo_open;
+  bool required_in_dataset;
+};
+
+constexpr StageKey kStageKeys[] = {
+    {"slider_mass_kg", &StageParams::slider_mass_kg, 0.0, 1e3, true, true},
+    {"counter_mass_kg", &StageParams::counter_mass_kg, 0.0, 1e3, true, true},
+    {"friction_coefficient", &StageParams::friction_coefficient, 0.0, 2.0, true, true},
+    {"gravity_m_s2", &StageParams::gravity_m_s2, 0.0, 100.0, true, true},
+    {"stroke_m", &StageParams::stroke_m, 0.0, 1e-3, true, true},
+    {"step_correction", &StageParams::step_correction, 0.0, 1.0, true, true},
+    {"stiffness_n_m", &StageParams::stiffness_n_m, 0.0, 1e12, true, false},
+    {"damping_n_s_m", &StageParams::damping_n_s_m, 0.0, 1e6, false, false},
+};
+
+std::string range_of(const StageKey& k) {
+  std::ostringstream out;
+  out << (k.lo_open ? "(" : "[") << k.lo << ", " << k.hi << "]";
+  return out.str();
+}
+
+}  // namespace
+
+void validate(const StageParams& stage, const std::string& where) {
+  for (const StageKey& k : kStageKeys) {
+    const double v = stage.*k.member;
+    check(v <= k.hi && (k.lo_open ? v > k.lo : v >= k.lo), where, k.name, v, range_of(k));
+  }
+}
+
+void validate(const InterferometerParams& ifm, const std::string& where) {
+  check(ifm.resolution_m > 0 && ifm.resolution_m <= 1e-6, where, "resolution_m", ifm.resolution_m,
+        "(0, 1e-06]");
+  check(ifm.noise_m >= 0 && ifm.noise_m <= 1e-6, where, "noise_m", ifm.noise_m, "[0, 1e-06]");
+}
+
+StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
+                           const StageYamlOptions& options) {
+  StageFile out;
+  if (!root.IsMap()) throw InputError(file + ": expected a YAML map with a 'stage:' section");
+  const YAML::Node stage = root["stage"];
+  if (!stage) {
+    if (options.require_dataset_keys) throw InputError(file + ": stage: missing section");
+  } else {
+    if (!stage.IsMap()) throw InputError(located(file, stage, "stage", "expected a map"));
+    std::set<std::string> known;
+    for (const StageKey& k : kStageKeys) {
+      known.insert(k.name);
+      const YAML::Node value = stage[k.name];
+      if (!value) {
+        if (options.require_dataset_keys && k.required_in_dataset)
+          throw InputError(located(file, stage, std::string("stage.") + k.name,
+                                   "missing required key"));
+        continue;
+      }
+      out.stage.*k.member =
+          read_double(value, file, std::string("stage.") + k.name, k.lo, k.hi, k.lo_open);
+    }
+    if (options.strict) {
+      for (const auto& kv : stage) {
+        const std::string key = kv.first.as<std::string>();
+        if (!known.count(key))
+          throw InputError(located(file, kv.first, "stage." + key, "unknown key"));
+      }
+    }
+  }
+  const YAML::Node ifm = root["interferometer"];
+  if (ifm) {
+    if (!ifm.IsMap()) throw InputError(located(file, ifm, "interferometer", "expected a map"));
+    if (ifm["resolution_m"])
+      out.interferometer.resolution_m = read_double(
+          ifm["resolution_m"], file, "interferometer.resolution_m", 0.0, 1e-6, true);
+    if (ifm["noise_m"])
+      out.interferometer.noise_m =
+          read_double(ifm["noise_m"], file, "interferometer.noise_m", 0.0, 1e-6);
+  } else if (options.require_dataset_keys) {
+    throw InputError(file + ": interferometer: missing section (needs resolution_m)");
+  }
+  return out;
+}
+
+StageFile load_stage_file(const std::string& path, const StageYamlOptions& options) {
+  return parse_stage_yaml(load_yaml_file(path), path, options);
+}
+
+std::string to_yaml(const StageFile& f) {
+  std::ostringstream out;
+  out.precision(17);
+  out << "stage:\n";
+  for (const StageKey& k : kStageKeys) out << "  " << k.name << ": " << f.stage.*k.member << "\n";
+  out << "interferometer:\n";
+  out << "  resolution_m: " << f.interferometer.resolution_m << "\n";
+  out << "  noise_m: " << f.interferometer.noise_m << "\n";
+  return out.str();
+}
+
+}  // namespace idm::model

@@ -1,0 +1,103 @@
+#include "model/yaml_util.h"
+
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include "model/stage.h"
+
+namespace idm::model {
+
+std::string located(const std::string& file, const YAML::Node& node, const std::string& key,
+                    const std::string& message) {
+  std::ostringstream out;
+  out << file;
+  if (node.IsDefined() && node.Mark().line >= 0) out << ":" << node.Mark().line + 1;
+  out << ": " << key << ": " << message;
+  return out.str();
+}
+
+namespace {
+std::string range_text(double lo, double hi, bool lo_open) {
+  std::ostringstream out;
+  out.precision(6);
+  out << "allowed " << (lo_open ? "(" : "[") << lo << ", " << hi << "]";
+  return out.str();
+}
+}  // namespace
+
+double read_double(const YAML::Node& node, const std::string& file, const std::string& key,
+                   double lo, double hi, bool lo_open) {
+  if (!node.IsScalar()) throw InputError(located(file, node, key, "expected a number"));
+  double value = 0.0;
+  const std::string& text = node.Scalar();
+  for (const char* special : {".nan", ".NaN", ".NAN", ".inf", ".Inf", ".INF", "-.inf", "-.Inf",
+                              "-.INF", "nan", "inf", "-inf", "NaN"})
+    if (text == special)
+      throw InputError(located(file, node, key, "must be finite, " + range_text(lo, hi, lo_open)));
+  try {
+    std::size_t used = 0;
+    value = std::stod(text, &used);
+    if (used != text.size()) throw std::invalid_argument(text);
+  } catch (const std::exception&) {
+    throw InputError(located(file, node, key, "'" + text + "' is not a number"));
+  }
+  if (!std::isfinite(value))
+    throw InputError(located(file, node, key, "must be finite, " + range_text(lo, hi, lo_open)));
+  if (value < lo || value > hi || (lo_open && value == lo)) {
+    std::ostringstream msg;
+    msg.precision(9);
+    msg << value << " is out of range, " << range_text(lo, hi, lo_open);
+    throw InputError(located(file, node, key, msg.str()));
+  }
+  return value;
+}
+
+long read_integer(const YAML::Node& node, const std::string& file, const std::string& key,
+                  long lo, long hi) {
+  if (!node.IsScalar()) throw InputError(located(file, node, key, "expected an integer"));
+  const std::string& text = node.Scalar();
+  long value = 0;
+  try {
+    std::size_t used = 0;
+    value = std::stol(text, &used);
+    if (used != text.size()) throw std::invalid_argument(text);
+  } catch (const std::exception&) {
+    throw InputError(located(file, node, key, "'" + text + "' is not an integer"));
+  }
+  if (value < lo || value > hi) {
+    throw InputError(located(file, node, key,
+                             std::to_string(value) + " is out of range, allowed [" +
+                                 std::to_string(lo) + ", " + std::to_string(hi) + "]"));
+  }
+  return value;
+}
+
+bool read_bool(const YAML::Node& node, const std::string& file, const std::string& key) {
+  if (node.IsScalar()) {
+    const std::string& t = node.Scalar();
+    if (t == "true" || t == "yes" || t == "on") return true;
+    if (t == "false" || t == "no" || t == "off") return false;
+  }
+  throw InputError(located(file, node, key, "expected true or false"));
+}
+
+std::string read_string(const YAML::Node& node, const std::string& file, const std::string& key) {
+  if (!node.IsScalar()) throw InputError(located(file, node, key, "expected a string"));
+  return node.Scalar();
+}
+
+YAML::Node load_yaml_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw InputError(path + ": cannot open file");
+  std::stringstream text;
+  text << in.rdbuf();
+  try {
+    return YAML::Load(text.str());
+  } catch (const YAML::Exception& e) {
+    throw InputError(path + ":" + std::to_string(e.mark.line + 1) + ": YAML syntax error: " +
+                     e.msg);
+  }
+}
+
+}  // namespace idm::model

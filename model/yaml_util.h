@@ -1,0 +1,25 @@
+// Checked reads of YAML scalars: every error names the file, the line, the key and the range.
+#pragma once
+
+#include <string>
+
+#include <yaml-cpp/yaml.h>
+
+namespace idm::model {
+
+// "FILE:LINE: KEY: MESSAGE" (LINE 1-based, omitted when the node has no mark).
+std::string located(const std::string& file, const YAML::Node& node, const std::string& key,
+                    const std::string& message);
+
+// Reads a finite double within [lo, hi] (or (lo, hi] when lo_open). Throws InputError.
+double read_double(const YAML::Node& node, const std::string& file, const std::string& key,
+                   double lo, double hi, bool lo_open = false);
+long read_integer(const YAML::Node& node, const std::string& file, const std::string& key,
+                  long lo, long hi);
+bool read_bool(const YAML::Node& node, const std::string& file, const std::string& key);
+std::string read_string(const YAML::Node& node, const std::string& file, const std::string& key);
+
+// Loads a YAML file; a missing file or a syntax error becomes InputError with the file and line.
+YAML::Node load_yaml_file(const std::string& path);
+
+}  // namespace idm::model

@@ -1,0 +1,68 @@
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <fstream>
+
+#include "model/stage.h"
+
+using namespace idm::model;
+
+TEST(Stage, DefaultsAreTable1) {
+  const StageParams s;
+  EXPECT_DOUBLE_EQ(s.slider_mass_kg, 0.16557);
+  EXPECT_DOUBLE_EQ(s.counter_mass_kg, 0.05761);
+  EXPECT_DOUBLE_EQ(s.friction_coefficient, 0.4);
+  EXPECT_DOUBLE_EQ(s.gravity_m_s2, 9.8);
+  EXPECT_DOUBLE_EQ(s.stroke_m, 20.35e-6);
+  EXPECT_DOUBLE_EQ(s.step_correction, 0.35);
+  EXPECT_DOUBLE_EQ(s.stiffness_n_m, 5.7e6);
+  EXPECT_DOUBLE_EQ(s.damping_n_s_m, 230);
+  EXPECT_NO_THROW(validate(s));
+}
+
+TEST(Stage, ReadsTheSampleDatasetStageFile) {
+  const StageFile f = load_stage_file(std::string(IDM_SHARED_DIR) +
+                                          "/data/sample-sweep-amplifier/stage.yaml",
+                                      {.strict = false, .require_dataset_keys = true});
+  EXPECT_DOUBLE_EQ(f.stage.slider_mass_kg, 0.16557);
+  EXPECT_DOUBLE_EQ(f.interferometer.resolution_m, 9.8906e-09);
+}
+
+TEST(Stage, RoundTripsThroughYaml) {
+  StageFile f;
+  f.stage.slider_mass_kg = 0.2345678901234567;
+  f.stage.stiffness_n_m = 1.25e7;
+  f.interferometer.noise_m = 2e-9;
+  const StageFile g = parse_stage_yaml(YAML::Load(to_yaml(f)), "mem");
+  EXPECT_EQ(g.stage.slider_mass_kg, f.stage.slider_mass_kg);
+  EXPECT_EQ(g.stage.stiffness_n_m, f.stage.stiffness_n_m);
+  EXPECT_EQ(g.interferometer.noise_m, f.interferometer.noise_m);
+}
+
+static std::string error_of(const std::string& yaml, StageYamlOptions o = {}) {
+  try {
+    parse_stage_yaml(YAML::Load(yaml), "stage.yaml", o);
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Stage, BadValuesNameFileLineKeyAndRange) {
+  EXPECT_EQ(error_of("stage:\n  slider_mass_kg: -1\n"),
+            "stage.yaml:2: stage.slider_mass_kg: -1 is out of range, allowed (0, 1000]");
+  EXPECT_EQ(error_of("stage:\n  counter_mass_kg: 0.05\n  friction_coefficient: abc\n"),
+            "stage.yaml:3: stage.friction_coefficient: 'abc' is not a number");
+  EXPECT_NE(error_of("stage:\n  stroke_m: .nan\n").find("stage.stroke_m: must be finite"),
+            std::string::npos);
+  EXPECT_EQ(error_of("stage:\n  wobble: 1\n", {.strict = true}),
+            "stage.yaml:2: stage.wobble: unknown key");
+  EXPECT_EQ(error_of("stage:\n  wobble: 1\n"), "");  // ignored unless strict
+  EXPECT_NE(error_of("stage:\n  slider_mass_kg: 0.1\n", {.require_dataset_keys = true})
+                .find("missing required key"),
+            std::string::npos);
+}
+
+TEST(Stage, MissingFileIsAnInputError) {
+  EXPECT_THROW(load_stage_file("/nonexistent/stage.yaml"), InputError);
+}
