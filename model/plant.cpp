@@ -1,0 +1,317 @@
+#include "model/plant.h"
+
+#include <cmath>
+
+namespace idm::model {
+
+std::unique_ptr<Plant> make_plant(ActuatorKind kind, const StageParams& stage,
+                                  const FrictionLaw& friction) {
+  if (kind == ActuatorKind::Rigid) return std::make_unique<RigidPlant>(stage, friction);
+  return std::make_unique<CompliantPlant>(stage, friction);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Rigid actuator
+
+RigidPlant::RigidPlant(const StageParams& stage, const FrictionLaw& friction)
+    : Plant(stage, friction) {}
+
+void RigidPlant::reset(double x_m, double xi_m) {
+  x_m_ = x_m;
+  v_m_s_ = 0;
+  xi_m_ = xi_m;
+  rate_m_s_ = 0;
+}
+
+void RigidPlant::step(double dt_s, double xi_end_m) {
+  if (!(dt_s > 0)) return;
+  const double rate = (xi_end_m - xi_m_) / dt_s;
+  const double jump = rate - rate_m_s_;
+  rate_m_s_ = rate;
+  xi_m_ = xi_end_m;
+  if (held_) {
+    v_m_s_ = 0;
+    return;
+  }
+  const double g = stage_.gravity_m_s2;
+  if (jump != 0.0) {
+    if (v_m_s_ == 0.0) {
+      // A rate change spread over the step is a force -m jump/dt; static friction holds it when it
+      // can (a smooth command does not creep the slider), a velocity corner breaks it loose.
+      const double force_per_mass = -stage_.mass_ratio() * jump / dt_s - g * std::sin(friction_.tilt_rad);
+      if (std::fabs(force_per_mass) > friction_.static_at(x_m_) * g * std::cos(friction_.tilt_rad))
+        v_m_s_ = -stage_.mass_ratio() * jump;
+    } else {
+      v_m_s_ -= stage_.mass_ratio() * jump;
+    }
+  }
+  slide(dt_s);
+}
+
+void RigidPlant::slide(double dt_s) {
+  const double g = stage_.gravity_m_s2;
+  const double g_along = g * std::sin(friction_.tilt_rad);  // pulls towards -x
+  const double g_normal = g * std::cos(friction_.tilt_rad);
+  double remaining = dt_s;
+  for (int segment = 0; segment < 4 && remaining > 0; ++segment) {
+    if (v_m_s_ == 0.0) {
+      if (std::fabs(g_along) <= friction_.static_at(x_m_) * g_normal) return;  // sticks
+      // too steep to hold: slides downhill
+      const double a = -g_along + (g_along > 0 ? 1 : -1) * friction_.kinetic_at(x_m_) * g_normal;
+      x_m_ += 0.5 * a * remaining * remaining;
+      v_m_s_ = a * remaining;
+      return;
+    }
+    const double dir = v_m_s_ > 0 ? 1.0 : -1.0;
+    const double mu = friction_.sliding_at(std::fabs(v_m_s_), x_m_);
+    const double a = -g_along - dir * mu * g_normal;
+    if (a * dir >= 0) {  // downhill steeper than friction: keeps sliding
+      x_m_ += v_m_s_ * remaining + 0.5 * a * remaining * remaining;
+      v_m_s_ += a * remaining;
+      return;
+    }
+    const double t_stop = -v_m_s_ / a;
+    if (t_stop > remaining) {
+      x_m_ += v_m_s_ * remaining + 0.5 * a * remaining * remaining;
+      v_m_s_ += a * remaining;
+      return;
+    }
+    x_m_ += 0.5 * v_m_s_ * t_stop;
+    v_m_s_ = 0.0;
+    remaining -= t_stop;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Damped oscillator in closed form
+
+namespace {
+using cplx = std::complex<double>;
+// phi1(z) = (e^z - 1)/z, phi2(z) = (e^z - 1 - z)/z^2, by series near 0.
+cplx phi1(cplx z, cplx ez) {
+  if (std::abs(z) < 1e-2)
+    return 1.0 + z * (1.0 / 2 + z * (1.0 / 6 + z * (1.0 / 24 + z * (1.0 / 120 + z / 720.0))));
+  return (ez - 1.0) / z;
+}
+cplx phi2(cplx z, cplx ez) {
+  if (std::abs(z) < 1e-2)
+    return 0.5 + z * (1.0 / 6 + z * (1.0 / 24 + z * (1.0 / 120 + z * (1.0 / 720 + z / 5040.0))));
+  return (ez - 1.0 - z) / (z * z);
+}
+}  // namespace
+
+void DampedOscillator::set(double c0, double c1) {
+  double disc = c1 * c1 - 4 * c0;
+  // Critical damping has a double root: nudge the damping so the two roots stay distinct.
+  if (std::fabs(disc) < 1e-8 * c1 * c1) {
+    c1 *= 1 + 1e-4;
+    disc = c1 * c1 - 4 * c0;
+  }
+  c0_ = c0;
+  c1_ = c1;
+  if (disc < 0) {
+    l1_ = cplx(-c1 / 2, std::sqrt(-disc) / 2);
+    l2_ = std::conj(l1_);
+  } else {
+    // the root closer to 0 without cancellation
+    const double q = -0.5 * (c1 + std::sqrt(disc));
+    l1_ = cplx(q, 0);
+    l2_ = cplx(c0 / q, 0);
+  }
+  cached_t_s_ = -1;
+}
+
+DampedOscillator::Exponentials DampedOscillator::exponentials(double t) const {
+  if (t == cached_t_s_) return cached_;
+  Exponentials x;
+  const cplx z1 = l1_ * t, z2 = l2_ * t;
+  x.exp1 = std::exp(z1);
+  x.exp2 = std::exp(z2);
+  x.phi1_1 = phi1(z1, x.exp1);
+  x.phi1_2 = phi1(z2, x.exp2);
+  x.phi2_1 = phi2(z1, x.exp1);
+  x.phi2_2 = phi2(z2, x.exp2);
+  cached_t_s_ = t;
+  cached_ = x;
+  return x;
+}
+
+DampedOscillator::State DampedOscillator::at(double e0, double w0, double c, double t) const {
+  const double ep = c / c0_;
+  const double d = e0 - ep;
+  const cplx a1 = (w0 - l2_ * d) / (l1_ - l2_);
+  const cplx a2 = d - a1;
+  const Exponentials x = exponentials(t);
+  State s;
+  s.e = ep + std::real(a1 * x.exp1 + a2 * x.exp2);
+  s.w = std::real(a1 * l1_ * x.exp1 + a2 * l2_ * x.exp2);
+  s.integral = ep * t + t * std::real(a1 * x.phi1_1 + a2 * x.phi1_2);
+  s.double_integral = 0.5 * ep * t * t + t * t * std::real(a1 * x.phi2_1 + a2 * x.phi2_2);
+  return s;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Mass-damper-spring actuator (eq 30)
+
+CompliantPlant::CompliantPlant(const StageParams& stage, const FrictionLaw& friction)
+    : Plant(stage, friction) {
+  const double M = stage.slider_mass_kg, m = stage.counter_mass_kg;
+  const double K = stage.stiffness_n_m, C = stage.damping_n_s_m;
+  stuck_.set(K / m, C / m);
+  sliding_.set(K / stage.reduced_mass_kg(), C / stage.reduced_mass_kg());
+  tilt_force_n_ = M * stage.gravity_m_s2 * std::sin(friction.tilt_rad);
+  normal_force_n_ = (M + m) * stage.gravity_m_s2 * std::cos(friction.tilt_rad);
+}
+
+void CompliantPlant::reset(double x_m, double xi_m) {
+  x_m_ = x_m;
+  v_m_s_ = 0;
+  xi_m_ = xi_m;
+  rate_m_s_ = 0;
+  // at rest: the spring carries the counter mass's weight along a tilted guide
+  const double m = stage_.counter_mass_kg;
+  e_m_ = -m * stage_.gravity_m_s2 * std::sin(friction_.tilt_rad) / stage_.stiffness_n_m;
+  w_m_s_ = 0;
+  direction_ = 0;
+}
+
+double CompliantPlant::spring_force_n() const {
+  return stage_.stiffness_n_m * e_m_ + stage_.damping_n_s_m * w_m_s_;
+}
+
+double CompliantPlant::hold_force_n(double e, double w) const {
+  // slider at rest: 0 = (K e + C w) + F - M g sin(tilt)
+  return tilt_force_n_ - (stage_.stiffness_n_m * e + stage_.damping_n_s_m * w);
+}
+
+double CompliantPlant::slip_friction_n(double direction) const {
+  const double mu = friction_.velocity_dependent() ? friction_.sliding_at(std::fabs(v_m_s_), x_m_)
+                                                   : friction_.kinetic_at(x_m_);
+  return -direction * mu * normal_force_n_;
+}
+
+CompliantPlant::SlipState CompliantPlant::slip_at(double t) const {
+  const double M = stage_.slider_mass_kg;
+  const double K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
+  const DampedOscillator::State o = sliding_.at(e_m_, w_m_s_, -f_slip_n_ / M, t);
+  const double net = f_slip_n_ - tilt_force_n_;
+  SlipState s;
+  s.e = o.e;
+  s.w = o.w;
+  s.v = v_m_s_ + (C * (o.e - e_m_) + K * o.integral + net * t) / M;
+  s.x = x_m_ + v_m_s_ * t + (C * (o.integral - e_m_ * t) + K * o.double_integral + 0.5 * net * t * t) / M;
+  return s;
+}
+
+void CompliantPlant::step(double dt_s, double xi_end_m) {
+  if (!(dt_s > 0)) return;
+  const double rate = (xi_end_m - xi_m_) / dt_s;
+  w_m_s_ -= rate - rate_m_s_;  // the counter mass's velocity is continuous; e' = x' - xi'
+  rate_m_s_ = rate;
+  double remaining = dt_s;
+  for (int segment = 0; segment < 64 && remaining > 0; ++segment) {
+    if (direction_ == 0)
+      advance_stuck(remaining);
+    else
+      advance_sliding(remaining);
+  }
+  xi_m_ = xi_end_m;
+  // e is relative to the command: keep it consistent with the command at the step end
+}
+
+void CompliantPlant::advance_stuck(double& remaining) {
+  const double m = stage_.counter_mass_kg;
+  const double c_stuck = -stage_.gravity_m_s2 * std::sin(friction_.tilt_rad) * (m > 0 ? 1.0 : 0.0);
+  const DampedOscillator::State end = stuck_.at(e_m_, w_m_s_, c_stuck, remaining);
+  const double limit = friction_.static_at(x_m_) * normal_force_n_;
+  if (held_ || std::fabs(hold_force_n(end.e, end.w)) <= limit) {
+    e_m_ = end.e;
+    w_m_s_ = end.w;
+    v_m_s_ = 0;
+    remaining = 0;
+    return;
+  }
+  // Break-away inside the step: the first time |hold force| reaches the static limit.
+  double lo = 0, hi = remaining;
+  for (int i = 0; i < 60 && hi - lo > 1e-15 * remaining; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    const DampedOscillator::State s = stuck_.at(e_m_, w_m_s_, c_stuck, mid);
+    (std::fabs(hold_force_n(s.e, s.w)) > limit ? hi : lo) = mid;
+  }
+  const DampedOscillator::State s = stuck_.at(e_m_, w_m_s_, c_stuck, hi);
+  e_m_ = s.e;
+  w_m_s_ = s.w;
+  remaining -= hi;
+  // slides the way the force that friction could not hold pushes it
+  direction_ = hold_force_n(e_m_, w_m_s_) > 0 ? -1.0 : 1.0;
+  v_m_s_ = 0;
+  f_slip_n_ = slip_friction_n(direction_);
+}
+
+void CompliantPlant::advance_sliding(double& remaining) {
+  f_slip_n_ = slip_friction_n(direction_);
+  const SlipState end = slip_at(remaining);
+  if (end.v * direction_ > 0) {
+    e_m_ = end.e;
+    w_m_s_ = end.w;
+    v_m_s_ = end.v;
+    x_m_ = end.x;
+    remaining = 0;
+    return;
+  }
+  // The slider stops inside the step: find where v crosses 0 (false position, Illinois).
+  double lo = 0, hi = remaining;
+  double v_lo = v_m_s_ * direction_, v_hi = end.v * direction_;
+  if (v_lo <= 0) {
+    // starting from rest (break-away): find a point where it moves
+    double t = remaining;
+    for (int i = 0; i < 40; ++i) {
+      t *= 0.5;
+      const double v = slip_at(t).v * direction_;
+      if (v > 0) {
+        lo = t;
+        v_lo = v;
+        break;
+      }
+    }
+    if (v_lo <= 0) {  // the break-away could not move it: it sticks again
+      direction_ = 0;
+      v_m_s_ = 0;
+      return;
+    }
+  }
+  int side = 0;
+  double t = hi;
+  for (int i = 0; i < 100; ++i) {
+    t = (lo * v_hi - hi * v_lo) / (v_hi - v_lo);
+    if (!(t > lo && t < hi)) t = 0.5 * (lo + hi);
+    const double v = slip_at(t).v * direction_;
+    if (v > 0) {
+      lo = t;
+      v_lo = v;
+      if (side == 1) v_hi *= 0.5;
+      side = 1;
+    } else {
+      hi = t;
+      v_hi = v;
+      if (side == -1) v_lo *= 0.5;
+      side = -1;
+    }
+    if (hi - lo < 1e-14 * remaining || std::fabs(v) < 1e-16) break;
+  }
+  const SlipState s = slip_at(hi);
+  e_m_ = s.e;
+  w_m_s_ = s.w;
+  x_m_ = s.x;
+  v_m_s_ = 0;
+  remaining -= hi;
+  const double hold = hold_force_n(e_m_, w_m_s_);
+  if (std::fabs(hold) <= friction_.static_at(x_m_) * normal_force_n_) {
+    direction_ = 0;
+  } else {
+    direction_ = hold > 0 ? -1.0 : 1.0;
+    f_slip_n_ = slip_friction_n(direction_);
+  }
+}
+
+}  // namespace idm::model

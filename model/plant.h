@@ -1,0 +1,116 @@
+// The time-domain plant: the slider on its guide driven by the actuator and the counter mass.
+//
+// Two actuator kinds behind one interface:
+// * RigidPlant: the counter mass follows the actuator length exactly. Between samples the length
+//   is linear, so the only forces are friction and gravity, and a change of actuator rate at a
+//   sample is a momentum-exact impulse on the slider, -m/(M+m) times the change (eqs 1-3).
+// * CompliantPlant: the mass-damper-spring model of eq 30 (stiffness K, damping C). Integrated
+//   exactly: within a sample and a friction state the equations are linear with constant input, and
+//   the closed-form solution is evaluated; stick<->slip switches are found as roots within the step.
+// Both use the same friction law: Coulomb slip, stick while the force needed to hold the slider is at
+// most mu_s N, N = (M+m) g cos(tilt). A slider at rest stays exactly at rest (no creep, no chatter).
+#pragma once
+
+#include <complex>
+#include <memory>
+
+#include "model/friction.h"
+#include "model/stage.h"
+
+namespace idm::model {
+
+enum class ActuatorKind { Rigid, MassDamperSpring };
+
+class Plant {
+ public:
+  virtual ~Plant() = default;
+  // At rest at x_m with the actuator at xi_m (counter mass at rest, spring relaxed).
+  virtual void reset(double x_m, double xi_m) = 0;
+  // Advances dt_s while the actuator command moves linearly to xi_end_m.
+  virtual void step(double dt_s, double xi_end_m) = 0;
+  virtual double position_m() const = 0;
+  virtual double velocity_m_s() const = 0;
+  // Actual actuator length (counter mass relative to slider); equals the command when rigid.
+  virtual double actuator_length_m() const = 0;
+  // A held (stalled) slider does not move whatever the forces: identification, fault injection.
+  void set_slider_held(bool held) { held_ = held; }
+  bool slider_held() const { return held_; }
+  FrictionLaw& friction() { return friction_; }
+  const FrictionLaw& friction() const { return friction_; }
+
+ protected:
+  Plant(const StageParams& stage, const FrictionLaw& friction) : stage_(stage), friction_(friction) {}
+  StageParams stage_;
+  FrictionLaw friction_;
+  bool held_ = false;
+};
+
+std::unique_ptr<Plant> make_plant(ActuatorKind kind, const StageParams& stage,
+                                  const FrictionLaw& friction);
+
+class RigidPlant final : public Plant {
+ public:
+  RigidPlant(const StageParams& stage, const FrictionLaw& friction);
+  void reset(double x_m, double xi_m) override;
+  void step(double dt_s, double xi_end_m) override;
+  double position_m() const override { return x_m_; }
+  double velocity_m_s() const override { return v_m_s_; }
+  double actuator_length_m() const override { return xi_m_; }
+
+ private:
+  void slide(double dt_s);
+  double x_m_ = 0, v_m_s_ = 0, xi_m_ = 0, rate_m_s_ = 0;
+};
+
+// e'' + c1 e' + c0 e = c: closed-form value, rate and first two time integrals of e.
+class DampedOscillator {
+ public:
+  struct State {
+    double e, w, integral, double_integral;
+  };
+  void set(double c0, double c1);
+  State at(double e0, double w0, double c, double t_s) const;
+
+ private:
+  struct Exponentials {
+    std::complex<double> exp1, exp2, phi1_1, phi1_2, phi2_1, phi2_2;
+  };
+  Exponentials exponentials(double t_s) const;
+  double c0_ = 1, c1_ = 0;
+  std::complex<double> l1_, l2_;
+  mutable double cached_t_s_ = -1;
+  mutable Exponentials cached_{};
+};
+
+class CompliantPlant final : public Plant {
+ public:
+  CompliantPlant(const StageParams& stage, const FrictionLaw& friction);
+  void reset(double x_m, double xi_m) override;
+  void step(double dt_s, double xi_end_m) override;
+  double position_m() const override { return x_m_; }
+  double velocity_m_s() const override { return v_m_s_; }
+  double actuator_length_m() const override { return xi_m_ + e_m_; }
+  double spring_force_n() const;
+
+ private:
+  struct SlipState {
+    double e, w, v, x;
+  };
+  SlipState slip_at(double t_s) const;    // from the current state, sliding with force f_slip_n_
+  double hold_force_n(double e, double w) const;  // friction force needed to hold the slider
+  double slip_friction_n(double direction) const;
+  void advance_stuck(double& remaining_s);
+  void advance_sliding(double& remaining_s);
+
+  double tilt_force_n_ = 0;   // M g sin(tilt), along -x on the slider
+  double normal_force_n_ = 0;
+  DampedOscillator stuck_, sliding_;
+  // state
+  double x_m_ = 0, v_m_s_ = 0;
+  double xi_m_ = 0, rate_m_s_ = 0;  // command and its rate in the current step
+  double e_m_ = 0, w_m_s_ = 0;      // spring deflection x - xi and its rate
+  double direction_ = 0;            // +1/-1 while sliding, 0 while stuck
+  double f_slip_n_ = 0;             // friction force on the slider while sliding
+};
+
+}  // namespace idm::model
