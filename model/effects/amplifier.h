@@ -10,9 +10,8 @@
 // output taken as linear within the step.
 #pragma once
 
-#include <string>
-
 #include <Eigen/Dense>
+#include <string>
 
 #include "model/effects/actuator_effect.h"
 

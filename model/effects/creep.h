@@ -1,9 +1,9 @@
 // `creep`: slow logarithmic drift of the actuator length after a change of the command.
 //
 // After an input step of size A from rest, the output jumps by A and then drifts on so that
-// y(10 t) - y(t) = per_decade * A for t between about 1e-4 s and 1e2 s (the log law fades out
-// outside 1e-5 .. 1e4 s, where the relaxation bank ends). The model is linear in the deviation
-// from the rest point xi0 given to reset():
+// y(10 t) - y(t) = per_decade * A for t between about 1e-4 s and 1e3 s (within 3 %; the log law
+// fades out towards the ends of the relaxation bank, 1e-5 s and 1e4 s). The model is linear in
+// the deviation from the rest point xi0 given to reset():
 //
 //   y = u + sum_k g_k (z_k - xi0),   z_k' = (u - z_k) / tau_k,
 //

@@ -23,8 +23,8 @@ class Hysteresis final : public ActuatorEffect {
   static constexpr int kOperators = 16;
 
   struct Params {
-    double ratio = 0.15;        // loop width over stroke; the paper's PZL-015: 15 %
-    double stroke_m = 20.35e-6; // S, the span the loop is normalized to
+    double ratio = 0.15;         // loop width over stroke; the paper's PZL-015: 15 %
+    double stroke_m = 20.35e-6;  // S, the span the loop is normalized to
     void validate(const std::string& where = "hysteresis") const;
   };
 
@@ -39,7 +39,7 @@ class Hysteresis final : public ActuatorEffect {
   double output(double u_m) const;
 
   Params params_;
-  double input_weight_ = 1.0;  // w0
+  double input_weight_ = 1.0;                      // w0
   std::array<double, kOperators> half_width_m_{};  // r_i
   std::array<double, kOperators> weight_{};        // w_i
   std::array<double, kOperators> play_m_{};        // F_i

@@ -1,0 +1,104 @@
+// The sweep dataset of specs/sweep-dataset.md: reading it (from the daemon, the simulated stage or
+// anywhere else) and writing it crash-safe, one trial at a time.
+//
+//   DATASET/sweep.csv      one row per trial (TrialInfo)
+//   DATASET/stage.yaml     nominal stage parameters (model::StageFile)
+//   DATASET/trials/*.csv   one time series per trial (TrialSeries)
+//
+// Every error in the input is a model::InputError that names the file, the line and the column:
+// "DATASET/trials/x.csv:17:3 (x_m): 'nan' is not a finite number".
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <unordered_set>
+#include <vector>
+
+#include "model/stage.h"
+
+namespace idm::analysis {
+
+using model::InputError;
+
+// One row of sweep.csv.
+struct TrialInfo {
+  std::string id;               // column `trial`: unique id of the trial
+  double freq_hz = 0.0;         // waveform frequency f = 1/T, > 0
+  double duty = 0.0;            // duty ratio of the extension phase, 0 < duty < 1
+  double stroke_m = 0.0;        // commanded stroke S, > 0
+  int cycles = 0;               // triangular cycles commanded, >= 1
+  double sample_rate_hz = 0.0;  // sample rate of the trial file, > 0
+  double guide_pos_m = 0.0;     // interferometer position of the slider when the trial started
+  std::string file;             // trial file, relative to DATASET/ (stays inside it)
+};
+
+// One trial file: equal-length columns, t_s strictly increasing, every value finite.
+struct TrialSeries {
+  std::vector<double> t_s;       // time; 0 is the start of the first extension phase
+  std::vector<double> xi_cmd_m;  // commanded actuator elongation
+  std::vector<double> x_m;       // slider position from the interferometer (absolute)
+
+  std::size_t size() const { return t_s.size(); }
+};
+
+struct Dataset {
+  std::string path;               // DATASET/ as given
+  model::StageFile stage;         // stage.yaml
+  std::vector<TrialInfo> trials;  // sweep.csv, in file order
+
+  // path/trials[index].file
+  std::string trial_path(std::size_t index) const;
+};
+
+// Reads sweep.csv and stage.yaml and checks that every trial file exists; the trial files
+// themselves are read on demand by read_trial. Throws InputError.
+Dataset read_dataset(const std::string& dir);
+
+// Reads the time series of dataset.trials[index]. Throws InputError (std::out_of_range for a bad
+// index).
+TrialSeries read_trial(const Dataset& dataset, std::size_t index);
+
+// Reads one trial file by path (header with t_s, xi_cmd_m, x_m in any order; extra columns
+// ignored). Throws InputError.
+TrialSeries read_trial_file(const std::string& path);
+
+// The name a trial gets when the writer chooses it, like the sample's "f100_d0.050_s20.35um_t0":
+// frequency (shortest fixed notation), duty to 3 decimals, stroke in um to 2 decimals, trial index.
+std::string trial_name(double freq_hz, double duty, double stroke_m, int index);
+
+// Writes a dataset trial by trial. The constructor creates DATASET/ and DATASET/trials/ and writes
+// stage.yaml and a sweep.csv with no rows; add_trial writes the trial file, then rewrites
+// sweep.csv. Every file is written to a temporary name in its directory, fsynced, renamed over the
+// final name and the directory fsynced, so an interrupted sweep leaves a valid dataset of the
+// trials that finished, and a failed write leaves the previous files as they were.
+// Numbers are written in the shortest form that reads back to the same double.
+//
+// Bad arguments (out-of-range values, non-finite samples, a repeated id) throw InputError before
+// anything is written; file system failures throw std::system_error naming the file.
+class DatasetWriter {
+ public:
+  // `dir` may exist but must not already hold a sweep.csv.
+  DatasetWriter(std::string dir, const model::StageFile& stage);
+
+  DatasetWriter(const DatasetWriter&) = delete;
+  DatasetWriter& operator=(const DatasetWriter&) = delete;
+  DatasetWriter(DatasetWriter&&) = default;
+  DatasetWriter& operator=(DatasetWriter&&) = default;
+
+  // Adds one trial. An empty info.id becomes trial_name(f, duty, stroke, next free index); an
+  // empty info.file becomes "trials/<id>.csv" (the id must then be a plain file name).
+  // Returns the row as written to sweep.csv (valid until the next add_trial).
+  const TrialInfo& add_trial(TrialInfo info, const TrialSeries& series);
+
+  // What has been written so far (read_trial works on it).
+  const Dataset& dataset() const { return dataset_; }
+
+ private:
+  void write_sweep_csv() const;
+
+  Dataset dataset_;
+  std::unordered_set<std::string> ids_;    // ids in dataset_.trials
+  std::unordered_set<std::string> files_;  // their files, lexically normalized
+};
+
+}  // namespace idm::analysis
