@@ -121,32 +121,42 @@ void DampedOscillator::set(double c0, double c1) {
   cached_t_s_ = -1;
 }
 
-DampedOscillator::Exponentials DampedOscillator::exponentials(double t) const {
-  if (t == cached_t_s_) return cached_;
-  Exponentials x;
+DampedOscillator::Transition DampedOscillator::transition(double t) const {
   const cplx z1 = l1_ * t, z2 = l2_ * t;
-  x.exp1 = std::exp(z1);
-  x.exp2 = std::exp(z2);
-  x.phi1_1 = phi1(z1, x.exp1);
-  x.phi1_2 = phi1(z2, x.exp2);
-  x.phi2_1 = phi2(z1, x.exp1);
-  x.phi2_2 = phi2(z2, x.exp2);
-  cached_t_s_ = t;
-  cached_ = x;
+  const cplx exp1 = std::exp(z1), exp2 = std::exp(z2);
+  const cplx p11 = phi1(z1, exp1), p12 = phi1(z2, exp2);
+  const cplx p21 = phi2(z1, exp1), p22 = phi2(z2, exp2);
+  Transition x;
+  // basis: (d, w0) = (1, 0) and (0, 1); a1 = (w0 - l2 d)/(l1 - l2), a2 = d - a1
+  for (int k = 0; k < 2; ++k) {
+    const double d = k == 0 ? 1.0 : 0.0, w0 = k == 0 ? 0.0 : 1.0;
+    const cplx a1 = (w0 - l2_ * d) / (l1_ - l2_);
+    const cplx a2 = d - a1;
+    x.e[k] = std::real(a1 * exp1 + a2 * exp2);
+    x.w[k] = std::real(a1 * l1_ * exp1 + a2 * l2_ * exp2);
+    x.integral[k] = t * std::real(a1 * p11 + a2 * p12);
+    x.double_integral[k] = t * t * std::real(a1 * p21 + a2 * p22);
+  }
   return x;
 }
 
-DampedOscillator::State DampedOscillator::at(double e0, double w0, double c, double t) const {
+DampedOscillator::State DampedOscillator::at(double e0, double w0, double c, double t,
+                                             bool reuse) const {
   const double ep = c / c0_;
   const double d = e0 - ep;
-  const cplx a1 = (w0 - l2_ * d) / (l1_ - l2_);
-  const cplx a2 = d - a1;
-  const Exponentials x = exponentials(t);
+  Transition local;
+  // steps that differ only by rounding (t_k - t_{k-1}) share the coefficients
+  if (reuse && std::fabs(t - cached_t_s_) > 1e-12 * t) {
+    cached_ = transition(t);
+    cached_t_s_ = t;
+  }
+  if (!reuse) local = transition(t);
+  const Transition& x = reuse ? cached_ : local;
   State s;
-  s.e = ep + std::real(a1 * x.exp1 + a2 * x.exp2);
-  s.w = std::real(a1 * l1_ * x.exp1 + a2 * l2_ * x.exp2);
-  s.integral = ep * t + t * std::real(a1 * x.phi1_1 + a2 * x.phi1_2);
-  s.double_integral = 0.5 * ep * t * t + t * t * std::real(a1 * x.phi2_1 + a2 * x.phi2_2);
+  s.e = ep + x.e[0] * d + x.e[1] * w0;
+  s.w = x.w[0] * d + x.w[1] * w0;
+  s.integral = ep * t + x.integral[0] * d + x.integral[1] * w0;
+  s.double_integral = 0.5 * ep * t * t + x.double_integral[0] * d + x.double_integral[1] * w0;
   return s;
 }
 
@@ -159,7 +169,8 @@ CompliantPlant::CompliantPlant(const StageParams& stage, const FrictionLaw& fric
   const double K = stage.stiffness_n_m, C = stage.damping_n_s_m;
   stuck_.set(K / m, C / m);
   sliding_.set(K / stage.reduced_mass_kg(), C / stage.reduced_mass_kg());
-  tilt_force_n_ = M * stage.gravity_m_s2 * std::sin(friction.tilt_rad);
+  gravity_along_m_s2_ = stage.gravity_m_s2 * std::sin(friction.tilt_rad);
+  tilt_force_n_ = M * gravity_along_m_s2_;
   normal_force_n_ = (M + m) * stage.gravity_m_s2 * std::cos(friction.tilt_rad);
 }
 
@@ -190,10 +201,10 @@ double CompliantPlant::slip_friction_n(double direction) const {
   return -direction * mu * normal_force_n_;
 }
 
-CompliantPlant::SlipState CompliantPlant::slip_at(double t) const {
+CompliantPlant::SlipState CompliantPlant::slip_at(double t, bool reuse) const {
   const double M = stage_.slider_mass_kg;
   const double K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
-  const DampedOscillator::State o = sliding_.at(e_m_, w_m_s_, -f_slip_n_ / M, t);
+  const DampedOscillator::State o = sliding_.at(e_m_, w_m_s_, -f_slip_n_ / M, t, reuse);
   const double net = f_slip_n_ - tilt_force_n_;
   SlipState s;
   s.e = o.e;
@@ -220,9 +231,8 @@ void CompliantPlant::step(double dt_s, double xi_end_m) {
 }
 
 void CompliantPlant::advance_stuck(double& remaining) {
-  const double m = stage_.counter_mass_kg;
-  const double c_stuck = -stage_.gravity_m_s2 * std::sin(friction_.tilt_rad) * (m > 0 ? 1.0 : 0.0);
-  const DampedOscillator::State end = stuck_.at(e_m_, w_m_s_, c_stuck, remaining);
+  const double c_stuck = -gravity_along_m_s2_;
+  const DampedOscillator::State end = stuck_.at(e_m_, w_m_s_, c_stuck, remaining, true);
   const double limit = friction_.static_at(x_m_) * normal_force_n_;
   if (held_ || std::fabs(hold_force_n(end.e, end.w)) <= limit) {
     e_m_ = end.e;
@@ -250,7 +260,7 @@ void CompliantPlant::advance_stuck(double& remaining) {
 
 void CompliantPlant::advance_sliding(double& remaining) {
   f_slip_n_ = slip_friction_n(direction_);
-  const SlipState end = slip_at(remaining);
+  const SlipState end = slip_at(remaining, true);
   if (end.v * direction_ > 0) {
     e_m_ = end.e;
     w_m_s_ = end.w;

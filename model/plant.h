@@ -69,17 +69,20 @@ class DampedOscillator {
     double e, w, integral, double_integral;
   };
   void set(double c0, double c1);
-  State at(double e0, double w0, double c, double t_s) const;
+  // `reuse`: t_s is the plant's regular step; its coefficients are kept for the next call.
+  State at(double e0, double w0, double c, double t_s, bool reuse = false) const;
 
  private:
-  struct Exponentials {
-    std::complex<double> exp1, exp2, phi1_1, phi1_2, phi2_1, phi2_2;
+  // The state at t is linear in (e0 - ep, w0): four real coefficient pairs, cached for the last t
+  // (the plant's fixed step), so a regular step costs a few multiplications.
+  struct Transition {
+    double e[2], w[2], integral[2], double_integral[2];
   };
-  Exponentials exponentials(double t_s) const;
+  Transition transition(double t_s) const;
   double c0_ = 1, c1_ = 0;
   std::complex<double> l1_, l2_;
   mutable double cached_t_s_ = -1;
-  mutable Exponentials cached_{};
+  mutable Transition cached_{};
 };
 
 class CompliantPlant final : public Plant {
@@ -96,13 +99,15 @@ class CompliantPlant final : public Plant {
   struct SlipState {
     double e, w, v, x;
   };
-  SlipState slip_at(double t_s) const;    // from the current state, sliding with force f_slip_n_
+  // from the current state, sliding with force f_slip_n_
+  SlipState slip_at(double t_s, bool reuse = false) const;
   double hold_force_n(double e, double w) const;  // friction force needed to hold the slider
   double slip_friction_n(double direction) const;
   void advance_stuck(double& remaining_s);
   void advance_sliding(double& remaining_s);
 
-  double tilt_force_n_ = 0;   // M g sin(tilt), along -x on the slider
+  double gravity_along_m_s2_ = 0;  // g sin(tilt)
+  double tilt_force_n_ = 0;        // M g sin(tilt), along -x on the slider
   double normal_force_n_ = 0;
   DampedOscillator stuck_, sliding_;
   // state

@@ -279,11 +279,14 @@ void SimulatedStage::run_burst(const TriangleWave& w, double rate_hz, double pre
         ++next;
       }
       if (next < corners.size() && std::fabs(corners[next] - t_k) <= 1e-13 / rate_hz) ++next;
-      if (t_k > t) step(t_k - t, w.xi_m(t_k));
+    }
+    const double xi_k = w.xi_m(t_k);
+    if (k > 0) {
+      if (t_k > t) step(t_k - t, xi_k);
       t = t_k;
     }
     out.t_s.push_back(t_k);
-    out.xi_cmd_m.push_back(w.xi_m(t_k));
+    out.xi_cmd_m.push_back(xi_k);
     out.x_m.push_back(measured_m());
   }
 }
