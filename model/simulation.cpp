@@ -38,7 +38,7 @@ const std::vector<EffectInfo>& effect_library() {
       {"hysteresis", "rate-independent hysteresis between command and actuator length",
        {{"ratio", 0.15, 0, 0.5, "loop width over stroke"}}},
       {"creep", "slow drift of the actuator length after a change",
-       {{"per_decade", 0.01, 0, 0.2, "relative change per decade of time"}}},
+       {{"per_decade", 0.01, 0, 0.1, "relative change per decade of time"}}},
       {"stribeck", "velocity-dependent friction: static above kinetic, Stribeck curve",
        {{"static_over_kinetic", 1.15, 1, 3, "mu_s / mu_k"},
         {"stribeck_velocity_m_s", 1e-3, 1e-6, 1, "Stribeck velocity"}}},
