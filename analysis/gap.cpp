@@ -1,0 +1,98 @@
+#include "analysis/gap.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <iomanip>
+#include <sstream>
+
+namespace idm::analysis {
+
+double fit_step_scale(const SweepCells& sweep, const std::vector<TrialFeatures>& pred) {
+  double num = 0, den = 0;
+  for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
+    if (pred[c].region == model::Region::Cutoff) continue;
+    for (const TrialFeatures& t : sweep.cells[c].train) {
+      num += t.steady_step_m * pred[c].steady_step_m;
+      den += pred[c].steady_step_m * pred[c].steady_step_m;
+    }
+  }
+  return den > 0 ? num / den : 1.0;
+}
+
+GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<TrialFeatures>& pred, double scale) {
+  GapEvaluation out;
+  out.step_scale = scale;
+  const double step_sd = std::sqrt(2.0) * sweep.reading_sd_m;
+  double sum2 = 0;
+  for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
+    const Cell& cell = sweep.cells[c];
+    CellResidual r;
+    r.key = cell.key;
+    r.trials = static_cast<int>(cell.test.size());
+    double mean = 0;
+    for (const TrialFeatures& t : cell.test) mean += t.steady_step_m;
+    mean /= std::max<std::size_t>(1, cell.test.size());
+    double ss = 0;
+    for (const TrialFeatures& t : cell.test) ss += (t.steady_step_m - mean) * (t.steady_step_m - mean);
+    const double sd = cell.test.size() > 1 ? std::sqrt(ss / (cell.test.size() - 1)) : 0.0;
+    r.measured_step_m = mean;
+    r.measured_step_sd_m = sd;
+    r.model_step_m = scale * pred[c].steady_step_m;
+    r.measured_region = cell.measured_region;
+    r.model_region = pred[c].region;
+    const double d = (mean - r.model_step_m) / (step_sd / std::sqrt(std::max(1, r.trials)));
+    const double spread = sd > step_sd ? std::sqrt(sd * sd / (step_sd * step_sd) - 1.0) : 0.0;
+    const double label = r.measured_region == r.model_region ? 0.0 : kSignificantResidual;
+    r.residual = std::sqrt(d * d + spread * spread + label * label);
+    r.significant = r.residual > kSignificantResidual;
+    sum2 += r.residual * r.residual;
+    out.cells.push_back(r);
+  }
+  out.gap = out.cells.empty() ? 0.0 : std::sqrt(sum2 / out.cells.size());
+  return out;
+}
+
+std::vector<TrialFeatures> predict_all(const SweepCells& sweep, const model::SimConfig& sim) {
+  std::vector<TrialFeatures> pred;
+  pred.reserve(sweep.cells.size());
+  for (const Cell& c : sweep.cells) pred.push_back(predict_cell(sweep.stage.stage, sim, c));
+  return pred;
+}
+
+GapEvaluation baseline_gap(const SweepCells& sweep) {
+  model::SimConfig ideal;  // rigid actuator, Coulomb friction: the impulse model's event simulation
+  const std::vector<TrialFeatures> pred = predict_all(sweep, ideal);
+  return evaluate_gap(sweep, pred, fit_step_scale(sweep, pred));
+}
+
+std::string where_summary(const GapEvaluation& eval) {
+  std::vector<const CellResidual*> sig;
+  for (const CellResidual& r : eval.cells)
+    if (r.significant) sig.push_back(&r);
+  std::ostringstream s;
+  if (sig.empty()) {
+    s << "The model follows the stage within the measurement's noise at all " << eval.cells.size()
+      << " cells (gap " << std::setprecision(2) << eval.gap << ").";
+    return s.str();
+  }
+  double f_lo = 1e300, f_hi = 0, d_lo = 1, d_hi = 0;
+  std::map<std::string, int> by_region;
+  int labels = 0;
+  for (const CellResidual* r : sig) {
+    f_lo = std::min(f_lo, r->key.freq_hz);
+    f_hi = std::max(f_hi, r->key.freq_hz);
+    d_lo = std::min(d_lo, r->key.duty);
+    d_hi = std::max(d_hi, r->key.duty);
+    ++by_region[model::region_name(r->model_region)];
+    if (r->measured_region != r->model_region) ++labels;
+  }
+  std::string regions;
+  for (const auto& [name, n] : by_region) regions += (regions.empty() ? "" : ", ") + std::to_string(n) + " " + name;
+  s << "The model parts from the stage at " << sig.size() << " of " << eval.cells.size() << " cells, between "
+    << f_lo << " and " << f_hi << " Hz and duty " << d_lo << " to " << d_hi << " (model regions: " << regions
+    << "; " << labels << " with the wrong region label).";
+  return s.str();
+}
+
+}  // namespace idm::analysis

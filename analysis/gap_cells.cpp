@@ -1,0 +1,92 @@
+#include "analysis/gap_cells.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+namespace idm::analysis {
+
+namespace {
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+}  // namespace
+
+SweepCells collect_cells(const Dataset& ds, int min_trials) {
+  SweepCells out;
+  out.stage = ds.stage;
+  out.resolution_m = ds.stage.interferometer.resolution_m;
+  // noise: the spread of the readings while the slider rests before each burst
+  std::vector<double> rest_sd;
+  std::vector<TrialSeries> series(ds.trials.size());
+  for (std::size_t i = 0; i < ds.trials.size(); ++i) {
+    series[i] = read_trial(ds, i);
+    double sum = 0, sum2 = 0;
+    int n = 0;
+    for (std::size_t k = 0; k < series[i].size() && series[i].t_s[k] < 0; ++k) {
+      sum += series[i].x_m[k];
+      sum2 += series[i].x_m[k] * series[i].x_m[k];
+      ++n;
+    }
+    if (n >= 4) rest_sd.push_back(std::sqrt(std::max(0.0, sum2 / n - (sum / n) * (sum / n))));
+  }
+  const double quant_sd = out.resolution_m / std::sqrt(12.0);
+  out.reading_sd_m = std::max(quant_sd, rest_sd.empty() ? quant_sd : median(rest_sd));
+  const double noise_m = std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
+
+  std::vector<std::vector<std::size_t>> members;
+  for (std::size_t i = 0; i < ds.trials.size(); ++i) {
+    const TrialInfo& t = ds.trials[i];
+    const CellKey key{t.freq_hz, t.duty, t.stroke_m};
+    std::size_t c = 0;
+    while (c < out.cells.size() && !(out.cells[c].key == key)) ++c;
+    if (c == out.cells.size()) {
+      out.cells.push_back({key, t.cycles, t.sample_rate_hz, {}, {}, model::Region::Cutoff});
+      members.emplace_back();
+    }
+    members[c].push_back(i);
+  }
+  for (std::size_t c = 0; c < out.cells.size(); ++c) {
+    Cell& cell = out.cells[c];
+    if (static_cast<int>(members[c].size()) < min_trials) {
+      std::ostringstream m;
+      m << ds.path << ": the sweep is too small to diagnose: cell (" << cell.key.freq_hz << " Hz, duty "
+        << cell.key.duty << ", stroke " << cell.key.stroke_m << " m) has " << members[c].size()
+        << " trials, at least " << min_trials << " needed (some to fit, some held out)";
+      throw InputError(m.str());
+    }
+    std::vector<model::Region> votes;
+    for (std::size_t j = 0; j < members[c].size(); ++j) {
+      const std::size_t i = members[c][j];
+      TrialFeatures f = trial_features(ds.trials[i], series[i], out.resolution_m, noise_m);
+      votes.push_back(f.region);
+      (j % 2 == 0 ? cell.train : cell.test).push_back(std::move(f));
+    }
+    cell.measured_region = majority_region(votes);
+  }
+  return out;
+}
+
+TrialFeatures predict_cell(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,
+                           double guide_pos_m) {
+  model::InterferometerParams exact;
+  exact.resolution_m = 1e-12;
+  model::SimConfig quiet = sim;
+  quiet.noise_m = 0;
+  model::SimulatedStage s(stage, exact, quiet);
+  s.reset(guide_pos_m, 1);
+  const model::TriangleWave w{cell.key.freq_hz, cell.key.duty, cell.key.stroke_m, cell.cycles};
+  model::TrialSamples out;
+  const double rate = std::max(cell.sample_rate_hz, 20.0 * cell.key.freq_hz);
+  s.run_burst(w, rate, 0.0, w.period_s(), out);
+  TrialInfo info{"model", cell.key.freq_hz, cell.key.duty, cell.key.stroke_m, cell.cycles, rate, guide_pos_m, ""};
+  TrialSeries series;
+  series.t_s = std::move(out.t_s);
+  series.xi_cmd_m = std::move(out.xi_cmd_m);
+  series.x_m = std::move(out.x_m);
+  return trial_features(info, series, exact.resolution_m, 0.0);
+}
+
+}  // namespace idm::analysis

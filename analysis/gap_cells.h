@@ -1,0 +1,43 @@
+// The sweep as cells of the (frequency, duty, stroke) map: the features of every trial, a split into
+// training and held-out trials, the sensor's noise read from the data, and the same features of a
+// model's simulated burst, so that measurement and model are compared by one procedure.
+#pragma once
+
+#include <vector>
+
+#include "analysis/dataset.h"
+#include "analysis/trial_features.h"
+#include "model/simulation.h"
+
+namespace idm::analysis {
+
+struct CellKey {
+  double freq_hz = 0, duty = 0, stroke_m = 0;
+  bool operator==(const CellKey&) const = default;
+};
+
+struct Cell {
+  CellKey key;
+  int cycles = 0;
+  double sample_rate_hz = 0;
+  std::vector<TrialFeatures> train, test;  // even trials train, odd trials are held out
+  model::Region measured_region = model::Region::Cutoff;  // committee vote over all trials
+};
+
+struct SweepCells {
+  std::vector<Cell> cells;
+  double resolution_m = 0;
+  double reading_sd_m = 0;  // one position reading: noise and quantization, from the rest samples
+  model::StageFile stage;
+};
+
+// Reads every trial (each error names its file) and groups them. Throws InputError when a cell has
+// fewer than `min_trials` trials ("the sweep is too small to diagnose: ...").
+SweepCells collect_cells(const Dataset& dataset, int min_trials = 3);
+
+// What a model predicts for a cell: a burst from rest on the simulated stage (no noise), read by
+// the same feature extraction as the measurement.
+TrialFeatures predict_cell(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,
+                           double guide_pos_m = 0.0);
+
+}  // namespace idm::analysis
