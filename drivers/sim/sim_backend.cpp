@@ -1,0 +1,447 @@
+#include "drivers/sim/sim_backend.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "drivers/clock.h"
+#include "drivers/range_check.h"
+#include "model/yaml_util.h"
+
+namespace idm::drivers::sim {
+
+using model::InputError;
+using model::located;
+using model::read_bool;
+using model::read_double;
+using model::read_integer;
+using model::read_string;
+
+namespace {
+
+std::string num(double v) {
+  std::ostringstream o;
+  o.precision(9);
+  o << v;
+  return o.str();
+}
+
+model::InterferometerParams sensor_of(const SimDeviceConfig& c) {
+  // The model's sensor quantizes to one count of the codec, so the encoder's rounding of the
+  // reading is exact.
+  model::InterferometerParams p = c.interferometer.sensor;
+  p.resolution_m = c.interferometer.word.count_m();
+  return p;
+}
+
+PositionWordConfig word_of(const SimDeviceConfig& c) {
+  PositionWordConfig w = c.interferometer.word;
+  w.sample_interval_s = 1.0 / c.stream_rate_hz;
+  return w;
+}
+
+void validate(const SimDeviceConfig& c) {
+  using detail::check_range;
+  const std::string where = "daq.sim";
+  validate(c.output, where);
+  check_range(c.stream_rate_hz > 0 && c.stream_rate_hz <= 1e8, where, "stream_rate_hz",
+              c.stream_rate_hz, "(0, 1e8]");
+  check_range(c.stream_capacity >= 1 && c.stream_capacity <= (std::size_t{1} << 28), where,
+              "stream_capacity", static_cast<double>(c.stream_capacity), "[1, 268435456]");
+  check_range(c.settle_s >= 0 && c.settle_s <= 10, where, "settle_s", c.settle_s, "[0, 10]");
+  check_range(c.stop_ramp_s > 0 && c.stop_ramp_s <= 1, where, "stop_ramp_s", c.stop_ramp_s,
+              "(0, 1]");
+  check_range(std::fabs(c.start_position_m) <= 1, where, "start_position_m", c.start_position_m,
+              "[-1, 1]");
+  check_range(c.timeout_s >= 0 && c.timeout_s <= 60, where, "timeout_s", c.timeout_s, "[0, 60]");
+  check_range(c.faults.glitch_probability >= 0 && c.faults.glitch_probability <= 1, where,
+              "faults.glitch_probability", c.faults.glitch_probability, "[0, 1]");
+  check_range(c.faults.friction_scale > 0 && c.faults.friction_scale <= 100, where,
+              "faults.friction_scale", c.faults.friction_scale, "(0, 100]");
+  validate(word_of(c), "interferometer");
+}
+
+DriverStatus disconnected_error() {
+  return DriverStatus::failure(DriverError::Disconnected,
+                               "the simulated device is disconnected (injected fault; "
+                               "reconnect() restores it)");
+}
+
+}  // namespace
+
+const char* clock_mode_name(ClockMode mode) {
+  return mode == ClockMode::Synthetic ? "synthetic" : "wall";
+}
+
+SimDeviceConfig parse_sim_device_yaml(const YAML::Node& root, const std::string& file) {
+  SimDeviceConfig c;
+  const bool has_root = detail::present(root);
+  if (has_root && !root.IsMap()) throw InputError(file + ": expected a YAML map");
+  c.stage = model::parse_stage_yaml(has_root ? root : YAML::Node(YAML::NodeType::Map), file).stage;
+  c.interferometer = parse_interferometer_yaml(root, file);
+  const YAML::Node sim = detail::child(root, "sim");
+  if (detail::present(sim)) c.sim = model::parse_sim_yaml(sim, file);
+  const YAML::Node node = detail::child(detail::child(root, "daq"), "sim");
+  if (!detail::present(node)) {
+    validate(c);
+    return c;
+  }
+  if (!node.IsMap()) throw InputError(located(file, node, "daq.sim", "expected a map"));
+  const std::string s = "daq.sim";
+  for (const auto& kv : node) {
+    const std::string key = kv.first.as<std::string>();
+    const YAML::Node v = kv.second;
+    const std::string k = s + "." + key;
+    if (detail::read_output_capability(key, v, file, s, c.output)) continue;
+    if (key == "clock") {
+      const std::string m = read_string(v, file, k);
+      if (m == "synthetic") c.clock = ClockMode::Synthetic;
+      else if (m == "wall") c.clock = ClockMode::Wall;
+      else throw InputError(located(file, v, k, "unknown clock '" + m + "', allowed synthetic, wall"));
+    } else if (key == "output") {
+      const std::string m = read_string(v, file, k);
+      if (m == "samples") c.output.mode = OutputMode::BufferedSamples;
+      else if (m == "parameters") c.output.mode = OutputMode::BurstParameters;
+      else throw InputError(located(file, v, k, "unknown output '" + m + "', allowed samples, parameters"));
+    } else if (key == "stream_rate_hz") {
+      c.stream_rate_hz = read_double(v, file, k, 0, 1e8, true);
+    } else if (key == "stream_capacity") {
+      c.stream_capacity = static_cast<std::size_t>(read_integer(v, file, k, 1, 1L << 28));
+    } else if (key == "settle_s") {
+      c.settle_s = read_double(v, file, k, 0, 10);
+    } else if (key == "stop_ramp_s") {
+      c.stop_ramp_s = read_double(v, file, k, 0, 1, true);
+    } else if (key == "start_position_m") {
+      c.start_position_m = read_double(v, file, k, -1, 1);
+    } else if (key == "timeout_s") {
+      c.timeout_s = read_double(v, file, k, 0, 60);
+    } else if (key == "faults") {
+      detail::check_keys(v, file, k,
+                         {"beam_lost", "glitch_probability", "glitch_flagged", "slider_stalled",
+                          "friction_scale", "disconnected", "timeouts"});
+      for (const auto& f : v) {
+        const std::string fk = f.first.as<std::string>();
+        const std::string kk = k + "." + fk;
+        if (fk == "beam_lost") c.faults.beam_lost = read_bool(f.second, file, kk);
+        else if (fk == "glitch_probability") c.faults.glitch_probability = read_double(f.second, file, kk, 0, 1);
+        else if (fk == "glitch_flagged") c.faults.glitch_flagged = read_bool(f.second, file, kk);
+        else if (fk == "slider_stalled") c.faults.slider_stalled = read_bool(f.second, file, kk);
+        else if (fk == "friction_scale") c.faults.friction_scale = read_double(f.second, file, kk, 0, 100, true);
+        else if (fk == "disconnected") c.faults.disconnected = read_bool(f.second, file, kk);
+        else if (fk == "timeouts") c.faults.timeouts = read_bool(f.second, file, kk);
+      }
+    } else {
+      throw InputError(located(file, kv.first, k,
+                               std::string("unknown key, allowed clock, output, stream_rate_hz, "
+                                           "stream_capacity, settle_s, stop_ramp_s, "
+                                           "start_position_m, timeout_s, faults, ") +
+                                   detail::kOutputCapabilityKeys));
+    }
+  }
+  try {
+    validate(c);
+  } catch (const InputError& e) {
+    throw InputError(located(file, node, "daq.sim", e.what()));
+  }
+  return c;
+}
+
+// ---- SimBackend ----
+
+SimBackend::SimBackend(const SimDeviceConfig& config)
+    : config_((validate(config), config)),
+      stage_(config.stage, sensor_of(config), config.sim),
+      encoder_(word_of(config)),
+      base_kinetic_friction_(stage_.plant().friction().kinetic_coefficient),
+      faults_(config.faults) {
+  set_slider_stalled(faults_.slider_stalled);
+  set_friction_scale(faults_.friction_scale);
+}
+
+void SimBackend::set_glitch_probability(double probability, bool flagged) {
+  detail::check_range(probability >= 0 && probability <= 1, "sim", "glitch_probability",
+                      probability, "[0, 1]");
+  faults_.glitch_probability = probability;
+  faults_.glitch_flagged = flagged;
+}
+
+void SimBackend::set_slider_stalled(bool stalled) {
+  faults_.slider_stalled = stalled;
+  stage_.plant().set_slider_held(stalled);
+}
+
+void SimBackend::set_friction_scale(double scale) {
+  detail::check_range(scale > 0 && scale <= 100, "sim", "friction_scale", scale, "(0, 100]");
+  faults_.friction_scale = scale;
+  stage_.plant().friction().kinetic_coefficient = base_kinetic_friction_ * scale;
+}
+
+void SimBackend::disconnect() {
+  if (users_ > 0) {
+    sync();
+    abort_burst();
+  }
+  faults_.disconnected = true;
+}
+
+void SimBackend::advance_s(double dt_s) {
+  detail::check_range(dt_s >= 0 && dt_s <= 1e4, "sim", "advance_s", dt_s, "[0, 1e4]");
+  if (config_.clock != ClockMode::Synthetic)
+    throw InputError("sim: advance_s: only with the synthetic clock (the wall clock moves itself)");
+  advance_to(t_s_ + dt_s);
+}
+
+DriverStatus SimBackend::open() {
+  if (faults_.disconnected) return disconnected_error();
+  if (users_++ > 0) return DriverStatus::success();
+  stage_.reset(config_.start_position_m, config_.sim.seed);
+  stage_.plant().set_slider_held(faults_.slider_stalled);
+  fault_rng_.seed(config_.sim.seed * 0x9E3779B97F4A7C15ull + 0x5EED);
+  t_s_ = 0.0;
+  xi_cmd_m_ = 0.0;
+  epoch_s_ = monotonic_s();
+  running_ = false;
+  burst_t_s_.clear();
+  burst_xi_m_.clear();
+  burst_t_s_.reserve(config_.output.max_burst_samples);
+  burst_xi_m_.reserve(config_.output.max_burst_samples);
+  stream_.clear();
+  stream_.reserve(config_.stream_capacity);
+  stream_read_ = 0;
+  return DriverStatus::success();
+}
+
+void SimBackend::close() {
+  if (users_ > 0 && --users_ == 0) {
+    running_ = false;
+    xi_cmd_m_ = 0.0;
+  }
+}
+
+DriverStatus SimBackend::check_connected() const {
+  return faults_.disconnected ? disconnected_error() : DriverStatus::success();
+}
+
+DriverStatus SimBackend::check_timeout() {
+  if (!faults_.timeouts) return DriverStatus::success();
+  if (config_.clock == ClockMode::Wall) sleep_until_s(monotonic_s() + config_.timeout_s);
+  return DriverStatus::failure(DriverError::Timeout, "no answer from the simulated device within " +
+                                                         num(config_.timeout_s) +
+                                                         " s (injected timeout)");
+}
+
+void SimBackend::sync() {
+  if (config_.clock == ClockMode::Wall) advance_to(monotonic_s() - epoch_s_);
+}
+
+double SimBackend::command_at(double t_s) const {
+  const std::size_t n = burst_t_s_.size();
+  if (next_breakpoint_ >= n) return burst_xi_m_[n - 1];
+  const std::size_t k = next_breakpoint_;
+  const double ta = t0_s_ + burst_t_s_[k - 1], tb = t0_s_ + burst_t_s_[k];
+  const double u = tb > ta ? (t_s - ta) / (tb - ta) : 1.0;
+  return burst_xi_m_[k - 1] + (burst_xi_m_[k] - burst_xi_m_[k - 1]) * std::clamp(u, 0.0, 1.0);
+}
+
+void SimBackend::advance_to(double target_s) {
+  while (t_s_ < target_s) {
+    double t_next = target_s;
+    if (running_) {
+      if (next_breakpoint_ < burst_t_s_.size())
+        t_next = std::min(t_next, t0_s_ + burst_t_s_[next_breakpoint_]);
+      t_next = std::min(t_next, t0_s_ + static_cast<double>(next_capture_) / config_.stream_rate_hz);
+      t_next = std::min(t_next, end_s_);
+    }
+    const double xi = running_ ? command_at(t_next) : xi_cmd_m_;
+    if (t_next > t_s_) stage_.step(t_next - t_s_, xi);
+    t_s_ = t_next;
+    xi_cmd_m_ = xi;
+    if (!running_) continue;
+    while (next_breakpoint_ < burst_t_s_.size() && t0_s_ + burst_t_s_[next_breakpoint_] <= t_s_)
+      ++next_breakpoint_;
+    const double t_capture = t0_s_ + static_cast<double>(next_capture_) / config_.stream_rate_hz;
+    if (t_capture <= t_s_ && t_capture <= end_s_) {
+      capture(t_capture - t0_s_);
+      ++next_capture_;
+    }
+    if (t_s_ >= end_s_) running_ = false;
+  }
+}
+
+std::uint64_t SimBackend::make_word() {
+  std::int64_t count = encoder_.counts_from_m(stage_.measured_m());
+  std::uint64_t status = position_word::kValid;
+  if (faults_.beam_lost) status |= position_word::kMeasurementSignalLost;
+  if (faults_.glitch_probability > 0 &&
+      std::uniform_real_distribution<double>(0.0, 1.0)(fault_rng_) < faults_.glitch_probability) {
+    const std::int64_t size = std::int64_t{1} << (20 + fault_rng_() % 5);
+    count += (fault_rng_() & 1u) ? size : -size;
+    if (faults_.glitch_flagged) status |= position_word::kGlitch;
+  }
+  return encoder_.encode_count(count, status);
+}
+
+void SimBackend::capture(double t_rel_s) {
+  const std::uint64_t word = make_word();
+  if (stream_.size() < stream_.capacity()) {
+    stream_.push_back({t_rel_s, word});
+  } else {
+    ++stream_dropped_;
+    if (!stream_.empty()) stream_.back().word |= position_word::kSampleOverrun;
+  }
+}
+
+void SimBackend::abort_burst() {
+  if (!running_) return;
+  running_ = false;
+  // The output ramps from where it is to zero.
+  stage_.step(config_.stop_ramp_s, 0.0);
+  t_s_ += config_.stop_ramp_s;
+  xi_cmd_m_ = 0.0;
+}
+
+DriverStatus SimBackend::load_samples(const double* xi_m, std::size_t n, double rate_hz) {
+  if (DriverStatus s = check_connected(); !s.ok()) return s;
+  sync();
+  if (running_)
+    return DriverStatus::failure(DriverError::InvalidState, "a burst is playing; stop() it first");
+  burst_t_s_.resize(n);
+  burst_xi_m_.assign(xi_m, xi_m + n);
+  for (std::size_t k = 0; k < n; ++k) burst_t_s_[k] = static_cast<double>(k) / rate_hz;
+  return DriverStatus::success();
+}
+
+DriverStatus SimBackend::load_parameters(const model::TriangleWave& wave) {
+  if (DriverStatus s = check_connected(); !s.ok()) return s;
+  sync();
+  if (running_)
+    return DriverStatus::failure(DriverError::InvalidState, "a burst is playing; stop() it first");
+  burst_t_s_.clear();
+  burst_xi_m_.clear();
+  burst_t_s_.push_back(0.0);
+  burst_xi_m_.push_back(0.0);
+  for (double t : wave.corner_times_s()) {
+    if (t <= burst_t_s_.back()) continue;
+    burst_t_s_.push_back(t);
+    burst_xi_m_.push_back(wave.xi_m(t));
+  }
+  // The corner at the burst's end: the command is back at 0.
+  burst_xi_m_.back() = 0.0;
+  if (burst_t_s_.size() < 2) {
+    burst_t_s_.push_back(0.0);
+    burst_xi_m_.push_back(0.0);
+  }
+  return DriverStatus::success();
+}
+
+DriverStatus SimBackend::start() {
+  if (DriverStatus s = check_connected(); !s.ok()) return s;
+  sync();
+  if (running_)
+    return DriverStatus::failure(DriverError::InvalidState, "a burst is playing; stop() it first");
+  if (burst_t_s_.size() < 2)
+    return DriverStatus::failure(DriverError::InvalidState, "no burst loaded (write_burst first)");
+  stream_.clear();
+  stream_read_ = 0;
+  stream_dropped_ = 0;
+  running_ = true;
+  t0_s_ = t_s_;
+  end_s_ = t0_s_ + burst_t_s_.back() + config_.settle_s;
+  next_breakpoint_ = 1;
+  capture(0.0);
+  next_capture_ = 1;
+  if (config_.clock == ClockMode::Synthetic) advance_to(end_s_);
+  return DriverStatus::success();
+}
+
+DriverStatus SimBackend::stop() {
+  if (DriverStatus s = check_connected(); !s.ok()) return s;
+  sync();
+  abort_burst();
+  return DriverStatus::success();
+}
+
+DriverStatus SimBackend::is_done(bool& done) {
+  if (DriverStatus s = check_connected(); !s.ok()) return s;
+  sync();
+  done = !running_;
+  return DriverStatus::success();
+}
+
+DriverStatus SimBackend::wait_done(double timeout_s) {
+  if (DriverStatus s = check_connected(); !s.ok()) return s;
+  sync();
+  if (!running_) return DriverStatus::success();
+  // Only the wall clock can be running here: sleep to the burst's end (or the deadline).
+  const double now = monotonic_s();
+  const double end_wall = epoch_s_ + end_s_;
+  sleep_until_s(std::min(end_wall, now + timeout_s));
+  sync();
+  if (running_)
+    return DriverStatus::failure(DriverError::Timeout,
+                                 "the burst is not done after " + num(timeout_s) + " s (it ends " +
+                                     num(end_s_ - t_s_) + " s later)");
+  return DriverStatus::success();
+}
+
+DriverStatus SimBackend::latch(std::uint64_t& word) {
+  if (DriverStatus s = check_connected(); !s.ok()) return s;
+  if (DriverStatus s = check_timeout(); !s.ok()) return s;
+  sync();
+  word = make_word();
+  return DriverStatus::success();
+}
+
+DriverStatus SimBackend::read_stream(TimedWord* out, std::size_t capacity, std::size_t& n) {
+  n = 0;
+  if (DriverStatus s = check_connected(); !s.ok()) return s;
+  if (DriverStatus s = check_timeout(); !s.ok()) return s;
+  sync();
+  n = std::min(capacity, stream_.size() - stream_read_);
+  std::copy_n(stream_.begin() + static_cast<std::ptrdiff_t>(stream_read_), n, out);
+  stream_read_ += n;
+  if (stream_read_ == stream_.size() && !running_) {
+    stream_.clear();
+    stream_read_ = 0;
+  }
+  return DriverStatus::success();
+}
+
+// ---- the two interfaces ----
+
+SimOutput::SimOutput(std::shared_ptr<SimBackend> backend)
+    : WaveformOutput(std::string("sim waveform output (") + clock_mode_name(backend->config().clock) +
+                     " clock)"),
+      backend_(std::move(backend)) {}
+
+DriverStatus SimOutput::on_shutdown() {
+  backend_->close();
+  return DriverStatus::success();
+}
+
+SimInterferometer::SimInterferometer(std::shared_ptr<SimBackend> backend)
+    : Interferometer("sim interferometer"), backend_(std::move(backend)) {
+  caps_.word = word_of(backend_->config());
+  caps_.stream_rate_hz = backend_->config().stream_rate_hz;
+  caps_.stream_capacity = backend_->config().stream_capacity;
+}
+
+DriverStatus SimInterferometer::on_shutdown() {
+  backend_->close();
+  return DriverStatus::success();
+}
+
+Device make_sim_device(const SimDeviceConfig& config) {
+  Device d;
+  d.driver = "sim";
+  d.sim = std::make_shared<SimBackend>(config);
+  d.output = std::make_unique<SimOutput>(d.sim);
+  d.interferometer = std::make_unique<SimInterferometer>(d.sim);
+  return d;
+}
+
+Device make_sim_device(const YAML::Node& root, const std::string& file) {
+  return make_sim_device(parse_sim_device_yaml(root, file));
+}
+
+}  // namespace idm::drivers::sim
