@@ -6,14 +6,6 @@
 
 namespace idm::analysis {
 
-namespace {
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
-}  // namespace
-
 SweepCells collect_cells(const Dataset& ds, int min_trials) {
   SweepCells out;
   out.stage = ds.stage;

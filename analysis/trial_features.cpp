@@ -15,7 +15,6 @@ double position_at(const TrialSeries& s, double t) {
   return s.x_m[i - 1] + w * (s.x_m[i] - s.x_m[i - 1]);
 }
 
-namespace {
 double median(std::vector<double> v) {
   if (v.empty()) return 0;
   const std::size_t n = v.size() / 2;
@@ -25,7 +24,6 @@ double median(std::vector<double> v) {
   std::nth_element(v.begin(), v.begin() + n - 1, v.end());
   return 0.5 * (hi + v[n - 1]);
 }
-}  // namespace
 
 TrialFeatures trial_features(const TrialInfo& info, const TrialSeries& s, double resolution_m,
                              double noise_m) {

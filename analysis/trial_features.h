@@ -31,6 +31,9 @@ struct TrialFeatures {
 TrialFeatures trial_features(const TrialInfo& info, const TrialSeries& series, double resolution_m,
                              double noise_m);
 
+// The median (the mean of the middle two for an even count); 0 for none.
+double median(std::vector<double> values);
+
 // The position at time t by linear interpolation between the samples around it.
 double position_at(const TrialSeries& series, double t_s);
 

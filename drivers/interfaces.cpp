@@ -1,4 +1,5 @@
 #include "drivers/interfaces.h"
+#include "model/yaml_util.h"
 
 #include <algorithm>
 #include <cmath>
@@ -11,12 +12,6 @@
 namespace idm::drivers {
 
 namespace {
-std::string num(double v) {
-  std::ostringstream o;
-  o.precision(9);
-  o << v;
-  return o.str();
-}
 DriverStatus invalid(std::string message) {
   return DriverStatus::failure(DriverError::InvalidArgument, std::move(message));
 }
@@ -175,19 +170,19 @@ DriverStatus WaveformOutput::write_burst(const double* xi_m, std::size_t n, doub
     return tagged(call, invalid(std::to_string(n) + " samples, allowed [2, " +
                                 std::to_string(c.max_burst_samples) + "]"));
   if (!(std::isfinite(rate_hz) && rate_hz > 0 && rate_hz <= c.max_sample_rate_hz))
-    return tagged(call, invalid("sample_rate_hz " + num(rate_hz) + " is out of range, allowed (0, " +
-                                num(c.max_sample_rate_hz) + "]"));
+    return tagged(call, invalid("sample_rate_hz " + model::format_number(rate_hz) + " is out of range, allowed (0, " +
+                                model::format_number(c.max_sample_rate_hz) + "]"));
   const double lo = c.min_elongation_m(), hi = c.max_elongation_m(), lsb = c.lsb_m();
   for (std::size_t k = 0; k < n; ++k) {
     if (!std::isfinite(xi_m[k]) || xi_m[k] < lo - 1e-3 * lsb || xi_m[k] > hi + 1e-3 * lsb)
-      return tagged(call, invalid("sample " + std::to_string(k) + ": " + num(xi_m[k]) +
-                                  " m is outside the output range [" + num(lo) + ", " + num(hi) +
-                                  "] m (" + num(c.min_voltage_v) + " .. " + num(c.max_voltage_v) +
-                                  " V at " + num(c.volts_per_m) + " V/m)"));
+      return tagged(call, invalid("sample " + std::to_string(k) + ": " + model::format_number(xi_m[k]) +
+                                  " m is outside the output range [" + model::format_number(lo) + ", " + model::format_number(hi) +
+                                  "] m (" + model::format_number(c.min_voltage_v) + " .. " + model::format_number(c.max_voltage_v) +
+                                  " V at " + model::format_number(c.volts_per_m) + " V/m)"));
   }
   if (std::fabs(xi_m[0]) > lsb || std::fabs(xi_m[n - 1]) > lsb)
-    return tagged(call, invalid("the burst must start and end at 0 (first " + num(xi_m[0]) +
-                                " m, last " + num(xi_m[n - 1]) + " m, one DAC step " + num(lsb) +
+    return tagged(call, invalid("the burst must start and end at 0 (first " + model::format_number(xi_m[0]) +
+                                " m, last " + model::format_number(xi_m[n - 1]) + " m, one DAC step " + model::format_number(lsb) +
                                 " m)"));
   return tagged(call, do_write_burst(xi_m, n, rate_hz));
 }
@@ -206,16 +201,16 @@ DriverStatus WaveformOutput::write_burst_parameters(const model::TriangleWave& w
     return tagged(call, invalid(e.what()));
   }
   if (wave.freq_hz > c.max_freq_hz)
-    return tagged(call, invalid("freq_hz " + num(wave.freq_hz) + " is out of range, allowed (0, " +
-                                num(c.max_freq_hz) + "]"));
+    return tagged(call, invalid("freq_hz " + model::format_number(wave.freq_hz) + " is out of range, allowed (0, " +
+                                model::format_number(c.max_freq_hz) + "]"));
   if (wave.cycles < 1 || static_cast<std::uint64_t>(wave.cycles) > c.max_cycles)
     return tagged(call, invalid("cycles " + std::to_string(wave.cycles) +
                                 " is out of range, allowed [1, " + std::to_string(c.max_cycles) +
                                 "]"));
   if (wave.stroke_m > c.max_elongation_m() * (1 + 1e-12))
-    return tagged(call, invalid("stroke_m " + num(wave.stroke_m) +
+    return tagged(call, invalid("stroke_m " + model::format_number(wave.stroke_m) +
                                 " is outside the output range, allowed (0, " +
-                                num(c.max_elongation_m()) + "]"));
+                                model::format_number(c.max_elongation_m()) + "]"));
   return tagged(call, do_write_burst_parameters(wave));
 }
 
@@ -237,7 +232,7 @@ DriverStatus WaveformOutput::is_done(bool& done) {
 DriverStatus WaveformOutput::wait_done(double timeout_s) {
   if (DriverStatus s = require_state("wait_done", true); !s.ok()) return s;
   if (!(std::isfinite(timeout_s) && timeout_s >= 0))
-    return tagged("wait_done", invalid("timeout_s " + num(timeout_s) + " must be finite and >= 0"));
+    return tagged("wait_done", invalid("timeout_s " + model::format_number(timeout_s) + " must be finite and >= 0"));
   return tagged("wait_done", do_wait_done(timeout_s));
 }
 
@@ -250,7 +245,7 @@ DriverStatus WaveformOutput::do_wait_done(double timeout_s) {
     const double now = monotonic_s();
     if (now >= deadline)
       return DriverStatus::failure(DriverError::Timeout,
-                                   "the burst is not done after " + num(timeout_s) + " s");
+                                   "the burst is not done after " + model::format_number(timeout_s) + " s");
     sleep_until_s(std::min(now + poll_interval_s(), deadline));
   }
 }

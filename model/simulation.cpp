@@ -65,12 +65,6 @@ std::string known_effects() {
   for (const EffectInfo& e : effect_library()) out += (out.empty() ? "" : ", ") + std::string(e.name);
   return out;
 }
-std::string fmt(double v) {
-  std::ostringstream o;
-  o.precision(9);
-  o << v;
-  return o.str();
-}
 }  // namespace
 
 EffectSpec complete_effect(const EffectSpec& spec, const std::string& where) {
@@ -88,10 +82,10 @@ EffectSpec complete_effect(const EffectSpec& spec, const std::string& where) {
       throw InputError(where + ": " + spec.name + "." + key + ": unknown parameter, allowed " + allowed);
     }
     if (!std::isfinite(value) || value < p->lo || value > p->hi)
-      throw InputError(where + ": " + spec.name + "." + key + ": " + fmt(value) +
-                       " is out of range, allowed [" + fmt(p->lo) + ", " + fmt(p->hi) + "]");
+      throw InputError(where + ": " + spec.name + "." + key + ": " + model::format_number(value) +
+                       " is out of range, allowed [" + model::format_number(p->lo) + ", " + model::format_number(p->hi) + "]");
     if ((key == "order" || key == "bits") && value != std::floor(value))
-      throw InputError(where + ": " + spec.name + "." + key + ": " + fmt(value) + " must be an integer");
+      throw InputError(where + ": " + spec.name + "." + key + ": " + model::format_number(value) + " must be an integer");
     out.params[key] = value;
   }
   for (const EffectParamInfo& q : info->params)

@@ -7,6 +7,9 @@
 
 namespace idm::model {
 
+// A number as error messages print it: up to 9 significant digits ("0.05", "1e-05", "-3").
+std::string format_number(double value);
+
 // "FILE:LINE: KEY: MESSAGE" (LINE 1-based, omitted when the node has no mark).
 std::string located(const std::string& file, const YAML::Node& node, const std::string& key,
                     const std::string& message);

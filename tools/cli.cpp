@@ -1,4 +1,5 @@
 #include "tools/cli.h"
+#include "model/yaml_util.h"
 
 #include <cmath>
 #include <cstdio>
@@ -8,15 +9,6 @@
 namespace idm::tools {
 
 using model::InputError;
-
-namespace {
-std::string fmt(double v) {
-  std::ostringstream o;
-  o.precision(9);
-  o << v;
-  return o.str();
-}
-}  // namespace
 
 Flags::Flags(int argc, char** argv, int first, const std::vector<std::string>& known,
              const std::vector<std::string>& repeatable) {
@@ -60,7 +52,7 @@ std::vector<std::string> Flags::all(const std::string& name) const {
 double Flags::number(const std::string& name, double lo, double hi) const {
   const double v = parse_number(text(name), "--" + name);
   if (v < lo || v > hi)
-    throw InputError("--" + name + ": " + fmt(v) + " is out of range, allowed [" + fmt(lo) + ", " + fmt(hi) + "]");
+    throw InputError("--" + name + ": " + model::format_number(v) + " is out of range, allowed [" + model::format_number(lo) + ", " + model::format_number(hi) + "]");
   return v;
 }
 
@@ -70,7 +62,7 @@ double Flags::number_or(const std::string& name, double fallback, double lo, dou
 
 long Flags::integer(const std::string& name, long lo, long hi) const {
   const double v = number(name, static_cast<double>(lo), static_cast<double>(hi));
-  if (v != std::floor(v)) throw InputError("--" + name + ": " + fmt(v) + " is not an integer");
+  if (v != std::floor(v)) throw InputError("--" + name + ": " + model::format_number(v) + " is not an integer");
   return static_cast<long>(v);
 }
 

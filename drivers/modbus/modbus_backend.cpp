@@ -16,12 +16,6 @@ using model::located;
 
 namespace {
 
-std::string num(double v) {
-  std::ostringstream o;
-  o.precision(9);
-  o << v;
-  return o.str();
-}
 
 std::string hex16(std::uint16_t v) {
   std::ostringstream o;
@@ -118,7 +112,7 @@ DriverStatus ModbusLink::connect() {
     if (e == ETIMEDOUT || e == EINPROGRESS)
       return DriverStatus::failure(DriverError::Timeout, "cannot connect to " + endpoint_ +
                                                              ": no answer within " +
-                                                             num(config_.timeout_s) + " s");
+                                                             model::format_number(config_.timeout_s) + " s");
     return DriverStatus::failure(DriverError::NoDevice,
                                  "cannot connect to " + endpoint_ + ": " + modbus_strerror(e));
   }
@@ -139,7 +133,7 @@ DriverStatus ModbusLink::failure(const std::string& what, int e) {
   drop();  // the stream of requests and answers can no longer be trusted
   if (e == ETIMEDOUT)
     return DriverStatus::failure(DriverError::Timeout,
-                                 where + "no answer within " + num(config_.timeout_s) + " s");
+                                 where + "no answer within " + model::format_number(config_.timeout_s) + " s");
   if (e >= EMBBADCRC && e <= EMBBADSLAVE)
     return DriverStatus::failure(DriverError::ProtocolError,
                                  where + "malformed answer: " + modbus_strerror(e));
@@ -238,10 +232,10 @@ DriverStatus ModbusOutput::do_write_burst_parameters(const model::TriangleWave& 
     std::uint16_t regs[2] = {0, 0};
     if (!encode_value(f.field, f.value, m.word_order, regs))
       return DriverStatus::failure(DriverError::InvalidArgument,
-                                   std::string(f.name) + " " + num(f.value) +
+                                   std::string(f.name) + " " + model::format_number(f.value) +
                                        " does not fit register format " +
                                        value_format_name(f.field.format) + " at scale " +
-                                       num(f.field.scale));
+                                       model::format_number(f.field.scale));
   }
   for (const auto& f : fields) {
     std::uint16_t regs[2] = {0, 0};
@@ -299,7 +293,7 @@ DriverStatus ModbusInterferometer::on_configure() {
     const double rate = decode_value(m.capture_rate_hz, m.word_order, regs);
     if (!(std::isfinite(rate) && rate > 0 && rate <= 1e8)) {
       s = DriverStatus::failure(DriverError::ProtocolError,
-                                link_->endpoint() + ": capture_rate_hz register reads " + num(rate) +
+                                link_->endpoint() + ": capture_rate_hz register reads " + model::format_number(rate) +
                                     ", allowed (0, 1e8]");
     } else {
       caps_.stream_rate_hz = rate;

@@ -19,12 +19,6 @@ using model::read_string;
 
 namespace {
 
-std::string num(double v) {
-  std::ostringstream o;
-  o.precision(9);
-  o << v;
-  return o.str();
-}
 
 model::InterferometerParams sensor_of(const SimDeviceConfig& c) {
   // The model's sensor quantizes to one count of the codec, so the encoder's rounding of the
@@ -226,7 +220,7 @@ DriverStatus SimBackend::check_timeout() {
   if (!faults_.timeouts) return DriverStatus::success();
   if (config_.clock == ClockMode::Wall) sleep_until_s(monotonic_s() + config_.timeout_s);
   return DriverStatus::failure(DriverError::Timeout, "no answer from the simulated device within " +
-                                                         num(config_.timeout_s) +
+                                                         model::format_number(config_.timeout_s) +
                                                          " s (injected timeout)");
 }
 
@@ -379,8 +373,8 @@ DriverStatus SimBackend::wait_done(double timeout_s) {
   sync();
   if (running_)
     return DriverStatus::failure(DriverError::Timeout,
-                                 "the burst is not done after " + num(timeout_s) + " s (it ends " +
-                                     num(end_s_ - t_s_) + " s later)");
+                                 "the burst is not done after " + model::format_number(timeout_s) + " s (it ends " +
+                                     model::format_number(end_s_ - t_s_) + " s later)");
   return DriverStatus::success();
 }
 

@@ -14,12 +14,6 @@ using model::located;
 
 namespace {
 
-std::string num(double v) {
-  std::ostringstream o;
-  o.precision(9);
-  o << v;
-  return o.str();
-}
 
 std::string fault_names(std::uint16_t flags) {
   static constexpr const char* kNames[] = {"underrun",      "position_overflow", "crc_error",
@@ -123,7 +117,7 @@ DriverStatus UsbOutput::on_shutdown() {
 DriverStatus UsbOutput::do_write_burst(const double* xi_m, std::size_t n, double rate_hz) {
   if (std::fabs(rate_hz - std::round(rate_hz)) > 1e-9 * rate_hz)
     return DriverStatus::failure(DriverError::InvalidArgument,
-                                 "the bridge's DAC clock takes whole hertz, not " + num(rate_hz));
+                                 "the bridge's DAC clock takes whole hertz, not " + model::format_number(rate_hz));
   codes_.resize(n);
   for (std::size_t k = 0; k < n; ++k) codes_[k] = dac_code(xi_m[k], caps_);
   rate_hz_ = rate_hz;
@@ -185,7 +179,7 @@ DriverStatus UsbInterferometer::on_configure() {
                                   std::to_string(static_cast<unsigned>(caps_.word.width)));
   else if (caps_.stream_rate_hz > info.max_position_rate_hz)
     s = DriverStatus::failure(DriverError::InvalidArgument,
-                              "daq.usb.position_rate_hz " + num(caps_.stream_rate_hz) +
+                              "daq.usb.position_rate_hz " + model::format_number(caps_.stream_rate_hz) +
                                   " exceeds the bridge's " +
                                   std::to_string(info.max_position_rate_hz) + " Hz");
   if (!s.ok()) shared_->close();
