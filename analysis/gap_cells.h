@@ -5,7 +5,7 @@
 
 #include <vector>
 
-#include "analysis/dataset.h"
+#include "recording/dataset.h"
 #include "analysis/trial_features.h"
 #include "model/simulation.h"
 

@@ -3,7 +3,7 @@
 #include <random>
 #include <sstream>
 
-#include "analysis/dataset.h"
+#include "recording/dataset.h"
 #include "model/waveform.h"
 
 namespace idm::analysis {
@@ -41,12 +41,12 @@ std::size_t run_simulated_sweep(const model::StageFile& stage, const model::SimC
       plan.strokes_m.empty() ? std::vector<double>{stage.stage.stroke_m} : plan.strokes_m;
   model::StageFile written = stage;
   written.interferometer.noise_m = sim.noise_m;
-  DatasetWriter writer(out_dir, written);
+  recording::DatasetWriter writer(out_dir, written);
   model::SimulatedStage sim_stage(stage.stage, stage.interferometer, sim);
   std::mt19937_64 rng(plan.seed);
   std::uniform_real_distribution<double> guide(0.0, plan.guide_length_m);
   std::size_t count = 0;
-  TrialSeries series;
+  recording::TrialSeries series;
   model::TrialSamples samples;
   for (double stroke : strokes)
     for (double f : plan.freqs_hz)
@@ -63,7 +63,7 @@ std::size_t run_simulated_sweep(const model::StageFile& stage, const model::SimC
           series.t_s.swap(samples.t_s);
           series.xi_cmd_m.swap(samples.xi_cmd_m);
           series.x_m.swap(samples.x_m);
-          TrialInfo info;
+          recording::TrialInfo info;
           info.freq_hz = f;
           info.duty = duty;
           info.stroke_m = stroke;

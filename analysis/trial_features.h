@@ -8,10 +8,16 @@
 #include <string>
 #include <vector>
 
-#include "analysis/dataset.h"
+#include "recording/dataset.h"
 #include "model/impulse_model.h"
 
 namespace idm::analysis {
+
+// The dataset format lives one layer down (recording/), shared with the daemon's recorder.
+using recording::Dataset;
+using recording::TrialInfo;
+using recording::TrialSeries;
+using model::InputError;
 
 struct TrialFeatures {
   std::vector<double> cycle_end_m;  // x(kT) - x(0), k = 1..N (last sample at or before kT)

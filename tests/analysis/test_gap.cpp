@@ -32,7 +32,7 @@ TEST(Gap, IdealStageIsWithinTheNoiseOfTheBaseline) {
   model::SimConfig sim;
   sim.noise_m = 2e-9;
   const std::string dir = make_sweep("gap_ideal", sim);
-  const SweepCells cells = collect_cells(read_dataset(dir));
+  const SweepCells cells = collect_cells(recording::read_dataset(dir));
   EXPECT_NEAR(cells.reading_sd_m, std::sqrt(4e-18 + 9.8906e-9 * 9.8906e-9 / 12), 1.5e-9);
   const GapEvaluation base = baseline_gap(cells);
   EXPECT_NEAR(base.step_scale, 1.0, 0.01);
@@ -41,7 +41,7 @@ TEST(Gap, IdealStageIsWithinTheNoiseOfTheBaseline) {
 }
 
 TEST(Gap, AmplifierSampleSweepPartsFromTheBaselineAtHighFrequency) {
-  const SweepCells cells = collect_cells(read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier"));
+  const SweepCells cells = collect_cells(recording::read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier"));
   ASSERT_EQ(cells.cells.size(), 160u);
   const GapEvaluation base = baseline_gap(cells);
   EXPECT_GT(base.gap, 3.0);
@@ -62,7 +62,7 @@ TEST(Gap, TooSmallASweepSaysSo) {
   plan.cycles = 4;
   run_simulated_sweep(model::StageFile{}, sim, plan, dir.string());
   try {
-    collect_cells(read_dataset(dir.string()));
+    collect_cells(recording::read_dataset(dir.string()));
     ADD_FAILURE() << "no error";
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("too small to diagnose"), std::string::npos) << e.what();

@@ -90,7 +90,7 @@ TEST(TrialFeatures, MajorityVote) {
 // The sample sweep from another simulator (amplifier at 3.5 kHz): at 100 Hz the stage follows the
 // impulse model; the features read it whatever its time grid.
 TEST(TrialFeatures, SampleSweepAtLowFrequencyFollowsTheModel) {
-  const Dataset ds = read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier");
+  const Dataset ds = recording::read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier");
   const model::StageParams& s = ds.stage.stage;
   int checked = 0;
   for (std::size_t i = 0; i < ds.trials.size(); ++i) {

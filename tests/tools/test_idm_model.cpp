@@ -12,7 +12,7 @@
 #include <sstream>
 #include <string>
 
-#include "analysis/dataset.h"
+#include "recording/dataset.h"
 #include "model/impulse_model.h"
 
 namespace {
@@ -75,16 +75,16 @@ TEST(IdmModel, SweepIsAReadableDataset) {
   const Result r = run("sweep --plant mck --effect amplifier:cutoff_hz=3000 --freq 100,400 --duty 0.1,0.9 "
                        "--trials 2 --cycles 4 --sample-rate 20000 --seed 3 --noise 2e-9 --out " + dir.string());
   ASSERT_EQ(r.status, 0) << r.out;
-  const auto ds = idm::analysis::read_dataset(dir.string());
+  const auto ds = idm::recording::read_dataset(dir.string());
   ASSERT_EQ(ds.trials.size(), 8u);
-  const auto t = idm::analysis::read_trial(ds, 0);
+  const auto t = idm::recording::read_trial(ds, 0);
   EXPECT_EQ(t.t_s.front() < 0, true);
   EXPECT_DOUBLE_EQ(ds.trials[0].guide_pos_m, t.x_m.front());
   // a second sweep into the same directory is refused, the first left as it was
   const Result again = run("sweep --freq 100 --duty 0.1 --trials 1 --cycles 1 --sample-rate 20000 --seed 1 --out " + dir.string());
   EXPECT_EQ(again.status, 2);
   EXPECT_NE(again.out.find("already holds a sweep"), std::string::npos);
-  EXPECT_EQ(idm::analysis::read_dataset(dir.string()).trials.size(), 8u);
+  EXPECT_EQ(idm::recording::read_dataset(dir.string()).trials.size(), 8u);
   std::filesystem::remove_all(dir);
 }
 

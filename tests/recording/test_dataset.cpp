@@ -12,9 +12,9 @@
 #include <sstream>
 #include <system_error>
 
-#include "analysis/dataset.h"
+#include "recording/dataset.h"
 
-using namespace idm::analysis;
+using namespace idm::recording;
 namespace fs = std::filesystem;
 
 namespace {

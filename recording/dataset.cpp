@@ -1,4 +1,4 @@
-#include "analysis/dataset.h"
+#include "recording/dataset.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -22,7 +22,7 @@
 #include <unordered_map>
 #include <utility>
 
-namespace idm::analysis {
+namespace idm::recording {
 
 namespace fs = std::filesystem;
 
@@ -670,4 +670,4 @@ const TrialInfo& DatasetWriter::add_trial(TrialInfo info, const TrialSeries& ser
   return dataset_.trials.back();
 }
 
-}  // namespace idm::analysis
+}  // namespace idm::recording

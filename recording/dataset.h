@@ -16,7 +16,7 @@
 
 #include "model/stage.h"
 
-namespace idm::analysis {
+namespace idm::recording {
 
 using model::InputError;
 
@@ -101,4 +101,4 @@ class DatasetWriter {
   std::unordered_set<std::string> files_;  // their files, lexically normalized
 };
 
-}  // namespace idm::analysis
+}  // namespace idm::recording
