@@ -1,0 +1,110 @@
+// What the command server asks of the daemon: one typed call per protocol command
+// (../shared/specs/command-protocol.md). The protocol layer (protocol.h: parsing, short forms,
+// error queue, reply formatting) and the socket server (server.h) call it; the daemon core
+// (daemon.h) implements it on top of the real-time loop.
+//
+// CONTRACT between the protocol/server side and the daemon core: extend it, do not change what
+// is here without changing both sides.
+//
+// Threading: called from the server thread only (one call at a time). Implementations never block
+// on motion: a move is queued to the real-time loop and the call returns; queries read the latest
+// published status. A call that fails returns a CommandError; the protocol layer puts it in the
+// client's error queue.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace idm::daemon {
+
+// SCPI-style codes: negative are the standard ones, positive are the device's own.
+namespace error_code {
+inline constexpr int kNoError = 0;
+inline constexpr int kCommandError = -100;
+inline constexpr int kInvalidCharacter = -101;
+inline constexpr int kSyntaxError = -102;
+inline constexpr int kParameterNotAllowed = -108;  // too many arguments
+inline constexpr int kMissingParameter = -109;     // too few arguments
+inline constexpr int kUndefinedHeader = -113;
+inline constexpr int kNumericDataError = -120;     // not a number, not finite
+inline constexpr int kExecutionError = -200;
+inline constexpr int kSettingsConflict = -221;     // e.g. a move while in FAULT or busy
+inline constexpr int kDataOutOfRange = -222;       // e.g. a target past the soft limits
+inline constexpr int kHardwareError = -240;
+inline constexpr int kQueueOverflow = -350;
+inline constexpr int kInputBufferOverrun = -363;   // a line longer than the limit
+// Device faults (positive): the positioner's MotionFault reported as an error.
+inline constexpr int kFaultInvalidSample = 101;
+inline constexpr int kFaultStall = 102;
+inline constexpr int kFaultRetryLimit = 103;
+inline constexpr int kFaultDriver = 104;
+inline constexpr int kFaultNoPlan = 105;
+inline constexpr int kSweepFailed = 110;
+}  // namespace error_code
+
+struct CommandError {
+  int code = error_code::kNoError;
+  std::string text;  // without quotes; the protocol layer quotes it
+  bool ok() const { return code == error_code::kNoError; }
+};
+
+// A plain snapshot for STATus? and friends.
+struct InstrumentStatus {
+  std::string state;      // "IDLE", "MOVING", "SETTLING", "FAULT"
+  bool position_valid = false;
+  double position_m = 0;
+  double target_m = 0;
+  std::string fault;      // "none", "invalid_sample", "stall", ...
+  bool motion_done = true;
+  double soft_lower_m = 0;
+  double soft_upper_m = 0;
+  std::uint64_t moves = 0;
+  std::uint64_t bursts = 0;
+  std::uint64_t cycles = 0;
+};
+
+// The real-time loop's timing, for the loop-statistics queries.
+struct LoopStats {
+  double period_s = 0;
+  std::uint64_t wakeups = 0;
+  std::uint64_t deadline_misses = 0;
+  double latency_min_s = 0, latency_avg_s = 0, latency_max_s = 0;
+  // Wake-up latency histogram: counts of [k, k+1) * bin_width_s; the last bin holds the rest.
+  double bin_width_s = 0;
+  std::uint64_t bins[32] = {};
+};
+
+class Instrument {
+ public:
+  virtual ~Instrument() = default;
+
+  // *IDN? fields: maker, model ("idmd"), serial (or "0"), version.
+  virtual std::string identity() = 0;
+  // *RST: stop motion, clear the fault, reload control settings.
+  virtual CommandError reset() = 0;
+  // *OPC? and MOVE:DONE?: every motion started before has finished.
+  virtual bool motion_done() = 0;
+  virtual InstrumentStatus status() = 0;
+
+  virtual CommandError move_absolute(double target_m) = 0;
+  virtual CommandError move_relative(double distance_m) = 0;
+  // STEP n[,duty,freq_hz[,stroke_m]]; duty/freq/stroke 0 = the daemon's choice.
+  virtual CommandError step(std::int64_t cycles, double duty, double freq_hz, double stroke_m) = 0;
+  virtual CommandError stop() = 0;
+
+  virtual CommandError set_soft_limits(double lower_m, double upper_m) = 0;
+
+  // REGion? f,duty[,stroke]: region name ("CUTOFF", "ONESTEP", "MULTISTEP") and predicted step.
+  virtual CommandError region(double freq_hz, double duty, double stroke_m, std::string& region,
+                              double& step_m) = 0;
+
+  // SWEEP dir,freqs,duties,trials[,cycles]: starts the characterization sweep in the background
+  // (motion_done() is false until it ends); errors of the arguments are returned at once.
+  virtual CommandError sweep(const std::string& dir, const std::vector<double>& freqs_hz,
+                             const std::vector<double>& duties, int trials, int cycles) = 0;
+
+  virtual LoopStats loop_stats() = 0;
+};
+
+}  // namespace idm::daemon
