@@ -423,6 +423,10 @@ ControlSetup control_setup(Request request, std::uint16_t interface_number) {
       s.request_type = kRequestTypeIn;
       s.length = kInfoBytes;
       break;
+    case Request::Latch:
+      s.request_type = kRequestTypeIn;
+      s.length = kLatchBytes;
+      break;
   }
   return s;
 }
@@ -517,6 +521,20 @@ CodecStatus decode_info(std::span<const std::uint8_t> bytes, BridgeInfo& out) {
   status = check_info(i);
   if (!status.ok()) return status;
   out = i;
+  return {};
+}
+
+CodecStatus encode_latch(const PositionRecord& r, std::vector<std::uint8_t>& out) {
+  put_u64(out, r.timestamp_ticks);
+  put_u64(out, r.position_word);
+  return {};
+}
+
+CodecStatus decode_latch(std::span<const std::uint8_t> bytes, PositionRecord& out) {
+  CodecStatus status = check_length(bytes, kLatchBytes, "LATCH");
+  if (!status.ok()) return status;
+  out.timestamp_ticks = get_u64(bytes, 0);
+  out.position_word = get_u64(bytes, 8);
   return {};
 }
 

@@ -153,6 +153,7 @@ enum class Request : std::uint8_t {
   Configure = 0x03,  // OUT, 20 bytes: BridgeConfig
   GetStatus = 0x04,  // IN, 28 bytes: BridgeStatus
   GetInfo = 0x05,    // IN, 20 bytes: BridgeInfo
+  Latch = 0x06,      // IN, 16 bytes: one position record latched now (LatchReply)
 };
 
 // The setup packet fields of a request (wValue 0, wIndex = interface number, wLength = the
@@ -169,6 +170,7 @@ ControlSetup control_setup(Request request, std::uint16_t interface_number = 0);
 inline constexpr std::size_t kConfigureBytes = 20;
 inline constexpr std::size_t kStatusBytes = 28;
 inline constexpr std::size_t kInfoBytes = 20;
+inline constexpr std::size_t kLatchBytes = 16;
 
 struct BridgeConfig {
   std::uint32_t dac_sample_rate_hz = 100000;      // >= 1
@@ -218,5 +220,9 @@ CodecStatus encode_info(const BridgeInfo& info, std::vector<std::uint8_t>& out);
 CodecStatus decode_config(std::span<const std::uint8_t> bytes, BridgeConfig& out);
 CodecStatus decode_status(std::span<const std::uint8_t> bytes, BridgeStatus& out);
 CodecStatus decode_info(std::span<const std::uint8_t> bytes, BridgeInfo& out);
+// LATCH: the position record the bridge latched when it received the request (the same 16 bytes
+// as a record in a position packet: u64 device ticks, u64 raw position word).
+CodecStatus encode_latch(const PositionRecord& record, std::vector<std::uint8_t>& out);
+CodecStatus decode_latch(std::span<const std::uint8_t> bytes, PositionRecord& out);
 
 }  // namespace idm::drivers::usb

@@ -310,6 +310,26 @@ DriverStatus UsbTransport::get_info(BridgeInfo& info) {
   return DriverStatus::success();
 }
 
+DriverStatus UsbTransport::latch(PositionRecord& record) {
+  std::vector<std::uint8_t> bytes(kLatchBytes);
+  if (!handle_) return not_open("latch");
+  const ControlSetup setup =
+      control_setup(Request::Latch, static_cast<std::uint16_t>(config_.interface_number));
+  const int rc = libusb_control_transfer(handle_, setup.request_type, setup.request, setup.value,
+                                         setup.index, bytes.data(), setup.length, timeout_ms());
+  if (rc == LIBUSB_ERROR_PIPE)
+    return DriverStatus::failure(DriverError::Unsupported,
+                                 "latch: the bridge " + device_ +
+                                     " stalled LATCH (firmware without the single latch request)");
+  if (rc < 0) return transfer_failed(rc, "latch");
+  if (static_cast<std::size_t>(rc) != bytes.size())
+    return DriverStatus::failure(DriverError::ProtocolError,
+                                 "latch: " + std::to_string(rc) + " of " +
+                                     std::to_string(bytes.size()) + " bytes transferred");
+  if (CodecStatus c = decode_latch(bytes, record); !c.ok()) return codec_failure(c, "latch");
+  return DriverStatus::success();
+}
+
 DriverStatus UsbTransport::send_waveform(std::span<const std::int32_t> codes, SampleFormat format) {
   if (!handle_) return not_open("send_waveform");
   out_packets_.clear();

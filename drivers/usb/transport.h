@@ -92,6 +92,8 @@ class UsbTransport {
   DriverStatus configure(const BridgeConfig& config);  // resets both sequence counters
   DriverStatus get_status(BridgeStatus& status);
   DriverStatus get_info(BridgeInfo& info);
+  // LATCH: one position record latched now. A bridge without LATCH stalls it: `unsupported`.
+  DriverStatus latch(PositionRecord& record);
 
   // A whole burst's DAC codes as waveform blocks on bulk OUT.
   DriverStatus send_waveform(std::span<const std::int32_t> codes, SampleFormat format);

@@ -191,10 +191,11 @@ DriverStatus UsbInterferometer::on_shutdown() {
   return DriverStatus::success();
 }
 
-DriverStatus UsbInterferometer::do_latch(std::uint64_t&) {
-  return DriverStatus::failure(DriverError::Unsupported,
-                               "the USB bridge has no single latch request; positions come "
-                               "with bursts (read_stream)");
+DriverStatus UsbInterferometer::do_latch(std::uint64_t& word) {
+  PositionRecord record;
+  if (DriverStatus s = shared_->transport.latch(record); !s.ok()) return s;
+  word = record.position_word;
+  return DriverStatus::success();
 }
 
 DriverStatus UsbInterferometer::do_read_stream(TimedWord* out, std::size_t capacity,

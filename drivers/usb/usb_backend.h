@@ -1,8 +1,8 @@
 // `daq.driver: usb`: the USB bridge (README.md beside this file) behind both interfaces, over
 // UsbTransport. The output is hardware-timed buffered output: a burst's samples become DAC codes,
 // go out as waveform blocks, and START plays them; the interferometer's stream is the position
-// records the bridge latches during the burst and its tail. The bridge protocol has no single
-// latch request, so latch() is `unsupported` (positions come with bursts).
+// records the bridge latches during the burst and its tail; latch() is the LATCH request (a
+// bridge whose firmware stalls it gives `unsupported`).
 #pragma once
 
 #include <cstdint>

@@ -471,6 +471,36 @@ TEST(UsbProtocol, ControlRequests) {
   EXPECT_EQ(s.request_type, 0xC1);
   EXPECT_EQ(s.request, 0x05);
   EXPECT_EQ(s.length, 20);
+  s = control_setup(Request::Latch, 1);
+  EXPECT_EQ(s.request_type, 0xC1);
+  EXPECT_EQ(s.request, 0x06);
+  EXPECT_EQ(s.value, 0);
+  EXPECT_EQ(s.index, 1);
+  EXPECT_EQ(s.length, 16);
+}
+
+TEST(UsbProtocol, LatchPayloadByteForByte) {
+  // u64 device ticks, then the u64 raw position word (valid bit 40, count 0x0000ABCD), LE.
+  const Bytes kLatch = {0x08, 0x07, 0x06, 0x05, 0x04, 0x03, 0x02, 0x01,
+                        0xCD, 0xAB, 0x00, 0x00, 0x00, 0x01, 0x00, 0x00};
+  const PositionRecord record{0x0102030405060708ull, (1ull << 40) | 0xABCDu};
+  Bytes out;
+  ASSERT_TRUE(encode_latch(record, out).ok());
+  EXPECT_EQ(out, kLatch);
+  PositionRecord back;
+  ASSERT_TRUE(decode_latch(kLatch, back).ok());
+  EXPECT_EQ(back.timestamp_ticks, 0x0102030405060708ull);
+  EXPECT_EQ(back.position_word, (1ull << 40) | 0xABCDu);
+  for (std::size_t n : {std::size_t{0}, std::size_t{15}, std::size_t{17}}) {
+    PositionRecord untouched{1, 2};
+    const CodecStatus s = decode_latch(Bytes(n, 0), untouched);
+    EXPECT_EQ(s.error, CodecError::BadLength) << n;
+    EXPECT_NE(s.message.find("LATCH payload is " + std::to_string(n) + " bytes, expected 16"),
+              std::string::npos)
+        << s.message;
+    EXPECT_EQ(untouched.timestamp_ticks, 1u);
+    EXPECT_EQ(untouched.position_word, 2u);
+  }
 }
 
 TEST(UsbProtocol, ControlPayloadsByteForByte) {
