@@ -8,7 +8,24 @@
 
 namespace idm::analysis {
 
-double fit_step_scale(const SweepCells& sweep, const std::vector<TrialFeatures>& pred) {
+namespace {
+CellPrediction from_features(const TrialFeatures& f) {
+  CellPrediction p;
+  p.steady_step_m = f.steady_step_m;
+  p.first_step_m = f.first_step_m;
+  p.reverse_m = f.reverse_m;
+  p.transient_cycles = f.transient_cycles;
+  p.region = f.region;
+  return p;
+}
+std::vector<CellPrediction> from_features(const std::vector<TrialFeatures>& f) {
+  std::vector<CellPrediction> out;
+  for (const TrialFeatures& t : f) out.push_back(from_features(t));
+  return out;
+}
+}  // namespace
+
+double fit_step_scale(const SweepCells& sweep, const std::vector<CellPrediction>& pred) {
   double num = 0, den = 0;
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     if (pred[c].region == model::Region::Cutoff) continue;
@@ -20,29 +37,47 @@ double fit_step_scale(const SweepCells& sweep, const std::vector<TrialFeatures>&
   return den > 0 ? num / den : 1.0;
 }
 
-GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<TrialFeatures>& pred, double scale) {
+double fit_step_scale(const SweepCells& sweep, const std::vector<TrialFeatures>& pred) {
+  return fit_step_scale(sweep, from_features(pred));
+}
+
+GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPrediction>& pred, double scale,
+                           TrialSet set) {
   GapEvaluation out;
   out.step_scale = scale;
   const double step_sd = std::sqrt(2.0) * sweep.reading_sd_m;
   double sum2 = 0;
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     const Cell& cell = sweep.cells[c];
+    const std::vector<TrialFeatures>& trials = set == TrialSet::Test ? cell.test : cell.train;
     CellResidual r;
     r.key = cell.key;
-    r.trials = static_cast<int>(cell.test.size());
+    const int n = static_cast<int>(trials.size());
+    r.trials = n;
     double mean = 0;
-    for (const TrialFeatures& t : cell.test) mean += t.steady_step_m;
-    mean /= std::max<std::size_t>(1, cell.test.size());
+    for (const TrialFeatures& t : trials) mean += t.steady_step_m;
+    mean /= std::max(1, n);
     double ss = 0;
-    for (const TrialFeatures& t : cell.test) ss += (t.steady_step_m - mean) * (t.steady_step_m - mean);
-    const double sd = cell.test.size() > 1 ? std::sqrt(ss / (cell.test.size() - 1)) : 0.0;
+    for (const TrialFeatures& t : trials) ss += (t.steady_step_m - mean) * (t.steady_step_m - mean);
+    const double sd = n > 1 ? std::sqrt(ss / (n - 1)) : 0.0;
     r.measured_step_m = mean;
     r.measured_step_sd_m = sd;
     r.model_step_m = scale * pred[c].steady_step_m;
-    r.measured_region = cell.measured_region;
+    r.model_step_sd_m = std::fabs(scale) * pred[c].step_sd_m;
+    r.measured_region = set == TrialSet::Test ? cell.test_region : cell.train_region;
     r.model_region = pred[c].region;
-    const double d = (mean - r.model_step_m) / (step_sd / std::sqrt(std::max(1, r.trials)));
-    const double spread = sd > step_sd ? std::sqrt(sd * sd / (step_sd * step_sd) - 1.0) : 0.0;
+    const double expected_var = step_sd * step_sd + r.model_step_sd_m * r.model_step_sd_m;
+    // The mean's uncertainty from what was measured (never below the noise), so that a model cannot
+    // explain a mean it misses by predicting a wide spread; the spread term below scores that.
+    const double mean_var = std::max(step_sd * step_sd, sd * sd);
+    const double d = (mean - r.model_step_m) / std::sqrt(mean_var / std::max(1, n));
+    // The spread against the one expected: log ratio of the variances (regularized by the noise so
+    // that identical quantized readings do not count) over its sampling error sqrt(2 / (n - 1)).
+    double spread = 0;
+    if (n > 1) {
+      const double q = step_sd * step_sd;
+      spread = std::log((sd * sd + q) / (expected_var + q)) / std::sqrt(2.0 / (n - 1));
+    }
     const double label = r.measured_region == r.model_region ? 0.0 : kSignificantResidual;
     r.residual = std::sqrt(d * d + spread * spread + label * label);
     r.significant = r.residual > kSignificantResidual;
@@ -53,6 +88,10 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<TrialFeatu
   return out;
 }
 
+GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<TrialFeatures>& pred, double scale) {
+  return evaluate_gap(sweep, from_features(pred), scale, TrialSet::Test);
+}
+
 std::vector<TrialFeatures> predict_all(const SweepCells& sweep, const model::SimConfig& sim) {
   std::vector<TrialFeatures> pred;
   pred.reserve(sweep.cells.size());
@@ -60,9 +99,9 @@ std::vector<TrialFeatures> predict_all(const SweepCells& sweep, const model::Sim
   return pred;
 }
 
-GapEvaluation baseline_gap(const SweepCells& sweep) {
+GapEvaluation baseline_gap(const SweepCells& sweep, int threads) {
   model::SimConfig ideal;  // rigid actuator, Coulomb friction: the impulse model's event simulation
-  const std::vector<TrialFeatures> pred = predict_all(sweep, ideal);
+  const std::vector<CellPrediction> pred = predict_sweep(sweep, ideal, threads);
   return evaluate_gap(sweep, pred, fit_step_scale(sweep, pred));
 }
 

@@ -3,18 +3,26 @@
 #include <algorithm>
 #include <cmath>
 #include <sstream>
+#include <stdexcept>
 
 namespace idm::analysis {
 
 SweepCells collect_cells(const Dataset& ds, int min_trials) {
+  std::vector<TrialSeries> series(ds.trials.size());
+  for (std::size_t i = 0; i < ds.trials.size(); ++i) series[i] = read_trial(ds, i);
+  return collect_cells(ds.stage, ds.trials, series, ds.path, min_trials);
+}
+
+SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
+                         const std::vector<TrialSeries>& series, const std::string& name, int min_trials) {
+  if (infos.size() != series.size()) throw std::invalid_argument("collect_cells: infos and trials differ in size");
+  if (infos.empty()) throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
   SweepCells out;
-  out.stage = ds.stage;
-  out.resolution_m = ds.stage.interferometer.resolution_m;
+  out.stage = stage;
+  out.resolution_m = stage.interferometer.resolution_m;
   // noise: the spread of the readings while the slider rests before each burst
   std::vector<double> rest_sd;
-  std::vector<TrialSeries> series(ds.trials.size());
-  for (std::size_t i = 0; i < ds.trials.size(); ++i) {
-    series[i] = read_trial(ds, i);
+  for (std::size_t i = 0; i < infos.size(); ++i) {
     double sum = 0, sum2 = 0;
     int n = 0;
     for (std::size_t k = 0; k < series[i].size() && series[i].t_s[k] < 0; ++k) {
@@ -27,10 +35,12 @@ SweepCells collect_cells(const Dataset& ds, int min_trials) {
   const double quant_sd = out.resolution_m / std::sqrt(12.0);
   out.reading_sd_m = std::max(quant_sd, rest_sd.empty() ? quant_sd : median(rest_sd));
   const double noise_m = std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
+  out.noise_m = noise_m;
+  out.name = name;
 
   std::vector<std::vector<std::size_t>> members;
-  for (std::size_t i = 0; i < ds.trials.size(); ++i) {
-    const TrialInfo& t = ds.trials[i];
+  for (std::size_t i = 0; i < infos.size(); ++i) {
+    const TrialInfo& t = infos[i];
     const CellKey key{t.freq_hz, t.duty, t.stroke_m};
     std::size_t c = 0;
     while (c < out.cells.size() && !(out.cells[c].key == key)) ++c;
@@ -44,19 +54,22 @@ SweepCells collect_cells(const Dataset& ds, int min_trials) {
     Cell& cell = out.cells[c];
     if (static_cast<int>(members[c].size()) < min_trials) {
       std::ostringstream m;
-      m << ds.path << ": the sweep is too small to diagnose: cell (" << cell.key.freq_hz << " Hz, duty "
+      m << name << ": the sweep is too small to diagnose: cell (" << cell.key.freq_hz << " Hz, duty "
         << cell.key.duty << ", stroke " << cell.key.stroke_m << " m) has " << members[c].size()
         << " trials, at least " << min_trials << " needed (some to fit, some held out)";
       throw InputError(m.str());
     }
-    std::vector<model::Region> votes;
+    std::vector<model::Region> votes, train_votes, test_votes;
     for (std::size_t j = 0; j < members[c].size(); ++j) {
       const std::size_t i = members[c][j];
-      TrialFeatures f = trial_features(ds.trials[i], series[i], out.resolution_m, noise_m);
+      TrialFeatures f = trial_features(infos[i], series[i], out.resolution_m, noise_m);
       votes.push_back(f.region);
+      (j % 2 == 0 ? train_votes : test_votes).push_back(f.region);
       (j % 2 == 0 ? cell.train : cell.test).push_back(std::move(f));
     }
     cell.measured_region = majority_region(votes);
+    cell.train_region = majority_region(train_votes);
+    cell.test_region = majority_region(test_votes);
   }
   return out;
 }

@@ -3,6 +3,7 @@
 // model's simulated burst, so that measurement and model are compared by one procedure.
 #pragma once
 
+#include <string>
 #include <vector>
 
 #include "recording/dataset.h"
@@ -22,18 +23,28 @@ struct Cell {
   double sample_rate_hz = 0;
   std::vector<TrialFeatures> train, test;  // even trials train, odd trials are held out
   model::Region measured_region = model::Region::Cutoff;  // committee vote over all trials
+  model::Region train_region = model::Region::Cutoff;     // vote of the training trials
+  model::Region test_region = model::Region::Cutoff;      // vote of the held-out trials
 };
 
 struct SweepCells {
   std::vector<Cell> cells;
   double resolution_m = 0;
   double reading_sd_m = 0;  // one position reading: noise and quantization, from the rest samples
+  double noise_m = 0;       // the sensor's noise without quantization (reading_sd_m less one count's)
+  std::string name;         // the dataset's path as given (messages, the report)
   model::StageFile stage;
 };
 
 // Reads every trial (each error names its file) and groups them. Throws InputError when a cell has
 // fewer than `min_trials` trials ("the sweep is too small to diagnose: ...").
 SweepCells collect_cells(const Dataset& dataset, int min_trials = 3);
+
+// The same from a sweep held in memory (validate, tests): trials[i] is the time series of infos[i].
+// `name` stands for the dataset's path in messages.
+SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
+                         const std::vector<TrialSeries>& trials, const std::string& name,
+                         int min_trials = 3);
 
 // What a model predicts for a cell: a burst from rest on the simulated stage (no noise), read by
 // the same feature extraction as the measurement.

@@ -34,20 +34,15 @@ void validate(const SweepPlan& p) {
   if (!(p.guide_length_m > 0 && p.guide_length_m <= 10)) fail("guide_length_m: allowed (0, 10]");
 }
 
-std::size_t run_simulated_sweep(const model::StageFile& stage, const model::SimConfig& sim,
-                                const SweepPlan& plan, const std::string& out_dir) {
+std::size_t simulate_sweep(const model::StageFile& stage, const model::SimConfig& sim, const SweepPlan& plan,
+                           const std::function<void(const recording::TrialInfo&, recording::TrialSeries&&)>& sink) {
   validate(plan);
   const std::vector<double> strokes =
       plan.strokes_m.empty() ? std::vector<double>{stage.stage.stroke_m} : plan.strokes_m;
-  model::StageFile written = stage;
-  written.interferometer.noise_m = sim.noise_m;
-  recording::DatasetWriter writer(out_dir, written);
   model::SimulatedStage sim_stage(stage.stage, stage.interferometer, sim);
   std::mt19937_64 rng(plan.seed);
   std::uniform_real_distribution<double> guide(0.0, plan.guide_length_m);
   std::size_t count = 0;
-  recording::TrialSeries series;
-  model::TrialSamples samples;
   for (double stroke : strokes)
     for (double f : plan.freqs_hz)
       for (double duty : plan.duties)
@@ -55,28 +50,38 @@ std::size_t run_simulated_sweep(const model::StageFile& stage, const model::SimC
           const double x0 = guide(rng);
           sim_stage.reset(x0, rng());
           const model::TriangleWave wave{f, duty, stroke, plan.cycles};
-          samples.t_s.clear();
-          samples.xi_cmd_m.clear();
-          samples.x_m.clear();
+          model::TrialSamples samples;
           sim_stage.run_burst(wave, plan.sample_rate_hz, plan.rest_before_s,
                               plan.rest_cycles_after * wave.period_s(), samples);
-          series.t_s.swap(samples.t_s);
-          series.xi_cmd_m.swap(samples.xi_cmd_m);
-          series.x_m.swap(samples.x_m);
+          recording::TrialSeries series;
+          series.t_s = std::move(samples.t_s);
+          series.xi_cmd_m = std::move(samples.xi_cmd_m);
+          series.x_m = std::move(samples.x_m);
           recording::TrialInfo info;
+          info.id = recording::trial_name(f, duty, stroke, trial);
           info.freq_hz = f;
           info.duty = duty;
           info.stroke_m = stroke;
           info.cycles = plan.cycles;
           info.sample_rate_hz = plan.sample_rate_hz;
           info.guide_pos_m = series.x_m.front();
-          writer.add_trial(info, series);
-          series.t_s.swap(samples.t_s);
-          series.xi_cmd_m.swap(samples.xi_cmd_m);
-          series.x_m.swap(samples.x_m);
+          sink(info, std::move(series));
           ++count;
         }
   return count;
+}
+
+std::size_t run_simulated_sweep(const model::StageFile& stage, const model::SimConfig& sim,
+                                const SweepPlan& plan, const std::string& out_dir) {
+  validate(plan);
+  model::StageFile written = stage;
+  written.interferometer.noise_m = sim.noise_m;
+  recording::DatasetWriter writer(out_dir, written);
+  return simulate_sweep(stage, sim, plan, [&](const recording::TrialInfo& info, recording::TrialSeries&& series) {
+    recording::TrialInfo row = info;
+    row.id.clear();  // the writer names it
+    writer.add_trial(row, series);
+  });
 }
 
 }  // namespace idm::analysis

@@ -4,10 +4,12 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
 #include "model/simulation.h"
+#include "recording/dataset.h"
 #include "model/stage.h"
 
 namespace idm::analysis {
@@ -27,6 +29,11 @@ struct SweepPlan {
 
 // Checks the plan; throws model::InputError naming the field and the allowed range.
 void validate(const SweepPlan& plan);
+
+// Runs the plan on the simulated stage (a fresh start per trial) and hands every trial to `sink`
+// in plan order (stroke, frequency, duty, trial); no files. Returns the number of trials.
+std::size_t simulate_sweep(const model::StageFile& stage, const model::SimConfig& sim, const SweepPlan& plan,
+                           const std::function<void(const recording::TrialInfo&, recording::TrialSeries&&)>& sink);
 
 // Runs the plan on a fresh simulated stage per trial and writes DATASET `out_dir` (crash-safe,
 // trial by trial). Returns the number of trials written.

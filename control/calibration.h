@@ -6,19 +6,69 @@
 // CONTRACT (shared with daemon/): the daemon constructs one Calibration, hands a pointer to the
 // Positioner, copies state() out of the real-time loop to save it, and loads it at start.
 // Extend it; do not change what is here without changing the daemon with it.
+//
+// The step model (eq 22 written along the direction of motion, d = min(duty, 1 - duty)):
+//
+//     step = alpha m S / ((M+m)(1-d)) - alpha mu g d^2 T^2
+//
+// is linear in theta = (alpha, alpha mu). A burst of N cycles from rest is predicted as
+//
+//     D(N) = N step + (alpha / alpha_nominal) (single_nominal - step_nominal)
+//
+// (the map's first-cycle transient scaled by alpha), also linear in theta. Each measured burst
+// (rest to rest, at least min_update_counts counts) is one observation of D(N), divided by the
+// nominal prediction so that every burst weighs by its relative error, and weighted by its
+// expected relative noise (observation_relative_sd and one count over the displacement).
+// P is kept in units of the parameters (variances of alpha and alpha mu). Details and the file
+// format: control/README.md ("Online calibration").
 #pragma once
 
+#include <cstdint>
 #include <string>
 
+#include "model/impulse_model.h"
 #include "model/stage.h"
 
 namespace idm::control {
 
+struct RegionCell;
+
 struct CalibrationConfig {
   double forgetting = 0.98;  // RLS forgetting factor lambda, (0, 1]
   bool enabled = true;
+  // Relative standard deviation of the nominal alpha and alpha mu before any update (P0).
+  double initial_relative_sd = 0.3;
+  // Relative standard deviation of one burst's displacement about the model (the model's own
+  // error); the interferometer's count over the displacement is added to it per burst.
+  double observation_relative_sd = 0.05;
+  // A calibrated prediction is used only while its ratio to the nominal one lies in
+  // [1 / max_ratio, max_ratio]; outside, the cell falls back to the nominal prediction.
+  double max_ratio = 3.0;
+  // A burst updates the estimate only when it moved at least this many interferometer counts.
+  double min_update_counts = 3.0;
 };
 void validate(const CalibrationConfig& config, const std::string& where = "control.calibration");
+
+// One (region, direction) estimate: theta = (alpha, alpha mu), its covariance P (symmetric).
+struct CalibrationEstimate {
+  double alpha = 0;
+  double alpha_mu = 0;
+  double p_aa = 0, p_am = 0, p_mm = 0;
+  std::uint64_t updates = 0;
+
+  double mu() const { return alpha != 0 ? alpha_mu / alpha : 0.0; }
+};
+
+// A plain snapshot (trivially copyable): what is saved and loaded.
+struct CalibrationState {
+  static constexpr int kRegions = 3;     // model::Region: Cutoff, OneStep, MultiStep
+  static constexpr int kDirections = 2;  // [0]: negative (duty < 0.5), [1]: positive
+  // The stage the estimates belong to (a file for another stage is refused).
+  double slider_mass_kg = 0, counter_mass_kg = 0, friction_coefficient = 0, gravity_m_s2 = 0,
+         stroke_m = 0, step_correction = 0;
+  CalibrationEstimate estimates[kRegions][kDirections];
+  std::uint64_t total_updates = 0;
+};
 
 class Calibration {
  public:
@@ -34,10 +84,39 @@ class Calibration {
   void reset();
 
   const CalibrationConfig& config() const { return config_; }
-  // (estimates per region and direction; update API used by the Positioner)
+
+  // ---- snapshot (for the daemon: copy out of the real-time loop, save elsewhere) ----
+  CalibrationState state() const { return state_; }
+  // Takes a snapshot over. Throws model::InputError when it belongs to another stage or holds
+  // non-finite or non-positive estimates (nothing is changed then).
+  void set_state(const CalibrationState& state);
+  // The file's text for a snapshot and back (what save/load write and read). parse returns false
+  // with `error` naming `source` and the line on bad content; `out` is then unchanged.
+  static std::string serialize(const CalibrationState& state);
+  static bool parse(const std::string& text, const std::string& source, CalibrationState& out,
+                    std::string& error);
+
+  // ---- used by the Positioner (real-time safe: no allocation, no lock) ----
+  const CalibrationEstimate& estimate(model::Region region, int direction) const;
+  double alpha(model::Region region, int direction) const { return estimate(region, direction).alpha; }
+  double mu(model::Region region, int direction) const { return estimate(region, direction).mu(); }
+  // The calibrated prediction of a burst of the cell, along its direction of motion (> 0):
+  // one-cycle burst and steady step. False (outputs untouched) when disabled, never updated for
+  // the cell's region and direction, or the ratio to the nominal step is outside max_ratio.
+  bool predict(const RegionCell& cell, double& single_along_m, double& step_along_m) const;
+  // One measured burst of `cycles` cycles of the cell: displacement signed (as the cell's
+  // step_m), count_m the interferometer count. Returns whether it updated the estimate.
+  bool update(const RegionCell& cell, std::uint64_t cycles, double measured_m, double count_m);
+  std::uint64_t total_updates() const { return state_.total_updates; }
+  const model::StageParams& nominal() const { return nominal_; }
+
  private:
+  CalibrationEstimate& slot(model::Region region, int direction);
+  CalibrationState nominal_state() const;
+
   model::StageParams nominal_;
   CalibrationConfig config_;
+  CalibrationState state_;
 };
 
 }  // namespace idm::control

@@ -52,6 +52,15 @@ struct PositionerConfig {
   double soft_upper_m = std::numeric_limits<double>::infinity();
   // While IDLE, the position is re-latched at most this often (for POS? queries).
   double idle_poll_s = 0.01;
+  // An approach burst (not the plan's last) is cut so that its prediction, grown by this
+  // share, still stops the planner's approach margin short of the target: the step model's own
+  // error (alpha, which the mu interval of the map does not cover) must not carry it past.
+  double approach_uncertainty = 0.2;
+  // Only chunks predicted to move at least this many interferometer counts are judged for a
+  // stall (a one-count step cannot be told from noise).
+  double stall_min_counts = 3.0;
+  // Most chunks in one move (a guard; 0: the planner's max_bursts).
+  int max_chunks_per_move = 0;
 };
 
 // Throws model::InputError naming the key and the allowed range.
@@ -130,7 +139,45 @@ class Positioner {
   // The driver's message for MotionFault::Driver (empty otherwise). Not real-time safe to copy.
   const std::string& last_driver_error() const { return last_driver_error_; }
 
+  // ---- for tests, tools and benchmarks ----
+  const Planner& planner() const { return planner_; }
+  const RegionMap& map() const { return map_; }
+  // The plan made for the last chunk (its first burst is what was played, cut to a chunk).
+  const Plan& last_plan() const { return plan_; }
+  // One interferometer count.
+  double count_m() const { return count_m_; }
+  // The sample_status bits of the word behind MotionFault::InvalidSample (0 otherwise); see
+  // drivers::describe_sample_status.
+  std::uint8_t invalid_sample_status() const { return invalid_sample_status_; }
+  // Chunks of the current/last move, and the cycles they played.
+  std::uint64_t move_chunks() const { return move_chunks_; }
+  std::uint64_t move_cycles() const { return move_cycles_; }
+
  private:
+  enum class Phase : std::uint8_t { Idle, Pending, Playing, Settling, Fault };
+  struct Chunk {
+    double freq_hz = 0, duty = 0, stroke_m = 0;
+    std::uint32_t period_samples = 0, extension_samples = 0;
+    std::uint64_t cycles = 0;
+    double predicted_m = 0;               // signed, 0: not judged for a stall
+    const RegionCell* cell = nullptr;     // the map cell (closed loop), for calibration
+    bool completes_last_burst = false;    // ends the plan's last burst (a try at the target)
+    int direction = 0;                    // +1 / -1
+  };
+
+  void enter_fault(MotionFault fault);
+  void driver_fault(const drivers::DriverStatus& status);
+  bool latch_position(double& position_m);  // false: a fault was entered
+  bool drain_stream();                      // false: a fault was entered
+  bool start_chunk();                       // false: a fault was entered
+  void after_chunk(double now_s);
+  void plan_next_chunk(double now_s);
+  void next_open_loop_chunk(double now_s);
+  void finish(double now_s);
+  std::uint64_t chunk_cycle_limit(double freq_hz, std::uint32_t period_samples,
+                                  std::uint64_t max_cycles) const;
+  double nominal_open_loop_step_m(double freq_hz, double duty, double stroke_m) const;
+
   const RegionMap& map_;
   Planner planner_;
   PositionerConfig config_;
@@ -139,7 +186,37 @@ class Positioner {
   Calibration* calibration_;
   MotionStatus status_;
   std::string last_driver_error_;
-  // (implementation state: preallocated plan, sample buffer, stream buffer, decoder, ...)
+
+  // Sized in the constructor; never grown afterwards.
+  Plan plan_;
+  std::vector<double> samples_;               // one chunk at the output's clock
+  std::vector<drivers::TimedWord> stream_;    // a slice of the burst stream
+  drivers::PositionDecoder latch_decoder_;    // latched words (reset per reading)
+  drivers::PositionDecoder stream_decoder_;   // the stream of one chunk (reset per chunk)
+  double count_m_ = 0;
+  bool buffered_ = true;          // write_burst (samples) or write_burst_parameters
+  double sample_rate_hz_ = 0;     // the output clock for buffered bursts
+  int max_chunks_ = 0;
+  std::size_t largest_cell_[2] = {0, 0};  // [0] negative, [1] positive: largest |step|
+  bool has_largest_cell_[2] = {false, false};
+
+  std::uint8_t invalid_sample_status_ = 0;
+  Phase phase_ = Phase::Idle;
+  bool stop_requested_ = false;
+  bool poll_due_ = true;
+  double last_poll_s_ = 0;
+  double move_start_s_ = 0;
+  double settle_until_s_ = 0;
+  bool move_started_ = false;     // move_start_s_ is set (the first tick after the command)
+  Chunk chunk_;
+  double chunk_start_position_m_ = 0;
+  bool last_try_done_ = false;    // the chunk just played ended a try (last burst, or passed)
+  int stall_count_ = 0;
+  std::uint64_t move_chunks_ = 0;
+  std::uint64_t move_cycles_ = 0;
+  // Open loop: the whole step and what is left of it.
+  Chunk open_loop_;
+  std::uint64_t open_loop_remaining_ = 0;
 };
 
 // For tools, tests and benchmarks: ticks until at_rest() or timeout_s of `clock` time has passed;

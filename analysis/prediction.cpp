@@ -1,0 +1,96 @@
+#include "analysis/prediction.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "analysis/parallel.h"
+#include "model/waveform.h"
+
+namespace idm::analysis {
+
+namespace {
+
+TrialFeatures one_trial(const SweepCells& sweep, model::SimulatedStage& stage, const Cell& cell, double x0) {
+  const model::TriangleWave w{cell.key.freq_hz, cell.key.duty, cell.key.stroke_m, cell.cycles};
+  const double T = w.period_s();
+  const double rate = cell.sample_rate_hz > 0 ? cell.sample_rate_hz : 20.0 * cell.key.freq_hz;
+  stage.reset(x0, 1);
+  const std::vector<double> corners = w.corner_times_s();
+  const long n_samples = static_cast<long>(std::floor(w.duration_s() * rate * (1 + 1e-12))) + 1;
+  TrialSeries s;
+  s.t_s.reserve(static_cast<std::size_t>(n_samples) + 1);
+  s.x_m.reserve(static_cast<std::size_t>(n_samples) + 1);
+  double t = 0;
+  std::size_t next = 1;  // corners[0] = 0
+  for (long j = 0; j <= n_samples; ++j) {
+    double tj = static_cast<double>(j) / rate;
+    if (j == n_samples) {
+      if (s.t_s.back() >= w.duration_s() * (1 - 1e-12)) break;
+      tj = w.duration_s();  // the burst's end, so that the series covers it
+    }
+    while (next < corners.size() && corners[next] < tj - 1e-12 * T) {
+      if (corners[next] > t) {
+        stage.step(corners[next] - t, w.xi_m(corners[next]));
+        t = corners[next];
+      }
+      ++next;
+    }
+    if (tj > t) {
+      stage.step(tj - t, w.xi_m(tj));
+      t = tj;
+    }
+    s.t_s.push_back(tj);
+    s.x_m.push_back(stage.position_m());
+  }
+  s.xi_cmd_m.assign(s.t_s.size(), 0.0);
+  TrialInfo info{"model", cell.key.freq_hz, cell.key.duty, cell.key.stroke_m, cell.cycles, rate, x0, ""};
+  return trial_features(info, s, sweep.resolution_m, sweep.noise_m);
+}
+
+}  // namespace
+
+double internal_rate_for(const model::SimConfig& sim, double floor_hz) {
+  double rate = floor_hz;
+  if (const model::EffectSpec* a = sim.find("amplifier")) rate = std::max(rate, 20.0 * a->params.at("cutoff_hz"));
+  if (const model::EffectSpec* q = sim.find("quantization"))
+    rate = std::max(rate, 2.0 * q->params.at("update_rate_hz"));
+  return std::min(rate, 1e6);
+}
+
+CellPrediction predict_cell_exact(const SweepCells& sweep, const model::SimConfig& sim, const Cell& cell) {
+  model::InterferometerParams exact;
+  exact.resolution_m = 1e-12;
+  model::SimConfig quiet = sim;
+  quiet.noise_m = 0;
+  model::SimulatedStage stage(sweep.stage.stage, exact, quiet);
+  const int trials = sim.has("friction_spread") ? kSpreadTrials : 1;
+  std::vector<TrialFeatures> f;
+  f.reserve(static_cast<std::size_t>(trials));
+  // Trials on stretches of the guide further apart than the friction's correlation length.
+  double corr = 2e-3;
+  if (const model::EffectSpec* e = sim.find("friction_spread")) corr = e->params.at("correlation_m");
+  for (int k = 0; k < trials; ++k) f.push_back(one_trial(sweep, stage, cell, 0.37 * corr + 2.5 * corr * k));
+  CellPrediction p;
+  std::vector<model::Region> votes;
+  for (const TrialFeatures& t : f) {
+    p.steady_step_m += t.steady_step_m / trials;
+    p.first_step_m += t.first_step_m / trials;
+    p.reverse_m += t.reverse_m / trials;
+    votes.push_back(t.region);
+  }
+  double ss = 0;
+  for (const TrialFeatures& t : f) ss += (t.steady_step_m - p.steady_step_m) * (t.steady_step_m - p.steady_step_m);
+  p.step_sd_m = trials > 1 ? std::sqrt(ss / (trials - 1)) : 0.0;
+  p.region = majority_region(votes);
+  p.transient_cycles = f.front().transient_cycles;
+  return p;
+}
+
+std::vector<CellPrediction> predict_sweep(const SweepCells& sweep, const model::SimConfig& sim, int threads) {
+  std::vector<CellPrediction> out(sweep.cells.size());
+  parallel_for(sweep.cells.size(), threads,
+               [&](std::size_t c) { out[c] = predict_cell_exact(sweep, sim, sweep.cells[c]); });
+  return out;
+}
+
+}  // namespace idm::analysis

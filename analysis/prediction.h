@@ -1,0 +1,40 @@
+// What a model predicts for every cell of a sweep, read exactly as the measurement is read.
+//
+// The model runs a burst from rest through the ideal triangle (every velocity corner stepped to
+// exactly, whatever the plant and its effects), and its slider is "sampled" at the instants the
+// cell's own trials are sampled (t = j / sample_rate from t = 0). The same feature extraction as
+// for the measurement then reads the steps and the region, with the measurement's tolerances, so
+// model and measurement are compared by one procedure and nothing depends on the simulator's
+// integration grid. An effect that varies from trial to trial (friction_spread) is predicted as
+// several trials at different places on the guide: the mean steady step and its spread.
+#pragma once
+
+#include <vector>
+
+#include "analysis/gap_cells.h"
+#include "model/simulation.h"
+
+namespace idm::analysis {
+
+struct CellPrediction {
+  double steady_step_m = 0;  // mean over the predicted trials
+  double step_sd_m = 0;      // trial-to-trial spread of the steady step (0 for a deterministic model)
+  double first_step_m = 0;
+  double reverse_m = 0;
+  int transient_cycles = 0;
+  model::Region region = model::Region::Cutoff;  // majority over the predicted trials
+};
+
+// Trials the model runs per cell when its friction varies along the guide.
+constexpr int kSpreadTrials = 8;
+
+CellPrediction predict_cell_exact(const SweepCells& sweep, const model::SimConfig& sim, const Cell& cell);
+
+// Every cell, spread over `threads` threads (0: all cores).
+std::vector<CellPrediction> predict_sweep(const SweepCells& sweep, const model::SimConfig& sim, int threads);
+
+// The internal rate a configuration needs: effects that smooth the command are integrated at a rate
+// that resolves them (the amplifier's cutoff), never below `floor_hz`.
+double internal_rate_for(const model::SimConfig& sim, double floor_hz = 50e3);
+
+}  // namespace idm::analysis

@@ -1,0 +1,382 @@
+#include "control/calibration.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+#include <system_error>
+#include <vector>
+
+#include "control/region_map.h"
+#include "model/yaml_util.h"
+
+namespace idm::control {
+
+namespace {
+
+constexpr const char* kMagic = "idm-calibration 1";
+
+[[noreturn]] void fail_range(const std::string& where, const std::string& key, double v,
+                             const std::string& range) {
+  throw model::InputError(where + "." + key + ": " + model::format_number(v) +
+                          " is out of range, allowed " + range);
+}
+
+int direction_index(int direction) { return direction > 0 ? 1 : 0; }
+
+const char* direction_name(int index) { return index == 1 ? "positive" : "negative"; }
+
+const char* region_key(int region) {
+  switch (region) {
+    case 0: return "cutoff";
+    case 1: return "one-step";
+    default: return "multi-step";
+  }
+}
+
+// The regressors of a burst of `cycles` cycles of the cell along its direction, for
+// theta = (alpha, alpha mu): D(N) = alpha phi_a - alpha mu phi_m.
+struct Regressors {
+  double phi_a;
+  double phi_m;
+  double step_a;  // per-cycle parts (the steady step = alpha step_a - alpha mu step_m)
+  double step_m;
+};
+
+Regressors regressors(const model::StageParams& s, const RegionCell& cell, std::uint64_t cycles) {
+  const double d = cell.duty < 0.5 ? cell.duty : 1.0 - cell.duty;
+  const double period_s = 1.0 / cell.freq_hz;
+  const int sign = cell.direction();
+  Regressors r{};
+  r.step_a = s.mass_ratio() * cell.stroke_m / (1.0 - d);
+  r.step_m = s.gravity_m_s2 * d * d * period_s * period_s;
+  // The nominal first-cycle transient over the nominal alpha: scales with alpha.
+  const double transient = (sign * cell.single_burst_m - sign * cell.step_m) / s.step_correction;
+  const double n = static_cast<double>(cycles);
+  r.phi_a = n * r.step_a + transient;
+  r.phi_m = n * r.step_m;
+  return r;
+}
+
+std::uint64_t fnv1a(const std::string& text) {
+  std::uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : text) {
+    h ^= c;
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+bool same(double a, double b) { return std::fabs(a - b) <= 1e-12 * std::max(std::fabs(a), std::fabs(b)); }
+
+bool estimate_ok(const CalibrationEstimate& e) {
+  return std::isfinite(e.alpha) && std::isfinite(e.alpha_mu) && std::isfinite(e.p_aa) &&
+         std::isfinite(e.p_am) && std::isfinite(e.p_mm) && e.alpha > 0 && e.alpha_mu > 0 &&
+         e.p_aa >= 0 && e.p_mm >= 0 && e.p_am * e.p_am <= e.p_aa * e.p_mm * (1 + 1e-9);
+}
+
+}  // namespace
+
+void validate(const CalibrationConfig& c, const std::string& where) {
+  if (!(c.forgetting > 0 && c.forgetting <= 1)) fail_range(where, "forgetting", c.forgetting, "(0, 1]");
+  if (!(c.initial_relative_sd > 0 && c.initial_relative_sd <= 10))
+    fail_range(where, "initial_relative_sd", c.initial_relative_sd, "(0, 10]");
+  if (!(c.observation_relative_sd > 0 && c.observation_relative_sd <= 10))
+    fail_range(where, "observation_relative_sd", c.observation_relative_sd, "(0, 10]");
+  if (!(c.max_ratio > 1 && c.max_ratio <= 100)) fail_range(where, "max_ratio", c.max_ratio, "(1, 100]");
+  if (!(c.min_update_counts >= 0 && c.min_update_counts <= 1e6))
+    fail_range(where, "min_update_counts", c.min_update_counts, "[0, 1e6]");
+}
+
+Calibration::Calibration(const model::StageParams& nominal, CalibrationConfig config)
+    : nominal_(nominal), config_(config) {
+  model::validate(nominal_, "stage");
+  validate(config_);
+  state_ = nominal_state();
+}
+
+CalibrationState Calibration::nominal_state() const {
+  CalibrationState s;
+  s.slider_mass_kg = nominal_.slider_mass_kg;
+  s.counter_mass_kg = nominal_.counter_mass_kg;
+  s.friction_coefficient = nominal_.friction_coefficient;
+  s.gravity_m_s2 = nominal_.gravity_m_s2;
+  s.stroke_m = nominal_.stroke_m;
+  s.step_correction = nominal_.step_correction;
+  const double alpha = nominal_.step_correction;
+  const double alpha_mu = alpha * nominal_.friction_coefficient;
+  const double sd = config_.initial_relative_sd;
+  for (auto& region : s.estimates) {
+    for (CalibrationEstimate& e : region) {
+      e.alpha = alpha;
+      e.alpha_mu = alpha_mu;
+      e.p_aa = (sd * alpha) * (sd * alpha);
+      e.p_am = 0;
+      e.p_mm = (sd * alpha_mu) * (sd * alpha_mu);
+      e.updates = 0;
+    }
+  }
+  s.total_updates = 0;
+  return s;
+}
+
+void Calibration::reset() { state_ = nominal_state(); }
+
+const CalibrationEstimate& Calibration::estimate(model::Region region, int direction) const {
+  return state_.estimates[static_cast<int>(region)][direction_index(direction)];
+}
+
+CalibrationEstimate& Calibration::slot(model::Region region, int direction) {
+  return state_.estimates[static_cast<int>(region)][direction_index(direction)];
+}
+
+void Calibration::set_state(const CalibrationState& s) {
+  const CalibrationState nominal = nominal_state();
+  auto check_stage = [&](const char* key, double got, double want) {
+    if (!same(got, want))
+      throw model::InputError("calibration: stage." + std::string(key) + " " +
+                              model::format_number(got) + " differs from the configured " +
+                              model::format_number(want) + " (a calibration of another stage)");
+  };
+  check_stage("slider_mass_kg", s.slider_mass_kg, nominal.slider_mass_kg);
+  check_stage("counter_mass_kg", s.counter_mass_kg, nominal.counter_mass_kg);
+  check_stage("friction_coefficient", s.friction_coefficient, nominal.friction_coefficient);
+  check_stage("gravity_m_s2", s.gravity_m_s2, nominal.gravity_m_s2);
+  check_stage("stroke_m", s.stroke_m, nominal.stroke_m);
+  check_stage("step_correction", s.step_correction, nominal.step_correction);
+  for (int r = 0; r < CalibrationState::kRegions; ++r) {
+    for (int d = 0; d < CalibrationState::kDirections; ++d) {
+      if (!estimate_ok(s.estimates[r][d]))
+        throw model::InputError(std::string("calibration: estimate ") + region_key(r) + " " +
+                                direction_name(d) +
+                                ": alpha and alpha_mu must be finite and > 0, the covariance "
+                                "positive semi-definite");
+    }
+  }
+  state_ = s;
+}
+
+bool Calibration::predict(const RegionCell& cell, double& single_along_m,
+                          double& step_along_m) const {
+  if (!config_.enabled) return false;
+  const CalibrationEstimate& e = estimate(cell.region, cell.direction());
+  if (e.updates == 0) return false;
+  const Regressors r = regressors(nominal_, cell, 1);
+  const double step = e.alpha * r.step_a - e.alpha_mu * r.step_m;
+  const double single = e.alpha * r.phi_a - e.alpha_mu * r.phi_m;
+  const double nominal_step = cell.direction() * cell.step_m;
+  if (!(nominal_step > 0) || !(step > 0)) return false;
+  const double ratio = step / nominal_step;
+  if (!(ratio >= 1.0 / config_.max_ratio && ratio <= config_.max_ratio)) return false;
+  single_along_m = single;
+  step_along_m = step;
+  return true;
+}
+
+bool Calibration::update(const RegionCell& cell, std::uint64_t cycles, double measured_m,
+                         double count_m) {
+  if (!config_.enabled || cycles == 0 || !std::isfinite(measured_m)) return false;
+  const int sign = cell.direction();
+  const double measured_along = sign * measured_m;
+  if (!(measured_along >= config_.min_update_counts * count_m)) return false;
+  const double nominal_along = sign * cell.burst_displacement_m(cycles);
+  if (!(nominal_along > 0)) return false;
+  const Regressors r = regressors(nominal_, cell, cycles);
+  // Relative observation: y = D / D_nominal = theta . phi / D_nominal, divided by its expected
+  // noise (the model's relative error and one count of each of the two readings).
+  const double quantization = count_m / nominal_along;
+  const double noise = std::sqrt(config_.observation_relative_sd * config_.observation_relative_sd +
+                                 quantization * quantization);
+  const double scale = 1.0 / (nominal_along * noise);
+  const double y = measured_along * scale;
+  const double f_a = r.phi_a * scale, f_m = -r.phi_m * scale;
+  CalibrationEstimate& e = slot(cell.region, sign);
+  const double predicted = e.alpha * f_a + e.alpha_mu * f_m;
+  // A burst that moved less than half or more than twice its prediction is not a step of this
+  // model (a stall, a collision, a jump of friction): it is left to the positioner's checks.
+  if (!(y > 0.5 * predicted && y < 2.0 * predicted)) return false;
+  const double lambda = config_.forgetting;
+  const double pf_a = e.p_aa * f_a + e.p_am * f_m;
+  const double pf_m = e.p_am * f_a + e.p_mm * f_m;
+  const double denom = lambda + f_a * pf_a + f_m * pf_m;
+  const double k_a = pf_a / denom, k_m = pf_m / denom;
+  const double innovation = y - predicted;
+  CalibrationEstimate next = e;
+  next.alpha += k_a * innovation;
+  next.alpha_mu += k_m * innovation;
+  next.p_aa = (e.p_aa - k_a * pf_a) / lambda;
+  next.p_am = (e.p_am - k_a * pf_m) / lambda;
+  next.p_mm = (e.p_mm - k_m * pf_m) / lambda;
+  // No wind-up: forgetting without excitation must not grow P beyond its initial size.
+  const double sd = config_.initial_relative_sd;
+  const double p_aa_max = (sd * nominal_.step_correction) * (sd * nominal_.step_correction);
+  const double p_mm_max = p_aa_max * nominal_.friction_coefficient * nominal_.friction_coefficient;
+  if (next.p_aa > p_aa_max || next.p_mm > p_mm_max) {
+    const double shrink = std::min(p_aa_max / std::max(next.p_aa, p_aa_max),
+                                   p_mm_max / std::max(next.p_mm, p_mm_max));
+    next.p_aa *= shrink;
+    next.p_am *= shrink;
+    next.p_mm *= shrink;
+  }
+  ++next.updates;
+  if (!estimate_ok(next)) return false;
+  e = next;
+  ++state_.total_updates;
+  return true;
+}
+
+std::string Calibration::serialize(const CalibrationState& s) {
+  std::string body;
+  char line[512];
+  body += std::string(kMagic) + "\n";
+  std::snprintf(line, sizeof line,
+                "stage %.17g %.17g %.17g %.17g %.17g %.17g\n", s.slider_mass_kg, s.counter_mass_kg,
+                s.friction_coefficient, s.gravity_m_s2, s.stroke_m, s.step_correction);
+  body += line;
+  for (int r = 0; r < CalibrationState::kRegions; ++r) {
+    for (int d = 0; d < CalibrationState::kDirections; ++d) {
+      const CalibrationEstimate& e = s.estimates[r][d];
+      std::snprintf(line, sizeof line, "estimate %s %s %llu %.17g %.17g %.17g %.17g %.17g\n",
+                    region_key(r), direction_name(d), static_cast<unsigned long long>(e.updates),
+                    e.alpha, e.alpha_mu, e.p_aa, e.p_am, e.p_mm);
+      body += line;
+    }
+  }
+  std::snprintf(line, sizeof line, "total_updates %llu\n",
+                static_cast<unsigned long long>(s.total_updates));
+  body += line;
+  std::snprintf(line, sizeof line, "checksum %016llx\n",
+                static_cast<unsigned long long>(fnv1a(body)));
+  return body + line;
+}
+
+bool Calibration::parse(const std::string& text, const std::string& source, CalibrationState& out,
+                        std::string& error) {
+  std::vector<std::string> lines;
+  {
+    std::istringstream in(text);
+    std::string l;
+    while (std::getline(in, l)) lines.push_back(l);
+  }
+  auto bad = [&](std::size_t line, const std::string& what) {
+    error = source + ":" + std::to_string(line) + ": " + what;
+    return false;
+  };
+  const std::size_t expected_lines = 2 + CalibrationState::kRegions * CalibrationState::kDirections + 2;
+  if (lines.empty() || lines[0] != kMagic)
+    return bad(1, std::string("not a calibration file (expected first line '") + kMagic + "')");
+  if (lines.size() != expected_lines)
+    return bad(lines.size(), "truncated or extended: " + std::to_string(lines.size()) +
+                                 " lines, expected " + std::to_string(expected_lines));
+  // Checksum over every line before the last.
+  std::string body;
+  for (std::size_t i = 0; i + 1 < lines.size(); ++i) body += lines[i] + "\n";
+  {
+    unsigned long long sum = 0;
+    char tail = 0;
+    if (std::sscanf(lines.back().c_str(), "checksum %llx%c", &sum, &tail) != 1)
+      return bad(lines.size(), "expected 'checksum HEX'");
+    if (sum != fnv1a(body)) return bad(lines.size(), "checksum mismatch (the file is corrupt)");
+  }
+  CalibrationState s;
+  {
+    char tail = 0;
+    if (std::sscanf(lines[1].c_str(), "stage %lf %lf %lf %lf %lf %lf%c", &s.slider_mass_kg,
+                    &s.counter_mass_kg, &s.friction_coefficient, &s.gravity_m_s2, &s.stroke_m,
+                    &s.step_correction, &tail) != 6)
+      return bad(2, "expected 'stage' and six numbers");
+  }
+  for (int r = 0; r < CalibrationState::kRegions; ++r) {
+    for (int d = 0; d < CalibrationState::kDirections; ++d) {
+      const std::size_t ln = 3 + static_cast<std::size_t>(r * CalibrationState::kDirections + d);
+      char region[32] = {}, direction[32] = {}, tail = 0;
+      unsigned long long updates = 0;
+      CalibrationEstimate& e = s.estimates[r][d];
+      if (std::sscanf(lines[ln - 1].c_str(), "estimate %31s %31s %llu %lf %lf %lf %lf %lf%c", region,
+                      direction, &updates, &e.alpha, &e.alpha_mu, &e.p_aa, &e.p_am, &e.p_mm,
+                      &tail) != 8)
+        return bad(ln, "expected 'estimate REGION DIRECTION UPDATES ALPHA ALPHA_MU P_AA P_AM P_MM'");
+      if (std::string(region) != region_key(r) || std::string(direction) != direction_name(d))
+        return bad(ln, std::string("expected the estimate for ") + region_key(r) + " " +
+                           direction_name(d) + ", found " + region + " " + direction);
+      e.updates = updates;
+      if (!estimate_ok(e))
+        return bad(ln, "alpha and alpha_mu must be finite and > 0, the covariance positive "
+                       "semi-definite");
+    }
+  }
+  {
+    unsigned long long total = 0;
+    char tail = 0;
+    if (std::sscanf(lines[expected_lines - 2].c_str(), "total_updates %llu%c", &total, &tail) != 1)
+      return bad(expected_lines - 1, "expected 'total_updates N'");
+    s.total_updates = total;
+  }
+  out = s;
+  return true;
+}
+
+bool Calibration::load(const std::string& path, std::string& error) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    error = path + ": cannot open: " + std::strerror(errno);
+    return false;
+  }
+  std::ostringstream buf;
+  buf << in.rdbuf();
+  CalibrationState s;
+  if (!parse(buf.str(), path, s, error)) return false;
+  try {
+    set_state(s);
+  } catch (const model::InputError& e) {
+    error = path + ": " + e.what();
+    return false;
+  }
+  error.clear();
+  return true;
+}
+
+void Calibration::save(const std::string& path) const {
+  const std::string text = serialize(state_);
+  const std::string tmp = path + ".tmp";
+  auto fail = [&](const std::string& what) {
+    throw std::system_error(errno, std::generic_category(), "calibration: " + what);
+  };
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) fail("cannot create " + tmp);
+  std::size_t done = 0;
+  while (done < text.size()) {
+    const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      const int err = errno;
+      ::close(fd);
+      errno = err;
+      fail("cannot write " + tmp);
+    }
+    done += static_cast<std::size_t>(n);
+  }
+  if (::fsync(fd) != 0) {
+    const int err = errno;
+    ::close(fd);
+    errno = err;
+    fail("cannot fsync " + tmp);
+  }
+  if (::close(fd) != 0) fail("cannot close " + tmp);
+  if (::rename(tmp.c_str(), path.c_str()) != 0) fail("cannot rename " + tmp + " to " + path);
+  // The directory entry: fsync the folder so the rename survives a crash.
+  const std::size_t slash = path.find_last_of('/');
+  const std::string dir = slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+}  // namespace idm::control

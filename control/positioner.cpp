@@ -1,0 +1,586 @@
+#include "control/positioner.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "control/calibration.h"
+#include "model/impulse_model.h"
+#include "model/waveform.h"
+#include "model/yaml_util.h"
+
+namespace idm::control {
+
+namespace {
+
+[[noreturn]] void fail_range(const std::string& where, const std::string& key, double v,
+                             const std::string& range) {
+  throw model::InputError(where + "." + key + ": " + model::format_number(v) +
+                          " is out of range, allowed " + range);
+}
+
+constexpr std::size_t kStreamSlice = 4096;
+constexpr std::size_t kDriverErrorCapacity = 1024;
+
+int direction_index(int sign) { return sign > 0 ? 1 : 0; }
+
+}  // namespace
+
+void validate(const PositionerConfig& c, const std::string& where) {
+  if (!(c.tolerance_m >= 0 && c.tolerance_m <= 1e-3)) fail_range(where, "tolerance_m", c.tolerance_m, "[0, 1e-3] (0: one count)");
+  if (c.max_retries < 0 || c.max_retries > 1000) fail_range(where, "max_retries", c.max_retries, "[0, 1000]");
+  if (c.stall_bursts < 1 || c.stall_bursts > 1000) fail_range(where, "stall_bursts", c.stall_bursts, "[1, 1000]");
+  if (!(c.stall_fraction >= 0 && c.stall_fraction < 1)) fail_range(where, "stall_fraction", c.stall_fraction, "[0, 1)");
+  if (!(c.settle_s >= 0 && c.settle_s <= 10)) fail_range(where, "settle_s", c.settle_s, "[0, 10]");
+  if (!(c.max_chunk_s > 0 && c.max_chunk_s <= 10)) fail_range(where, "max_chunk_s", c.max_chunk_s, "(0, 10]");
+  if (c.latch_words < 1 || c.latch_words > 1000) fail_range(where, "latch_words", c.latch_words, "[1, 1000]");
+  if (std::isnan(c.soft_lower_m) || std::isnan(c.soft_upper_m) || !(c.soft_lower_m < c.soft_upper_m))
+    throw model::InputError(where + ".soft_lower_m/soft_upper_m: [" + model::format_number(c.soft_lower_m) +
+                            ", " + model::format_number(c.soft_upper_m) +
+                            "] is not an interval, allowed soft_lower_m < soft_upper_m");
+  if (!(c.idle_poll_s >= 0 && c.idle_poll_s <= 3600)) fail_range(where, "idle_poll_s", c.idle_poll_s, "[0, 3600]");
+  if (!(c.approach_uncertainty >= 0 && c.approach_uncertainty <= 10))
+    fail_range(where, "approach_uncertainty", c.approach_uncertainty, "[0, 10]");
+  if (!(c.stall_min_counts >= 0 && c.stall_min_counts <= 1e6))
+    fail_range(where, "stall_min_counts", c.stall_min_counts, "[0, 1e6]");
+  if (c.max_chunks_per_move < 0 || c.max_chunks_per_move > 100000000)
+    fail_range(where, "max_chunks_per_move", c.max_chunks_per_move, "[0, 1e8] (0: the planner's max_bursts)");
+}
+
+const char* motion_state_name(MotionState s) {
+  switch (s) {
+    case MotionState::Idle: return "IDLE";
+    case MotionState::Moving: return "MOVING";
+    case MotionState::Settling: return "SETTLING";
+    case MotionState::Fault: return "FAULT";
+  }
+  return "?";
+}
+
+const char* motion_fault_name(MotionFault f) {
+  switch (f) {
+    case MotionFault::None: return "none";
+    case MotionFault::InvalidSample: return "invalid_sample";
+    case MotionFault::Stall: return "stall";
+    case MotionFault::RetryLimit: return "retry_limit";
+    case MotionFault::Driver: return "driver";
+    case MotionFault::NoPlan: return "no_plan";
+  }
+  return "?";
+}
+
+const char* refusal_name(Refusal r) {
+  switch (r) {
+    case Refusal::None: return "none";
+    case Refusal::NotFinite: return "not_finite";
+    case Refusal::OutsideSoftLimits: return "outside_soft_limits";
+    case Refusal::Faulted: return "faulted";
+    case Refusal::Busy: return "busy";
+    case Refusal::OutOfRange: return "out_of_range";
+    case Refusal::NoPosition: return "no_position";
+  }
+  return "?";
+}
+
+Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
+                       const PositionerConfig& config, drivers::WaveformOutput& output,
+                       drivers::Interferometer& interferometer, Calibration* calibration)
+    : map_(map),
+      planner_(map, planner),
+      config_(config),
+      output_(output),
+      interferometer_(interferometer),
+      calibration_(calibration),
+      latch_decoder_(interferometer.capabilities().word),
+      stream_decoder_(interferometer.capabilities().word) {
+  validate(config_);
+  count_m_ = latch_decoder_.count_m();
+  const DeviceLimits& limits = map_.config().limits;
+  const drivers::OutputCapabilities& caps = output_.capabilities();
+  buffered_ = caps.mode == drivers::OutputMode::BufferedSamples;
+  if (buffered_) {
+    sample_rate_hz_ = limits.output_sample_rate_hz;
+    if (!(sample_rate_hz_ > 0))
+      throw model::InputError(
+          "control: the output takes samples but the map has no output clock "
+          "(limits.output_sample_rate_hz = 0); set it to the output's sample rate");
+    if (sample_rate_hz_ > caps.max_sample_rate_hz)
+      throw model::InputError("control: limits.output_sample_rate_hz " + model::format_number(sample_rate_hz_) +
+                              " is above the output's max_sample_rate_hz " +
+                              model::format_number(caps.max_sample_rate_hz));
+    // The largest chunk: whole cycles within max_chunk_s, or one cycle of the lowest frequency.
+    const double longest_cycle = std::ceil(sample_rate_hz_ / limits.min_freq_hz) + 1;
+    const double chunk = std::floor(config_.max_chunk_s * sample_rate_hz_) + 1;
+    double n = std::max(longest_cycle, chunk) + 1;
+    n = std::min(n, static_cast<double>(caps.max_burst_samples));
+    samples_.assign(static_cast<std::size_t>(n), 0.0);
+  }
+  stream_.resize(kStreamSlice);
+  max_chunks_ = config_.max_chunks_per_move > 0 ? config_.max_chunks_per_move : planner_.config().max_bursts;
+  plan_.bursts.reserve(static_cast<std::size_t>(planner_.config().max_bursts));
+  last_driver_error_.reserve(kDriverErrorCapacity);
+  // The largest-step usable cell per direction (open-loop steps without a waveform), and the
+  // fastest slider the map's cells can make: the velocity jump m/(M+m) times the fast phase's
+  // rate. The interferometer's decoder must accept it, or real motion reads as glitches.
+  double largest[2] = {0, 0};
+  double fastest_m_s = 0;
+  const model::StageParams& stage = map_.config().stage;
+  for (std::size_t i : map_.usable_cells()) {
+    const RegionCell& c = map_.cells()[i];
+    const double fast_share = std::min(c.duty, 1.0 - c.duty);
+    fastest_m_s = std::max(fastest_m_s, stage.mass_ratio() * c.stroke_m * c.freq_hz / fast_share);
+    const int d = direction_index(c.direction());
+    const double along = std::fabs(c.step_m);
+    if (along > largest[d]) {
+      largest[d] = along;
+      largest_cell_[d] = i;
+      has_largest_cell_[d] = true;
+    }
+  }
+  const double max_velocity = interferometer_.capabilities().word.max_velocity_m_s;
+  if (fastest_m_s > max_velocity)
+    throw model::InputError(
+        "interferometer.max_velocity_m_s: " + model::format_number(max_velocity) +
+        " m/s is below the slider's fastest velocity jump in the usable cells of the map (" +
+        model::format_number(fastest_m_s) +
+        " m/s: m/(M+m) times the fast phase's rate); real motion would read as glitches. Raise "
+        "it above that, or narrow the map (limits.max_freq_hz, limits.max_stroke_m)");
+  status_.state = MotionState::Idle;
+}
+
+double Positioner::tolerance_m() const {
+  return config_.tolerance_m > 0 ? config_.tolerance_m : count_m_;
+}
+
+bool Positioner::at_rest() const {
+  return status_.state == MotionState::Idle || status_.state == MotionState::Fault;
+}
+
+// ---- commands ----
+
+Refusal Positioner::move_absolute(double target_m) {
+  if (!std::isfinite(target_m)) return Refusal::NotFinite;
+  if (phase_ == Phase::Fault) return Refusal::Faulted;
+  if (phase_ != Phase::Idle) return Refusal::Busy;
+  if (target_m < config_.soft_lower_m || target_m > config_.soft_upper_m)
+    return Refusal::OutsideSoftLimits;
+  if (!status_.position_valid) return Refusal::NoPosition;
+  status_.target_m = target_m;
+  status_.closed_loop = true;
+  status_.corrections = 0;
+  status_.fault = MotionFault::None;
+  ++status_.moves;
+  stop_requested_ = false;
+  last_try_done_ = false;
+  stall_count_ = 0;
+  move_chunks_ = 0;
+  move_cycles_ = 0;
+  move_started_ = false;
+  phase_ = Phase::Pending;
+  status_.state = MotionState::Moving;
+  return Refusal::None;
+}
+
+Refusal Positioner::move_relative(double distance_m) {
+  if (!std::isfinite(distance_m)) return Refusal::NotFinite;
+  if (phase_ == Phase::Fault) return Refusal::Faulted;
+  if (phase_ != Phase::Idle) return Refusal::Busy;
+  if (!status_.position_valid) return Refusal::NoPosition;
+  return move_absolute(status_.position_m + distance_m);
+}
+
+double Positioner::nominal_open_loop_step_m(double freq_hz, double duty, double stroke_m) const {
+  return model::steady_step_corrected_m(map_.config().stage, freq_hz, duty, stroke_m);
+}
+
+Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq_hz,
+                                   double stroke_m) {
+  if (!std::isfinite(duty) || !std::isfinite(freq_hz) || !std::isfinite(stroke_m))
+    return Refusal::NotFinite;
+  if (phase_ == Phase::Fault) return Refusal::Faulted;
+  if (phase_ != Phase::Idle) return Refusal::Busy;
+  if (!status_.position_valid) return Refusal::NoPosition;
+  if (cycles == 0) return Refusal::OutOfRange;
+  const int sign = cycles > 0 ? 1 : -1;
+  const std::uint64_t n = static_cast<std::uint64_t>(cycles > 0 ? cycles : -cycles);
+  const DeviceLimits& lim = map_.config().limits;
+  Chunk c;
+  if (duty <= 0 || freq_hz <= 0 || stroke_m <= 0) {
+    // The map's largest-step cell moving that way (positive cycles: positive).
+    const int d = direction_index(sign);
+    if (!has_largest_cell_[d]) return Refusal::OutOfRange;
+    const RegionCell& cell = map_.cells()[largest_cell_[d]];
+    c.freq_hz = cell.freq_hz;
+    c.duty = cell.duty;
+    c.stroke_m = cell.stroke_m;
+    c.period_samples = cell.period_samples;
+    c.extension_samples = cell.extension_samples;
+  } else {
+    if (!(duty > 0 && duty < 1) || duty == 0.5) return Refusal::OutOfRange;
+    if (cycles < 0) duty = 1.0 - duty;
+    if (freq_hz < lim.min_freq_hz * (1 - 1e-12) || freq_hz > lim.max_freq_hz * (1 + 1e-12))
+      return Refusal::OutOfRange;
+    if (stroke_m < lim.min_stroke_m * (1 - 1e-12) || stroke_m > lim.max_stroke_m * (1 + 1e-12))
+      return Refusal::OutOfRange;
+    c.stroke_m = stroke_m;
+    if (buffered_) {
+      const ClockedWave w = snap_to_sample_clock(sample_rate_hz_, freq_hz, duty);
+      if ((w.duty - 0.5) * (duty - 0.5) <= 0) return Refusal::OutOfRange;
+      c.freq_hz = w.freq_hz;
+      c.duty = w.duty;
+      c.period_samples = w.period_samples;
+      c.extension_samples = w.extension_samples;
+    } else {
+      c.freq_hz = freq_hz;
+      c.duty = duty;
+    }
+  }
+  if (n > lim.max_burst_cycles * 1000000ull) return Refusal::OutOfRange;
+  if (buffered_ && c.period_samples + 1 > samples_.size()) return Refusal::OutOfRange;
+  // Soft limits: the nominal steady step times the cycles must stay inside.
+  const double step = nominal_open_loop_step_m(c.freq_hz, c.duty, c.stroke_m);
+  const double end = status_.position_m + static_cast<double>(n) * step;
+  if (end < config_.soft_lower_m || end > config_.soft_upper_m) return Refusal::OutsideSoftLimits;
+  c.predicted_m = step;  // per cycle here; per chunk when a chunk is made
+  c.cell = nullptr;
+  open_loop_ = c;
+  open_loop_remaining_ = n;
+  status_.target_m = end;
+  status_.closed_loop = false;
+  status_.corrections = 0;
+  status_.fault = MotionFault::None;
+  stop_requested_ = false;
+  stall_count_ = 0;
+  move_chunks_ = 0;
+  move_cycles_ = 0;
+  move_started_ = false;
+  phase_ = Phase::Pending;
+  status_.state = MotionState::Moving;
+  return Refusal::None;
+}
+
+void Positioner::stop() {
+  if (phase_ == Phase::Idle || phase_ == Phase::Fault) return;
+  stop_requested_ = true;
+}
+
+void Positioner::reset_fault() {
+  if (phase_ != Phase::Fault) return;
+  phase_ = Phase::Idle;
+  status_.state = MotionState::Idle;
+  status_.fault = MotionFault::None;
+  invalid_sample_status_ = 0;
+  last_driver_error_.clear();
+  stop_requested_ = false;
+  poll_due_ = true;  // the next tick re-reads the position
+}
+
+Refusal Positioner::set_soft_limits(double lower_m, double upper_m) {
+  if (std::isnan(lower_m) || std::isnan(upper_m)) return Refusal::NotFinite;
+  if (!(lower_m < upper_m)) return Refusal::OutOfRange;
+  if (phase_ != Phase::Idle && phase_ != Phase::Fault) {
+    // A move in progress must not end outside the new limits.
+    if (status_.target_m < lower_m || status_.target_m > upper_m) return Refusal::Busy;
+  }
+  config_.soft_lower_m = lower_m;
+  config_.soft_upper_m = upper_m;
+  return Refusal::None;
+}
+
+// ---- faults ----
+
+void Positioner::enter_fault(MotionFault fault) {
+  // Output to zero at once; its own failure is kept for the message but changes nothing.
+  const drivers::DriverStatus s = output_.stop();
+  if (!s.ok() && last_driver_error_.empty())
+    last_driver_error_.assign(s.message, 0, std::min(s.message.size(), kDriverErrorCapacity));
+  phase_ = Phase::Fault;
+  status_.state = MotionState::Fault;
+  status_.fault = fault;
+  stop_requested_ = false;
+}
+
+void Positioner::driver_fault(const drivers::DriverStatus& status) {
+  last_driver_error_.assign(status.message, 0, std::min(status.message.size(), kDriverErrorCapacity));
+  enter_fault(MotionFault::Driver);
+}
+
+// ---- reading the interferometer ----
+
+bool Positioner::latch_position(double& position_m) {
+  latch_decoder_.reset();
+  double sum = 0;
+  for (int i = 0; i < config_.latch_words; ++i) {
+    std::uint64_t word = 0;
+    const drivers::DriverStatus s = interferometer_.latch(word);
+    if (!s.ok()) {
+      driver_fault(s);
+      return false;
+    }
+    const drivers::PositionSample p = latch_decoder_.decode(word);
+    if (!p.valid()) {
+      status_.position_valid = false;
+      invalid_sample_status_ = p.status;
+      enter_fault(MotionFault::InvalidSample);
+      return false;
+    }
+    sum += p.position_m;
+  }
+  position_m = sum / config_.latch_words;
+  status_.position_m = position_m;
+  status_.position_valid = true;
+  return true;
+}
+
+bool Positioner::drain_stream() {
+  for (;;) {
+    std::size_t n = 0;
+    const drivers::DriverStatus s = interferometer_.read_stream(stream_.data(), stream_.size(), n);
+    for (std::size_t i = 0; i < n; ++i) {
+      const drivers::PositionSample p = stream_decoder_.decode(stream_[i].word);
+      if (!p.valid()) {
+        status_.position_valid = false;
+        invalid_sample_status_ = p.status;
+        enter_fault(MotionFault::InvalidSample);
+        return false;
+      }
+      status_.position_m = p.position_m;
+    }
+    if (!s.ok()) {
+      driver_fault(s);
+      return false;
+    }
+    if (n < stream_.size()) return true;
+  }
+}
+
+// ---- playing ----
+
+std::uint64_t Positioner::chunk_cycle_limit(double freq_hz, std::uint32_t period_samples,
+                                            std::uint64_t max_cycles) const {
+  double n = std::floor(config_.max_chunk_s * freq_hz * (1 + 1e-12));
+  if (buffered_ && period_samples > 0)
+    n = std::min(n, std::floor(static_cast<double>(samples_.size() - 1) / period_samples));
+  if (max_cycles > 0) n = std::min(n, static_cast<double>(max_cycles));
+  const DeviceLimits& lim = map_.config().limits;
+  n = std::min(n, static_cast<double>(lim.max_burst_cycles));
+  if (!buffered_) n = std::min(n, static_cast<double>(output_.capabilities().max_cycles));
+  return n < 1 ? 1 : static_cast<std::uint64_t>(n);
+}
+
+bool Positioner::start_chunk() {
+  const Chunk& c = chunk_;
+  drivers::DriverStatus s;
+  if (buffered_) {
+    const std::uint32_t P = c.period_samples, k = c.extension_samples;
+    const std::size_t n = static_cast<std::size_t>(c.cycles) * P + 1;
+    if (P < 2 || k < 1 || k >= P || n > samples_.size()) {
+      s = drivers::DriverStatus::failure(drivers::DriverError::InvalidArgument,
+                                         "control: a chunk does not fit the sample buffer");
+      driver_fault(s);
+      return false;
+    }
+    double* xi = samples_.data();
+    const double rise = c.stroke_m / k, fall = c.stroke_m / (P - k);
+    std::size_t i = 0;
+    for (std::uint64_t cycle = 0; cycle < c.cycles; ++cycle) {
+      for (std::uint32_t j = 0; j < k; ++j) xi[i++] = rise * j;
+      for (std::uint32_t j = k; j < P; ++j) xi[i++] = fall * (P - j);
+    }
+    xi[i] = 0.0;
+    s = output_.write_burst(xi, n, sample_rate_hz_);
+  } else {
+    model::TriangleWave wave{c.freq_hz, c.duty, c.stroke_m, static_cast<int>(c.cycles)};
+    s = output_.write_burst_parameters(wave);
+  }
+  if (!s.ok()) {
+    driver_fault(s);
+    return false;
+  }
+  stream_decoder_.reset();
+  chunk_start_position_m_ = status_.position_m;
+  s = output_.start();
+  if (!s.ok()) {
+    driver_fault(s);
+    return false;
+  }
+  ++status_.bursts;
+  ++move_chunks_;
+  status_.cycles += c.cycles;
+  move_cycles_ += c.cycles;
+  phase_ = Phase::Playing;
+  status_.state = MotionState::Moving;
+  return true;
+}
+
+void Positioner::finish(double now_s) {
+  phase_ = Phase::Idle;
+  status_.state = MotionState::Idle;
+  status_.last_move_time_s = now_s - move_start_s_;
+  stop_requested_ = false;
+  last_poll_s_ = now_s;
+}
+
+void Positioner::plan_next_chunk(double now_s) {
+  const double error = status_.target_m - status_.position_m;
+  if (std::fabs(error) <= tolerance_m()) {
+    finish(now_s);
+    return;
+  }
+  if (last_try_done_) {
+    // The plan's last burst was played in full, or a chunk passed the target, and the target is
+    // not reached: a correction (the motor record's retry).
+    last_try_done_ = false;
+    if (static_cast<int>(status_.corrections) >= config_.max_retries) {
+      enter_fault(MotionFault::RetryLimit);
+      return;
+    }
+    ++status_.corrections;
+  }
+  if (static_cast<int>(move_chunks_) >= max_chunks_) {
+    enter_fault(MotionFault::RetryLimit);
+    return;
+  }
+  const int sign = error > 0 ? 1 : -1;
+  planner_.plan(error, plan_);
+  if (plan_.bursts.empty()) {
+    // Nothing usable moves that way, or nothing comes closer than where the slider is.
+    enter_fault(planner_.largest_step_m(sign) == 0 ? MotionFault::NoPlan : MotionFault::RetryLimit);
+    return;
+  }
+  const Burst& b = plan_.bursts.front();
+  const RegionCell& cell = map_.cells()[b.cell_index];
+  const bool last = plan_.bursts.size() == 1;
+  const double distance = std::fabs(error);
+  // The step model along the motion: calibrated where the calibration knows the cell.
+  double single = sign * cell.single_burst_m, step = sign * cell.step_m;
+  const bool calibrated = calibration_ != nullptr && calibration_->predict(cell, single, step);
+  std::uint64_t cycles = b.cycles;
+  const std::uint64_t max_cycles = cell.max_cycles > 0 ? cell.max_cycles : b.cycles;
+  auto clamp = [&](double n) -> std::uint64_t {
+    if (!(n >= 1)) return 1;
+    if (n >= static_cast<double>(max_cycles)) return max_cycles;
+    return static_cast<std::uint64_t>(n);
+  };
+  if (last) {
+    if (calibrated) cycles = clamp(1 + std::round((distance - single) / step));
+  } else {
+    // Stop the planner's approach margin short even if the prediction is approach_uncertainty
+    // too small.
+    const double leave = 0.5 * planner_.config().final_approach_steps * planner_.final_step_bound_m(sign);
+    const double room = (distance - leave) / (1 + config_.approach_uncertainty);
+    cycles = clamp(1 + std::floor((room - single) / step));
+    if (!calibrated) cycles = std::min(cycles, b.cycles);
+  }
+  chunk_.freq_hz = cell.freq_hz;
+  chunk_.duty = cell.duty;
+  chunk_.stroke_m = cell.stroke_m;
+  chunk_.period_samples = cell.period_samples;
+  chunk_.extension_samples = cell.extension_samples;
+  chunk_.cell = &cell;
+  chunk_.direction = sign;
+  const std::uint64_t limit = chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles);
+  chunk_.cycles = std::min(cycles, limit);
+  chunk_.completes_last_burst = last && chunk_.cycles == cycles;
+  const double predicted = sign * (single + static_cast<double>(chunk_.cycles - 1) * step);
+  chunk_.predicted_m = std::fabs(predicted) >= config_.stall_min_counts * count_m_ ? predicted : 0.0;
+  start_chunk();
+}
+
+void Positioner::next_open_loop_chunk(double now_s) {
+  if (open_loop_remaining_ == 0) {
+    finish(now_s);
+    return;
+  }
+  chunk_ = open_loop_;
+  chunk_.cycles = std::min(open_loop_remaining_,
+                           chunk_cycle_limit(chunk_.freq_hz, chunk_.period_samples, 0));
+  open_loop_remaining_ -= chunk_.cycles;
+  const double predicted = open_loop_.predicted_m * static_cast<double>(chunk_.cycles);
+  chunk_.predicted_m = std::fabs(predicted) >= config_.stall_min_counts * count_m_ ? predicted : 0.0;
+  chunk_.completes_last_burst = false;
+  start_chunk();
+}
+
+void Positioner::after_chunk(double now_s) {
+  double position = 0;
+  if (!latch_position(position)) return;
+  const double moved = position - chunk_start_position_m_;
+  // Stall: a chunk that moved less than stall_fraction of its prediction (or backwards).
+  if (chunk_.predicted_m != 0) {
+    const double along = moved / chunk_.predicted_m;
+    if (along < config_.stall_fraction) {
+      if (++stall_count_ >= config_.stall_bursts) {
+        enter_fault(MotionFault::Stall);
+        return;
+      }
+    } else {
+      stall_count_ = 0;
+      if (calibration_ != nullptr && chunk_.cell != nullptr)
+        calibration_->update(*chunk_.cell, chunk_.cycles, moved, count_m_);
+    }
+  }
+  if (stop_requested_) {
+    finish(now_s);
+    return;
+  }
+  if (status_.closed_loop) {
+    const bool passed = (status_.target_m - position) * chunk_.direction < 0;
+    last_try_done_ = chunk_.completes_last_burst || passed;
+    plan_next_chunk(now_s);
+  } else {
+    next_open_loop_chunk(now_s);
+  }
+}
+
+void Positioner::tick(double now_s) {
+  switch (phase_) {
+    case Phase::Fault:
+      return;
+    case Phase::Idle: {
+      if (poll_due_ || now_s - last_poll_s_ >= config_.idle_poll_s) {
+        poll_due_ = false;
+        last_poll_s_ = now_s;
+        double p = 0;
+        latch_position(p);
+      }
+      return;
+    }
+    case Phase::Pending: {
+      if (!move_started_) {
+        move_started_ = true;
+        move_start_s_ = now_s;
+      }
+      if (stop_requested_) {
+        finish(now_s);
+        return;
+      }
+      double p = 0;
+      if (!latch_position(p)) return;
+      if (status_.closed_loop) plan_next_chunk(now_s);
+      else next_open_loop_chunk(now_s);
+      return;
+    }
+    case Phase::Playing: {
+      if (!drain_stream()) return;
+      bool done = false;
+      const drivers::DriverStatus s = output_.is_done(done);
+      if (!s.ok()) {
+        driver_fault(s);
+        return;
+      }
+      if (!done) return;
+      if (!drain_stream()) return;
+      phase_ = Phase::Settling;
+      status_.state = MotionState::Settling;
+      settle_until_s_ = now_s + config_.settle_s;
+      if (config_.settle_s > 0) return;
+      [[fallthrough]];
+    }
+    case Phase::Settling:
+      if (now_s < settle_until_s_) return;
+      after_chunk(now_s);
+      return;
+  }
+}
+
+}  // namespace idm::control

@@ -1,0 +1,266 @@
+// idmd: the daemon. `idmd --config FILE [--port N] [--unix PATH]`, `idmd --check-config FILE`.
+// Exit codes: daemon/README.md (0 ok, 1 runtime error, 2 bad usage or config, 3 hardware not
+// available, 4 cannot listen).
+#include <poll.h>
+#include <signal.h>
+#include <sys/signalfd.h>
+#include <unistd.h>
+
+#include <spdlog/pattern_formatter.h>
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <iostream>
+#include <memory>
+#include <string>
+
+#include "daemon/config.h"
+#include "daemon/daemon.h"
+#include "daemon/notify.h"
+#include "daemon/server.h"
+#include "model/stage.h"
+#include "model/yaml_util.h"
+
+#ifndef IDM_VERSION
+#define IDM_VERSION "0"
+#endif
+
+namespace {
+
+using namespace idm::daemon;
+
+constexpr const char* kDefaultConfig = IDMD_DEFAULT_CONFIG;
+
+void usage(std::FILE* to) {
+  std::fprintf(to,
+               "usage: idmd [--config FILE] [--port N] [--unix PATH]\n"
+               "       idmd --check-config FILE\n"
+               "       idmd --version\n"
+               "  --config FILE        configuration (default %s)\n"
+               "  --port N             TCP port of the command protocol (0: any free port)\n"
+               "  --unix PATH          Unix socket of the command protocol (\"\": none)\n"
+               "  --check-config FILE  check a configuration and exit (0 ok, 2 bad)\n"
+               "exit codes: 0 ok, 1 runtime error, 2 bad usage or configuration,\n"
+               "            3 hardware not available, 4 cannot listen\n",
+               kDefaultConfig);
+}
+
+// journald reads "<N>" priority prefixes on stderr/stdout lines (sd-daemon(3)).
+class JournalPriority final : public spdlog::custom_flag_formatter {
+ public:
+  void format(const spdlog::details::log_msg& msg, const std::tm&, spdlog::memory_buf_t& dest) override {
+    static const char* const kPrefix[] = {"<7>", "<7>", "<6>", "<4>", "<3>", "<2>", "<6>"};
+    const char* p = kPrefix[static_cast<int>(msg.level)];
+    dest.append(p, p + 3);
+  }
+  std::unique_ptr<custom_flag_formatter> clone() const override {
+    return std::make_unique<JournalPriority>();
+  }
+};
+
+void setup_logging(const LoggingConfig& cfg) {
+  auto logger = std::make_shared<spdlog::logger>("idmd", std::make_shared<spdlog::sinks::stderr_sink_mt>());
+  const bool journal = cfg.format == "journal" ||
+                       (cfg.format == "auto" && (std::getenv("JOURNAL_STREAM") || Notifier::under_systemd()));
+  auto formatter = std::make_unique<spdlog::pattern_formatter>();
+  if (journal) {
+    formatter->add_flag<JournalPriority>('*').set_pattern("%*%v");
+  } else {
+    formatter->set_pattern("%Y-%m-%d %H:%M:%S.%e idmd %l: %v");
+  }
+  logger->set_formatter(std::move(formatter));
+  logger->set_level(spdlog::level::from_str(cfg.level));
+  logger->flush_on(spdlog::level::trace);
+  spdlog::set_default_logger(logger);
+}
+
+std::string describe(const DaemonConfig& c) {
+  std::string s = "driver " + c.driver;
+  s += ", loop " + idm::model::format_number(1.0 / c.realtime.period_s) + " Hz";
+  if (!c.server.tcp_address.empty())
+    s += ", tcp " + c.server.tcp_address + ":" + std::to_string(c.server.tcp_port);
+  if (!c.server.unix_socket.empty()) s += ", unix " + c.server.unix_socket;
+  return s;
+}
+
+bool parse_int(const std::string& text, long lo, long hi, int& out) {
+  char* end = nullptr;
+  errno = 0;
+  const long v = std::strtol(text.c_str(), &end, 10);
+  if (errno != 0 || end == text.c_str() || *end != '\0' || v < lo || v > hi) return false;
+  out = static_cast<int>(v);
+  return true;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string config_path = kDefaultConfig;
+  std::string check_path;
+  bool have_port = false, have_unix = false;
+  int port = 0;
+  std::string unix_path;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&](const char* name) -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "idmd: %s needs a value\n", name);
+        usage(stderr);
+        std::exit(exit_code::kBadConfig);
+      }
+      return argv[++i];
+    };
+    if (a == "--config" || a == "-c") {
+      config_path = value("--config");
+    } else if (a == "--check-config") {
+      check_path = value("--check-config");
+    } else if (a == "--port") {
+      if (!parse_int(value("--port"), 0, 65535, port)) {
+        std::fprintf(stderr, "idmd: --port: '%s' is not a port, allowed 0..65535\n", argv[i]);
+        return exit_code::kBadConfig;
+      }
+      have_port = true;
+    } else if (a == "--unix") {
+      unix_path = value("--unix");
+      have_unix = true;
+    } else if (a == "--version") {
+      std::printf("idmd %s\n", IDM_VERSION);
+      return exit_code::kOk;
+    } else if (a == "--help" || a == "-h") {
+      usage(stdout);
+      return exit_code::kOk;
+    } else {
+      std::fprintf(stderr, "idmd: unknown argument '%s'\n", a.c_str());
+      usage(stderr);
+      return exit_code::kBadConfig;
+    }
+  }
+
+  if (!check_path.empty()) {
+    try {
+      const DaemonConfig c = load_daemon_config(check_path);
+      std::printf("%s: ok (%s)\n", check_path.c_str(), describe(c).c_str());
+      return exit_code::kOk;
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "idmd: %s\n", e.what());
+      return exit_code::kBadConfig;
+    }
+  }
+
+  DaemonConfig config;
+  try {
+    config = load_daemon_config(config_path);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "idmd: %s\n", e.what());
+    return exit_code::kBadConfig;
+  }
+  if (have_port) config.server.tcp_port = port;
+  if (have_unix) config.server.unix_socket = unix_path;
+  setup_logging(config.logging);
+  Notifier notifier;
+
+  // Signals are read from a signalfd by this thread; every thread started below inherits the mask.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGHUP);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  const int sfd = signalfd(-1, &signals, SFD_CLOEXEC);
+  if (sfd < 0) {
+    spdlog::error("signalfd: {}", std::strerror(errno));
+    return exit_code::kRuntimeError;
+  }
+  signal(SIGPIPE, SIG_IGN);
+
+  spdlog::info("idmd {} starting: {} ({})", IDM_VERSION, config_path, describe(config));
+  notifier.status("Opening the " + config.driver + " device");
+  Daemon daemon(config);
+  try {
+    const std::string warning = daemon.start();
+    if (!warning.empty()) spdlog::warn("{}", warning);
+  } catch (const StartError& e) {
+    spdlog::error("{}", e.what());
+    notifier.status(std::string("Failed: ") + e.what());
+    return e.exit_code();
+  } catch (const std::exception& e) {
+    spdlog::error("start: {}", e.what());
+    return exit_code::kRuntimeError;
+  }
+  if (std::string note = daemon.last_sweep_report(); !note.empty()) spdlog::warn("{}", note);
+
+  ServerConfig sc;
+  sc.tcp_host = config.server.tcp_address;
+  sc.tcp_port = config.server.tcp_port;
+  sc.unix_path = config.server.unix_socket;
+  sc.max_clients = config.server.max_clients;
+  sc.log = [](std::string_view line) { spdlog::debug("server: {}", line); };
+  Server server(daemon, sc);
+  if (const std::string err = server.start(); !err.empty()) {
+    spdlog::error("cannot listen: {}", err);
+    notifier.status("Failed: cannot listen: " + err);
+    daemon.shutdown();
+    return exit_code::kListenFailed;
+  }
+  std::string where;
+  if (server.tcp_port() >= 0) where = "tcp " + sc.tcp_host + ":" + std::to_string(server.tcp_port());
+  if (!sc.unix_path.empty()) where += (where.empty() ? "" : ", ") + std::string("unix ") + sc.unix_path;
+  // One line on stdout that scripts and tests read for the port.
+  std::printf("idmd: listening on %s\n", where.c_str());
+  std::fflush(stdout);
+  spdlog::info("ready: listening on {}", where);
+  notifier.ready("Ready: " + config.driver + " device active, listening on " + where);
+  if (const double wd = notifier.start_watchdog([&daemon] { return daemon.loop_ticks(); }); wd > 0)
+    spdlog::info("watchdog: every {} s while the real-time loop advances", idm::model::format_number(wd / 4));
+
+  int exit_status = exit_code::kOk;
+  std::string last_report = daemon.last_sweep_report();
+  for (bool running = true; running;) {
+    pollfd pfd{sfd, POLLIN, 0};
+    const int r = poll(&pfd, 1, 500);
+    if (r < 0 && errno != EINTR) {
+      spdlog::error("poll: {}", std::strerror(errno));
+      exit_status = exit_code::kRuntimeError;
+      break;
+    }
+    if (const std::string rep = daemon.last_sweep_report(); rep != last_report) {
+      spdlog::info("{}", rep);
+      last_report = rep;
+    }
+    if (!daemon.loop_running()) {
+      spdlog::error("the real-time loop has ended");
+      exit_status = exit_code::kRuntimeError;
+      break;
+    }
+    if (r <= 0 || !(pfd.revents & POLLIN)) continue;
+    signalfd_siginfo si{};
+    if (read(sfd, &si, sizeof si) != static_cast<ssize_t>(sizeof si)) continue;
+    if (si.ssi_signo == SIGHUP) {
+      spdlog::info("SIGHUP: reloading the control settings from {}", config_path);
+      notifier.send_reloading();
+      std::string error;
+      if (daemon.reload_control(error)) spdlog::info("control settings reloaded");
+      else spdlog::error("reload failed, the old settings stay: {}", error);
+      notifier.ready("Ready: control settings reloaded, listening on " + where);
+    } else {
+      spdlog::info("{}: stopping motion and shutting down", si.ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT");
+      running = false;
+    }
+  }
+
+  notifier.stopping("Stopping: bringing the actuator to rest");
+  notifier.stop_watchdog();
+  server.stop();
+  daemon.shutdown();
+  const double xi = daemon.sim_output_m();
+  if (std::isnan(xi)) spdlog::info("stopped: output at zero, device shut down");
+  else spdlog::info("stopped: output at zero (commanded elongation {} m), device shut down",
+                    idm::model::format_number(xi));
+  close(sfd);
+  return exit_status;
+}

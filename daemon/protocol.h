@@ -1,0 +1,202 @@
+// The idmd command protocol (../shared/specs/command-protocol.md): SCPI-style lines in, one reply
+// line per query out, errors in a per-session queue. No sockets here: the pure functions below
+// (line splitting, keyword matching, numbers, lists, reply formatting) and Session (one client's
+// line framing, error queue and command table over an Instrument) are tested on their own; the
+// socket server (server.h) only moves bytes in and out of Sessions.
+//
+// Rules the whole file keeps (see daemon/README.md for the command list):
+//  * A line ends in LF (CR LF accepted). At most kMaxLineBytes bytes before the terminator; a
+//  longer
+//    line is discarded up to its newline and leaves -363 in the queue.
+//  * A line whose first word ends in '?' is a query and gets exactly one reply line, also when it
+//    fails (then the line is empty and the error is in the queue). Any other line gets none.
+//  * Keywords are case-insensitive; a keyword is accepted in its short form (the upper-case part of
+//    the pattern: MOVE:ABS for MOVE:ABSolute) or in full, nothing in between (as SCPI says).
+//  * Arguments follow the header after white space, separated by commas; "..." quotes a string
+//    (a doubled "" inside stands for one "). Numbers: SI units, plain decimal or exponent, finite.
+//  * Nothing here blocks: *OPC? and *WAI hold the session's later lines until the instrument says
+//    motion_done(); the server calls Session::poll() while a session waits.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <deque>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "daemon/instrument.h"
+
+namespace idm::daemon {
+
+inline constexpr std::size_t kMaxLineBytes = 4096;
+inline constexpr std::size_t kErrorQueueCapacity = 32;
+inline constexpr std::size_t kMaxErrorTextBytes = 255;  // SCPI's limit for an error string
+inline constexpr std::size_t kMaxListValues = 10000;    // a SWEEP list
+inline constexpr char kScpiVersion[] = "1999.0";        // SYSTem:VERSion? (SCPI-99)
+
+// ---------------------------------------------------------------------------------------------
+// Pure functions
+
+// "Data out of range" for -222, "Stall" for 102, "Error" for a code it does not know.
+const char* standard_error_text(int code);
+
+// An error with its text as the queue holds it: "<standard text>; <detail>" (the detail alone
+// when it already starts with the standard text), ASCII printable only, at most
+// kMaxErrorTextBytes.
+CommandError make_error(int code, std::string_view detail = {});
+
+// SCPI string: quoted, every " doubled.
+std::string quote(std::string_view text);
+// "<code>,\"<text>\"" as SYSTem:ERRor? replies.
+std::string format_error(const CommandError& error);
+
+// A number in a reply: 12 significant digits, locale-independent ("1.234e-07", "0.001", "-3").
+// +-infinity as SCPI's +-9.9e+37 and NaN as 9.91e+37, so that a reply is always a finite number.
+std::string format_value(double value);
+
+// Is this line a query (its first word ends in '?')? Decided on the raw bytes so that the server
+// and a client agree also on lines that fail to parse.
+bool looks_like_query(std::string_view line);
+
+struct ParsedLine {
+  std::string header;  // as sent, without the leading ':' and the trailing '?'
+  bool query = false;
+  std::vector<std::string> args;  // trimmed; quoted strings unquoted
+};
+// Splits "[:]HEADER[?][ ARG{,ARG}]" (no line terminator). An empty or all-blank line gives an
+// empty header. Errors: -101 (a byte outside printable ASCII and tab), -102 (a malformed header,
+// an empty argument, an unterminated string).
+CommandError parse_line(std::string_view line, ParsedLine& out);
+
+// One keyword against its pattern ("ABSolute" accepts "abs" and "ABSOLUTE", not "abso").
+bool keyword_matches(std::string_view pattern, std::string_view word);
+// A whole header ("MOVE:ABS", "syst:err:next") against a pattern ("SYSTem:ERRor[:NEXT]", "*IDN");
+// [:KEYword] marks an optional keyword.
+bool header_matches(std::string_view pattern, std::string_view header);
+
+// A finite number, "[+|-]digits[.digits][e[+|-]digits]" (or ".5"). -120 otherwise (not a number,
+// INF/NAN, out of the range of a double). `what` names the argument in the error.
+CommandError parse_number(std::string_view text, std::string_view what, double& value);
+// An integral number within [lo, hi] ("100", "1e3"): -120 not a number, -222 not integral or out
+// of range.
+CommandError parse_integer(std::string_view text, std::string_view what, std::int64_t lo,
+                           std::int64_t hi, std::int64_t& value);
+// "a:b:step" (from a to b inclusive, step > 0), "a;b;c" or a single number; at most
+// kMaxListValues values. -120 for a bad number, -102 for an empty item, -222 for a bad range.
+CommandError parse_list(std::string_view text, std::string_view what, std::vector<double>& values);
+
+// ---------------------------------------------------------------------------------------------
+// The error queue of one session: oldest first, bounded. When it is full, the newest entry is
+// replaced by -350 "Queue overflow" (SCPI-99 21.8) and later errors are dropped until it drains.
+class ErrorQueue {
+ public:
+  explicit ErrorQueue(std::size_t capacity = kErrorQueueCapacity);
+  void push(CommandError error);
+  // The oldest error, removed; {0, "No error"} when empty.
+  CommandError pop();
+  std::size_t size() const { return queue_.size(); }
+  bool empty() const { return queue_.empty(); }
+  void clear();
+  // The code of the newest error pushed since the last clear() (0: none), dropped ones included.
+  int last_code() const { return last_code_; }
+
+ private:
+  std::size_t capacity_;
+  std::deque<CommandError> queue_;
+  int last_code_ = error_code::kNoError;
+};
+
+// The commands a Session knows, as (pattern, query); for tests and documentation.
+struct CommandInfo {
+  const char* pattern;  // "MOVE:ABSolute", "SYSTem:ERRor[:NEXT]"
+  bool query;
+  int min_args;
+  int max_args;
+  const char* arguments;  // "<m>", "<n>[,<duty>,<freq_hz>[,<stroke_m>]]", "" for none
+};
+const std::vector<CommandInfo>& command_table();
+
+// ---------------------------------------------------------------------------------------------
+// One client's session: line framing, the error queue, the command table. Not thread-safe; the
+// server calls it from its one thread. The Instrument must outlive it.
+class Session {
+ public:
+  explicit Session(Instrument& instrument);
+
+  // Bytes as they arrive (any split); replies (each ending in "\n") are appended to `replies`.
+  void receive(std::string_view bytes, std::string& replies);
+  // The peer will send nothing more: a last line without its newline is executed.
+  void end_of_input(std::string& replies);
+  // While waiting() (*OPC? or *WAI): resumes once the instrument's motion is done.
+  void poll(std::string& replies);
+  bool waiting() const { return wait_ != Wait::None; }
+  // All input received has been executed (nothing held, no partial line); after end_of_input()
+  // this means the session has nothing more to say.
+  bool idle() const { return wait_ == Wait::None && input_.empty(); }
+  // Bytes received and not yet executed (held behind *OPC?/*WAI, or a partial line).
+  std::size_t held_bytes() const { return input_.size(); }
+  // Bytes received since the last newline, including a too-long line's discarded part: the server
+  // disconnects a client that streams too much without any newline.
+  std::size_t unterminated_bytes() const { return unterminated_; }
+
+  const ErrorQueue& errors() const { return errors_; }
+
+ private:
+  enum class Wait { None, OpcQuery, Wai };
+  struct Command;
+  using Args = std::vector<std::string>;
+
+  void process(std::string& replies);
+  void execute_line(std::string_view line, std::string& replies);
+  void line_too_long(std::string_view start, std::string& replies);
+  void push(CommandError error);
+  void notice_motion_end();
+  void started_motion(const CommandError& result);
+
+  CommandError idn(const Args&, std::string& reply);
+  CommandError rst(const Args&, std::string& reply);
+  CommandError cls(const Args&, std::string& reply);
+  CommandError opc_query(const Args&, std::string& reply);
+  CommandError wai(const Args&, std::string& reply);
+  CommandError tst(const Args&, std::string& reply);
+  CommandError error_next(const Args&, std::string& reply);
+  CommandError error_count(const Args&, std::string& reply);
+  CommandError error_all(const Args&, std::string& reply);
+  CommandError version(const Args&, std::string& reply);
+  CommandError loop(const Args&, std::string& reply);
+  CommandError position(const Args&, std::string& reply);
+  CommandError move_absolute(const Args&, std::string& reply);
+  CommandError move_target(const Args&, std::string& reply);
+  CommandError move_relative(const Args&, std::string& reply);
+  CommandError move_done(const Args&, std::string& reply);
+  CommandError stop(const Args&, std::string& reply);
+  CommandError step(const Args&, std::string& reply);
+  CommandError region(const Args&, std::string& reply);
+  CommandError limit_lower(const Args&, std::string& reply);
+  CommandError limit_upper(const Args&, std::string& reply);
+  CommandError limit_lower_query(const Args&, std::string& reply);
+  CommandError limit_upper_query(const Args&, std::string& reply);
+  CommandError limits(const Args&, std::string& reply);
+  CommandError limits_query(const Args&, std::string& reply);
+  CommandError status(const Args&, std::string& reply);
+  CommandError sweep(const Args&, std::string& reply);
+
+  static const std::vector<Command>& commands();
+  friend const std::vector<CommandInfo>& command_table();
+
+  Instrument& instrument_;
+  ErrorQueue errors_;
+  std::string input_;  // received, not yet executed
+  std::size_t unterminated_ = 0;
+  bool discarding_ = false;  // inside a too-long line: drop up to the next newline
+  bool end_of_input_ = false;
+  Wait wait_ = Wait::None;
+  bool motion_started_ = false;  // this session started a motion whose end it has not seen
+};
+
+// The device fault a status reports ("stall", ...) as an error with its positive code
+// (kFaultStall, ...); "none" or "" -> kNoError; an unknown name -> kExecutionError.
+CommandError fault_error(const std::string& fault_name);
+
+}  // namespace idm::daemon

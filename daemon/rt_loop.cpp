@@ -1,0 +1,154 @@
+#include "daemon/rt_loop.h"
+
+#include <pthread.h>
+#include <sched.h>
+#include <sys/mman.h>
+#include <sys/resource.h>
+#include <time.h>
+
+#include <cerrno>
+#include <cstring>
+
+namespace idm::daemon {
+
+namespace {
+
+constexpr std::int64_t kNsPerS = 1000000000;
+
+std::int64_t to_ns(const timespec& t) { return std::int64_t{t.tv_sec} * kNsPerS + t.tv_nsec; }
+timespec to_timespec(std::int64_t ns) {
+  timespec t;
+  t.tv_sec = static_cast<time_t>(ns / kNsPerS);
+  t.tv_nsec = static_cast<long>(ns % kNsPerS);
+  return t;
+}
+std::int64_t now_ns() {
+  timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return to_ns(t);
+}
+
+std::string limit_text(int resource) {
+  rlimit lim{};
+  if (getrlimit(resource, &lim) != 0) return "unknown";
+  if (lim.rlim_cur == RLIM_INFINITY) return "unlimited";
+  return std::to_string(static_cast<unsigned long long>(lim.rlim_cur));
+}
+
+// Touches a stack region so that the loop's first ticks do not fault pages in.
+void prefault_stack() {
+  volatile unsigned char buffer[64 * 1024];
+  for (std::size_t i = 0; i < sizeof(buffer); i += 4096) buffer[i] = 0;
+}
+
+}  // namespace
+
+RtLoop::RtLoop(const RealtimeConfig& config, LoopBody& body) : config_(config), body_(body) {
+  local_.period_s = config_.period_s;
+  local_.bin_width_s = config_.histogram_bin_s;
+  stats_.store(local_);
+}
+
+RtLoop::~RtLoop() { stop(); }
+
+std::string RtLoop::start() {
+  if (thread_.joinable()) return {};
+  stop_.store(false);
+  setup_done_.store(0);
+  running_.store(true, std::memory_order_release);
+  thread_ = std::thread([this] { run(); });
+  while (setup_done_.load(std::memory_order_acquire) == 0) std::this_thread::yield();
+  return setup_warning_;
+}
+
+void RtLoop::stop() {
+  stop_.store(true, std::memory_order_release);
+  if (thread_.joinable()) thread_.join();
+  running_.store(false, std::memory_order_release);
+}
+
+std::string RtLoop::setup_realtime() {
+  std::string why;
+  auto add = [&why](const std::string& s) { why += (why.empty() ? "" : "; ") + s; };
+  if (config_.lock_memory) {
+    if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0) {
+      const int e = errno;
+      add(std::string("mlockall failed (") + std::strerror(e) + "): RLIMIT_MEMLOCK is " +
+          limit_text(RLIMIT_MEMLOCK) +
+          " bytes; grant CAP_IPC_LOCK or LimitMEMLOCK=infinity to lock memory");
+    }
+  }
+  if (config_.cpu >= 0) {
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    CPU_SET(config_.cpu, &set);
+    const int e = pthread_setaffinity_np(pthread_self(), sizeof(set), &set);
+    if (e != 0)
+      add("CPU affinity to CPU " + std::to_string(config_.cpu) + " failed (" + std::strerror(e) +
+          "): is that CPU online and in the allowed set?");
+  }
+  if (config_.sched_fifo) {
+    sched_param p{};
+    p.sched_priority = config_.priority;
+    const int e = pthread_setschedparam(pthread_self(), SCHED_FIFO, &p);
+    if (e != 0)
+      add("SCHED_FIFO priority " + std::to_string(config_.priority) + " failed (" +
+          std::strerror(e) + "): needs CAP_SYS_NICE or RLIMIT_RTPRIO >= priority (now " +
+          limit_text(RLIMIT_RTPRIO) + ")");
+  }
+  prefault_stack();
+  if (why.empty()) return {};
+  return "real-time setup incomplete, running without it: " + why;
+}
+
+void RtLoop::publish_stats() {
+  if (local_.wakeups > 0) local_.latency_avg_s = latency_sum_s_ / static_cast<double>(local_.wakeups);
+  stats_.store(local_);
+}
+
+void RtLoop::run() {
+  setup_warning_ = setup_realtime();
+  setup_done_.store(1, std::memory_order_release);
+
+  const std::int64_t period_ns = static_cast<std::int64_t>(config_.period_s * 1e9 + 0.5);
+  const double bin_ns = config_.histogram_bin_s * 1e9;
+  constexpr std::size_t kBins = sizeof(local_.bins) / sizeof(local_.bins[0]);
+  const std::uint64_t publish_every =
+      static_cast<std::uint64_t>(0.05 / config_.period_s) > 0 ? static_cast<std::uint64_t>(0.05 / config_.period_s) : 1;
+
+  if (hook_) hook_(true);
+  std::int64_t deadline = now_ns() + period_ns;
+  while (!stop_.load(std::memory_order_acquire)) {
+    const timespec ts = to_timespec(deadline);
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+    }
+    const std::int64_t woke = now_ns();
+    const std::int64_t late = woke - deadline;
+    const double late_s = static_cast<double>(late) * 1e-9;
+    if (local_.wakeups == 0 || late_s < local_.latency_min_s) local_.latency_min_s = late_s;
+    if (late_s > local_.latency_max_s) local_.latency_max_s = late_s;
+    latency_sum_s_ += late_s;
+    ++local_.wakeups;
+    std::size_t bin = late > 0 ? static_cast<std::size_t>(static_cast<double>(late) / bin_ns) : 0;
+    if (bin >= kBins) bin = kBins - 1;
+    ++local_.bins[bin];
+
+    body_.tick(static_cast<double>(woke) * 1e-9);
+    ticks_.fetch_add(1, std::memory_order_release);
+
+    // Next deadline; when the tick (or the wake-up) overran one or more periods, those deadlines
+    // are counted as missed and skipped rather than run back to back.
+    deadline += period_ns;
+    const std::int64_t after = now_ns();
+    if (after > deadline) {
+      const std::int64_t missed = (after - deadline) / period_ns + 1;
+      local_.deadline_misses += static_cast<std::uint64_t>(missed);
+      deadline += missed * period_ns;
+    }
+    if (local_.wakeups % publish_every == 0) publish_stats();
+  }
+  publish_stats();
+  if (hook_) hook_(false);
+}
+
+}  // namespace idm::daemon

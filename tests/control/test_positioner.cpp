@@ -1,0 +1,326 @@
+// The closed-loop positioner on the simulated stage: convergence, faults (beam loss, stall,
+// invalid samples), stop, soft limits, open-loop steps, and no allocation in the loop.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "positioner_rig.h"
+
+using namespace idm;
+using namespace idm::control;
+using idm::control::test_rig::ideal_device;
+using idm::control::test_rig::Rig;
+
+namespace {
+
+const RegionMap& ideal_map() {
+  static const RegionMap map(test_rig::rig_map_config(1.0));
+  return map;
+}
+
+TEST(Positioner, ConvergesOnTheIdealPlantBothDirections) {
+  Rig rig(ideal_map(), ideal_device());
+  Positioner& p = *rig.positioner;
+  ASSERT_TRUE(p.status().position_valid);
+  const double count = p.count_m();
+  EXPECT_NEAR(p.tolerance_m(), count, 1e-18);
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> log_distance(std::log(20e-9), std::log(1e-3));
+  for (int i = 0; i < 12; ++i) {
+    const double distance = std::exp(log_distance(rng)) * (i % 2 == 0 ? 1 : -1);
+    const double target = p.status().position_m + distance;
+    ASSERT_EQ(p.move_absolute(target), Refusal::None);
+    EXPECT_EQ(p.status().state, MotionState::Moving);
+    ASSERT_EQ(rig.run(), MotionState::Idle) << "move " << i << " fault "
+                                            << motion_fault_name(p.status().fault) << " "
+                                            << drivers::describe_sample_status(p.invalid_sample_status());
+    EXPECT_LE(std::fabs(p.status().position_m - target), count) << "move " << i;
+    // The reading is the true position quantized to one count (no noise here).
+    EXPECT_LE(std::fabs(rig.sim->true_position_m() - target), 1.5 * count) << "move " << i;
+    EXPECT_LE(p.status().corrections, 3u) << "move " << i << " of " << distance;
+    EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
+  }
+  EXPECT_EQ(p.status().moves, 12u);
+  EXPECT_GT(p.status().bursts, 12u);
+}
+
+TEST(Positioner, ArrivedWithinToleranceMovesNothing) {
+  Rig rig(ideal_map(), ideal_device());
+  Positioner& p = *rig.positioner;
+  ASSERT_EQ(p.move_relative(0.3 * p.count_m()), Refusal::None);
+  ASSERT_EQ(rig.run(), MotionState::Idle);
+  EXPECT_EQ(p.status().bursts, 0u);
+}
+
+TEST(Positioner, BeamLossMidMoveFaultsWithOutputAtZero) {
+  Rig rig(ideal_map(), ideal_device());
+  Positioner& p = *rig.positioner;
+  ASSERT_EQ(p.move_relative(2e-3), Refusal::None);
+  ASSERT_TRUE(rig.run_until([&] { return p.status().bursts >= 3; }));
+  const std::uint64_t bursts = p.status().bursts;
+  rig.sim->set_beam_lost(true);
+  EXPECT_EQ(rig.run(), MotionState::Fault);
+  EXPECT_EQ(p.status().fault, MotionFault::InvalidSample);
+  EXPECT_FALSE(p.status().position_valid);
+  EXPECT_EQ(p.status().bursts, bursts) << "nothing is played after the beam is lost";
+  EXPECT_FALSE(rig.sim->running());
+  EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
+  // Commands are refused until reset_fault(); the fault stays while the beam is out.
+  EXPECT_EQ(p.move_relative(1e-6), Refusal::Faulted);
+  p.reset_fault();
+  p.tick(rig.sim->now_s());
+  EXPECT_EQ(p.status().state, MotionState::Fault);
+  rig.sim->set_beam_lost(false);
+  p.reset_fault();
+  p.tick(rig.sim->now_s());
+  EXPECT_EQ(p.status().state, MotionState::Idle);
+  EXPECT_TRUE(p.status().position_valid);
+}
+
+TEST(Positioner, BeamLossWhileAChunkPlaysStopsTheOutputAtOnce) {
+  // Wall clock: the chunk is really playing when the beam goes; the output is stopped before the
+  // chunk ends.
+  drivers::sim::SimDeviceConfig cfg = ideal_device();
+  cfg.clock = drivers::sim::ClockMode::Wall;
+  Rig rig(ideal_map(), cfg);
+  Positioner& p = *rig.positioner;
+  ASSERT_EQ(p.move_relative(1e-3), Refusal::None);
+  p.tick(rig.sim->now_s());
+  ASSERT_EQ(p.status().state, MotionState::Moving);
+  ASSERT_TRUE(rig.sim->running());
+  const double end_s = rig.sim->now_s() + 0.9 * p.last_plan().bursts.front().duration_s();
+  rig.sim->set_beam_lost(true);
+  // Ticks (as the real-time loop would) until the first lost word is read.
+  while (p.status().state == MotionState::Moving && rig.sim->now_s() < end_s) p.tick(rig.sim->now_s());
+  EXPECT_EQ(p.status().state, MotionState::Fault);
+  EXPECT_EQ(p.status().fault, MotionFault::InvalidSample);
+  EXPECT_LT(rig.sim->now_s(), end_s) << "the fault came before the chunk's end";
+  EXPECT_FALSE(rig.sim->running());
+  EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
+}
+
+TEST(Positioner, StallFaultsAfterStallBursts) {
+  PositionerConfig cfg;
+  cfg.stall_bursts = 3;
+  Rig rig(ideal_map(), ideal_device(), cfg);
+  Positioner& p = *rig.positioner;
+  const double start = rig.sim->true_position_m();
+  rig.sim->set_slider_stalled(true);
+  ASSERT_EQ(p.move_relative(1e-3), Refusal::None);
+  EXPECT_EQ(rig.run(), MotionState::Fault);
+  EXPECT_EQ(p.status().fault, MotionFault::Stall);
+  EXPECT_EQ(p.status().bursts, 3u);
+  EXPECT_EQ(rig.sim->true_position_m(), start);
+  EXPECT_FALSE(rig.sim->running());
+  EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
+}
+
+TEST(Positioner, StopMidMoveEndsAfterThePlayingChunk) {
+  PositionerConfig cfg;
+  cfg.max_chunk_s = 0.02;
+  Rig rig(ideal_map(), ideal_device(), cfg);
+  Positioner& p = *rig.positioner;
+  const double start = p.status().position_m;
+  ASSERT_EQ(p.move_relative(1e-3), Refusal::None);
+  // Right after the second chunk started (it is playing).
+  ASSERT_TRUE(rig.run_until([&] { return p.status().bursts >= 2; }));
+  ASSERT_EQ(p.status().state, MotionState::Moving);
+  const double cycles = static_cast<double>(p.move_cycles());
+  p.stop();
+  EXPECT_EQ(rig.run(), MotionState::Idle);
+  EXPECT_EQ(p.status().fault, MotionFault::None);
+  EXPECT_EQ(p.status().bursts, 2u) << "nothing is played after the chunk that was playing";
+  EXPECT_EQ(static_cast<double>(p.move_cycles()), cycles) << "the playing chunk ends whole";
+  // At rest with the actuator at 0, short of the target, position read.
+  EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
+  EXPECT_EQ(rig.sim->stage().velocity_m_s(), 0.0);
+  EXPECT_TRUE(p.status().position_valid);
+  EXPECT_GT(p.status().position_m - start, 1e-6);
+  EXPECT_LT(p.status().position_m - start, 1e-3 - 1e-6);
+  // A new move is accepted after the stop.
+  EXPECT_EQ(p.move_absolute(start), Refusal::None);
+  EXPECT_EQ(rig.run(), MotionState::Idle);
+}
+
+TEST(Positioner, ChunksAreWholeCyclesWithinMaxChunk) {
+  PositionerConfig cfg;
+  cfg.max_chunk_s = 0.01;
+  Rig rig(ideal_map(), ideal_device(), cfg);
+  Positioner& p = *rig.positioner;
+  ASSERT_EQ(p.move_relative(300e-6), Refusal::None);
+  std::uint64_t seen = 0, cycles_before = 0;
+  while (!p.at_rest()) {
+    rig.sim->advance_s(1e-4);
+    p.tick(rig.sim->now_s());
+    if (p.status().bursts != seen) {
+      // A chunk just started: whole cycles of the plan's first burst, at most max_chunk_s of
+      // them (one cycle if a cycle is longer).
+      seen = p.status().bursts;
+      const Burst& b = p.last_plan().bursts.front();
+      const std::uint64_t cycles = p.move_cycles() - cycles_before;
+      cycles_before = p.move_cycles();
+      EXPECT_GE(cycles, 1u);
+      EXPECT_LE(cycles, b.cycles);
+      if (cycles > 1) {
+        EXPECT_LE(static_cast<double>(cycles) / b.freq_hz, cfg.max_chunk_s * (1 + 1e-9));
+      }
+    }
+  }
+  ASSERT_EQ(p.status().state, MotionState::Idle);
+  // 300 um at <= 0.01 s per chunk: many chunks, and the cycles of each fit the limit.
+  EXPECT_GE(p.move_chunks(), 5u);
+}
+
+TEST(Positioner, SoftLimitsRefuseBeforeAnythingMoves) {
+  PositionerConfig cfg;
+  cfg.soft_lower_m = -1e-3;
+  cfg.soft_upper_m = 1e-3;
+  Rig rig(ideal_map(), ideal_device(), cfg);
+  Positioner& p = *rig.positioner;
+  const double start = rig.sim->true_position_m();
+  EXPECT_EQ(p.move_absolute(1.5e-3), Refusal::OutsideSoftLimits);
+  EXPECT_EQ(p.move_relative(-2e-3), Refusal::OutsideSoftLimits);
+  EXPECT_EQ(p.step_open_loop(2000), Refusal::OutsideSoftLimits);  // ~2 um steps: 4 mm
+  EXPECT_EQ(p.status().state, MotionState::Idle);
+  rig.run();
+  EXPECT_EQ(p.status().bursts, 0u);
+  EXPECT_EQ(p.status().moves, 0u);
+  EXPECT_EQ(rig.sim->true_position_m(), start);
+  // Narrowed limits apply to the next command; inside them a move goes.
+  EXPECT_EQ(p.set_soft_limits(-1e-4, 1e-4), Refusal::None);
+  EXPECT_EQ(p.set_soft_limits(1e-4, -1e-4), Refusal::OutOfRange);
+  EXPECT_EQ(p.move_absolute(5e-4), Refusal::OutsideSoftLimits);
+  EXPECT_EQ(p.move_absolute(5e-5), Refusal::None);
+  EXPECT_EQ(rig.run(), MotionState::Idle);
+  EXPECT_LE(std::fabs(p.status().position_m - 5e-5), p.count_m());
+}
+
+TEST(Positioner, RefusesBadArgumentsAndBusy) {
+  Rig rig(ideal_map(), ideal_device());
+  Positioner& p = *rig.positioner;
+  EXPECT_EQ(p.move_absolute(std::nan("")), Refusal::NotFinite);
+  EXPECT_EQ(p.move_relative(INFINITY), Refusal::NotFinite);
+  EXPECT_EQ(p.step_open_loop(0), Refusal::OutOfRange);
+  EXPECT_EQ(p.step_open_loop(5, 0.5, 200, 20e-6), Refusal::OutOfRange);
+  EXPECT_EQ(p.step_open_loop(5, 0.1, 5000, 20e-6), Refusal::OutOfRange);  // above 2 kHz
+  EXPECT_EQ(p.step_open_loop(5, 0.1, 200, 30e-6), Refusal::OutOfRange);   // stroke too large
+  ASSERT_EQ(p.move_relative(1e-4), Refusal::None);
+  EXPECT_EQ(p.move_relative(1e-4), Refusal::Busy);
+  EXPECT_EQ(p.step_open_loop(3), Refusal::Busy);
+  EXPECT_FALSE(p.at_rest());
+  EXPECT_EQ(rig.run(), MotionState::Idle);
+  EXPECT_STREQ(motion_state_name(MotionState::Settling), "SETTLING");
+  EXPECT_STREQ(motion_fault_name(MotionFault::RetryLimit), "retry_limit");
+  EXPECT_STREQ(refusal_name(Refusal::OutsideSoftLimits), "outside_soft_limits");
+}
+
+TEST(Positioner, RefusesAnInterferometerTooSlowForTheMap) {
+  drivers::sim::SimDeviceConfig cfg = ideal_device();
+  cfg.interferometer.word.max_velocity_m_s = 0.1;
+  try {
+    Rig rig(ideal_map(), cfg);
+    FAIL() << "a decoder that takes the slider's jumps for glitches must be refused";
+  } catch (const model::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("interferometer.max_velocity_m_s"), std::string::npos)
+        << e.what();
+  }
+}
+
+TEST(Positioner, ConfigErrorsNameTheKey) {
+  PositionerConfig bad;
+  bad.max_chunk_s = 0;
+  try {
+    validate(bad);
+    FAIL();
+  } catch (const model::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("control.max_chunk_s"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("(0, 10]"), std::string::npos) << e.what();
+  }
+  bad = {};
+  bad.soft_lower_m = 1;
+  bad.soft_upper_m = 0;
+  EXPECT_THROW(validate(bad), model::InputError);
+}
+
+TEST(Positioner, OpenLoopStepMovesByTheNominalSteps) {
+  Rig rig(ideal_map(), ideal_device());
+  Positioner& p = *rig.positioner;
+  const double start = rig.sim->true_position_m();
+  // 200 Hz, duty 0.9 (positive), full stroke: one-step on the ideal plant.
+  ASSERT_EQ(p.step_open_loop(50, 0.9, 200, 20.35e-6), Refusal::None);
+  ASSERT_EQ(rig.run(), MotionState::Idle);
+  const double step = model::steady_step_corrected_m(ideal_map().config().stage, 200, 0.9, 20.35e-6);
+  const double moved = rig.sim->true_position_m() - start;
+  EXPECT_GT(step, 0);
+  EXPECT_NEAR(moved, 50 * step, 2 * std::fabs(step));
+  EXPECT_FALSE(p.status().closed_loop);
+  // Negative cycles mirror the duty.
+  ASSERT_EQ(p.step_open_loop(-50, 0.9, 200, 20.35e-6), Refusal::None);
+  ASSERT_EQ(rig.run(), MotionState::Idle);
+  EXPECT_NEAR(rig.sim->true_position_m(), start, 4 * std::fabs(step));
+}
+
+TEST(Positioner, InvalidSamplesFault) {
+  // Flagged glitches during a move.
+  {
+    Rig rig(ideal_map(), ideal_device());
+    Positioner& p = *rig.positioner;
+    ASSERT_EQ(p.move_relative(5e-4), Refusal::None);
+    ASSERT_TRUE(rig.run_until([&] { return p.status().bursts >= 1; }));
+    rig.sim->set_glitch_probability(0.01, true);
+    EXPECT_EQ(rig.run(), MotionState::Fault);
+    EXPECT_EQ(p.status().fault, MotionFault::InvalidSample);
+    EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
+  }
+  // Unflagged glitches (a wild count without the board's bit) at rest: the decoder's jump check.
+  {
+    Rig rig(ideal_map(), ideal_device());
+    Positioner& p = *rig.positioner;
+    rig.sim->set_glitch_probability(0.5, false);
+    rig.sim->advance_s(1.0);
+    p.tick(rig.sim->now_s());
+    EXPECT_EQ(p.status().state, MotionState::Fault);
+    EXPECT_EQ(p.status().fault, MotionFault::InvalidSample);
+    EXPECT_EQ(p.move_relative(1e-6), Refusal::Faulted);
+  }
+  // No valid position at start: moves are refused (the position is not guessed).
+  {
+    drivers::sim::SimDeviceConfig cfg = ideal_device();
+    cfg.faults.beam_lost = true;
+    Rig rig(ideal_map(), cfg);
+    Positioner& p = *rig.positioner;
+    EXPECT_EQ(p.status().state, MotionState::Fault);
+    EXPECT_FALSE(p.status().position_valid);
+    EXPECT_EQ(p.move_relative(1e-6), Refusal::Faulted);
+  }
+}
+
+TEST(Positioner, DriverErrorFaults) {
+  Rig rig(ideal_map(), ideal_device());
+  Positioner& p = *rig.positioner;
+  ASSERT_EQ(p.move_relative(1e-3), Refusal::None);
+  ASSERT_TRUE(rig.run_until([&] { return p.status().bursts >= 1; }));
+  rig.sim->disconnect();
+  EXPECT_EQ(rig.run(), MotionState::Fault);
+  EXPECT_EQ(p.status().fault, MotionFault::Driver);
+  EXPECT_NE(p.last_driver_error().find("disconnected"), std::string::npos) << p.last_driver_error();
+}
+
+TEST(Positioner, RetryLimitFaultsWhenTheStageNeverArrives) {
+  // The map believes steps are 4x smaller than the plant makes them (alpha 0.25 vs 1): the
+  // last bursts always overshoot; without retries left that is a fault, not an endless loop.
+  static const RegionMap wrong(test_rig::rig_map_config(0.25));
+  PositionerConfig cfg;
+  cfg.max_retries = 1;
+  cfg.approach_uncertainty = 0;
+  Rig rig(wrong, ideal_device(), cfg);
+  Positioner& p = *rig.positioner;
+  ASSERT_EQ(p.move_relative(3e-7), Refusal::None);
+  EXPECT_EQ(rig.run(), MotionState::Fault);
+  EXPECT_EQ(p.status().fault, MotionFault::RetryLimit);
+  EXPECT_EQ(p.status().corrections, 1u);
+  EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
+}
+
+}  // namespace

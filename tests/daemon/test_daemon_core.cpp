@@ -1,0 +1,451 @@
+// The daemon core: configuration (good and bad files), the lock-free queues, the real-time loop,
+// and the Daemon (Instrument) on the simulated stage, with an allocation-counting hook showing
+// that the loop thread allocates nothing during a full move.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <new>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "daemon/config.h"
+#include "daemon/daemon.h"
+#include "daemon/lockfree.h"
+#include "daemon/rt_loop.h"
+#include "model/yaml_util.h"
+#include "recording/dataset.h"
+
+// ---- allocation counter: global operator new/delete, counting only on a flagged thread ----------
+namespace {
+thread_local bool t_count_allocations = false;
+std::atomic<long> g_loop_allocations{0};
+std::atomic<long> g_loop_frees{0};
+}  // namespace
+
+void* operator new(std::size_t n) {
+  if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t n) { return operator new(n); }
+void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
+  if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
+  return std::malloc(n ? n : 1);
+}
+void* operator new[](std::size_t n, const std::nothrow_t& t) noexcept { return operator new(n, t); }
+void operator delete(void* p) noexcept {
+  if (p && t_count_allocations) g_loop_frees.fetch_add(1, std::memory_order_relaxed);
+  std::free(p);
+}
+void operator delete[](void* p) noexcept { operator delete(p); }
+void operator delete(void* p, std::size_t) noexcept { operator delete(p); }
+void operator delete[](void* p, std::size_t) noexcept { operator delete(p); }
+
+namespace {
+
+using namespace idm::daemon;
+using idm::model::InputError;
+
+void count_on_this_thread(bool entering) { t_count_allocations = entering; }
+
+YAML::Node yaml(const std::string& text) { return YAML::Load(text); }
+
+// Expects parse_daemon_config to fail with a message containing every one of `parts`.
+void expect_config_error(const std::string& text, std::initializer_list<const char*> parts) {
+  try {
+    parse_daemon_config(yaml(text), "t.yaml");
+    ADD_FAILURE() << "accepted:\n" << text;
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    for (const char* p : parts) EXPECT_NE(what.find(p), std::string::npos) << what << " lacks " << p;
+  }
+}
+
+// A small, fast configuration of the simulated stage (coarse map grid, no real-time setup).
+std::string sim_config(const std::string& clock = "wall", const std::string& extra = "") {
+  return "stage:\n  step_correction: 1.0\n"
+         "interferometer:\n  max_velocity_m_s: 1\n"
+         "daq:\n  driver: sim\n  sim:\n    clock: " + clock + "\n"
+         "sim:\n  plant: " + std::string(std::getenv("IDM_TEST_PLANT") ? std::getenv("IDM_TEST_PLANT") : "rigid") + "\n  seed: 3\n"
+         "control:\n  freq_step_hz: 20\n  duty_step: 0.005\n  stroke_count: 4\n  min_stroke_m: 0.1e-6\n  max_freq_hz: 2000\n"
+         "realtime:\n  period_s: 2e-4\n  sched_fifo: false\n  lock_memory: false\n"
+         "server:\n  unix_socket: \"\"\n"
+         "recording:\n  data_dir: " + (std::filesystem::temp_directory_path() / "idmd-test-data").string() + "\n" +
+         extra;
+}
+
+bool wait_for(const std::function<bool()>& cond, double timeout_s) {
+  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  while (std::chrono::steady_clock::now() < end) {
+    if (cond()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  return cond();
+}
+
+// ---- configuration ---------------------------------------------------------------------------
+
+TEST(DaemonConfig, ShippedConfigsParse) {
+  for (const char* name : {"idmd.yaml", "idmd-modbus.yaml", "idmd-usb.yaml"}) {
+    const std::string path = std::string(IDM_SOURCE_DIR) + "/config/" + name;
+    SCOPED_TRACE(path);
+    const DaemonConfig c = load_daemon_config(path);
+    EXPECT_FALSE(c.driver.empty());
+  }
+  const DaemonConfig c = load_daemon_config(std::string(IDM_SOURCE_DIR) + "/config/idmd.yaml");
+  EXPECT_EQ(c.driver, "sim");
+  EXPECT_DOUBLE_EQ(c.stage.stage.slider_mass_kg, 0.16557);  // Table 1
+  EXPECT_DOUBLE_EQ(c.stage.stage.stroke_m, 20.35e-6);
+  EXPECT_EQ(c.server.tcp_port, 5025);
+  EXPECT_DOUBLE_EQ(c.realtime.period_s, 1e-4);
+}
+
+TEST(DaemonConfig, DefaultsWhenSectionsAreMissing) {
+  const DaemonConfig c = parse_daemon_config(yaml("daq:\n  driver: sim\n"), "t.yaml");
+  EXPECT_EQ(c.server.tcp_address, "127.0.0.1");
+  EXPECT_EQ(c.realtime.priority, 80);
+  EXPECT_TRUE(std::isinf(c.control.positioner.soft_lower_m));
+  EXPECT_DOUBLE_EQ(c.control.planner.resolution_m, c.stage.interferometer.resolution_m);
+}
+
+TEST(DaemonConfig, UnknownSectionNamesKeyAndLine) {
+  expect_config_error("daq:\n  driver: sim\nservr:\n  tcp_port: 1\n", {"t.yaml:3", "servr", "unknown section"});
+}
+
+TEST(DaemonConfig, UnknownKeyNamesKeyAndLine) {
+  expect_config_error("server:\n  tcp_port: 5025\n  tcp_prot: 1\n", {"t.yaml:3", "server.tcp_prot", "allowed"});
+  expect_config_error("control:\n  calibration:\n    forget: 1\n", {"t.yaml:3", "control.calibration.forget"});
+  expect_config_error("stage:\n  mass: 1\n", {"t.yaml:2", "stage.mass"});
+  expect_config_error("daq:\n  sim:\n    clok: wall\n", {"t.yaml:3", "daq.sim.clok"});
+}
+
+TEST(DaemonConfig, WrongTypeNamesKeyAndLine) {
+  expect_config_error("realtime:\n  priority: high\n", {"t.yaml:2", "realtime.priority"});
+  expect_config_error("realtime:\n  sched_fifo: maybe\n", {"t.yaml:2", "realtime.sched_fifo"});
+  expect_config_error("server:\n  tcp_port: [1, 2]\n", {"t.yaml:2", "server.tcp_port"});
+}
+
+TEST(DaemonConfig, OutOfRangeNamesKeyLineAndRange) {
+  expect_config_error("realtime:\n  priority: 100\n", {"t.yaml:2", "realtime.priority", "[1, 99]"});
+  expect_config_error("server:\n  tcp_port: 70000\n", {"t.yaml:2", "server.tcp_port", "65535"});
+  expect_config_error("control:\n  max_retries: -1\n", {"t.yaml:2", "control.max_retries"});
+  expect_config_error("stage:\n  friction_coefficient: 5\n", {"t.yaml:2", "stage.friction_coefficient"});
+  expect_config_error("\n\nrealtime:\n  period_s: 1\n", {"t.yaml:4", "realtime.period_s"});
+  expect_config_error("logging:\n  level: loud\n", {"t.yaml:2", "logging.level", "allowed"});
+  expect_config_error("control:\n  min_freq_hz: 500\n  max_freq_hz: 100\n", {"control.min_freq_hz"});
+}
+
+TEST(DaemonConfig, UnknownDriverListsKnownOnes) {
+  expect_config_error("daq:\n  driver: gpib\n", {"t.yaml:2", "daq.driver", "sim, modbus, usb"});
+}
+
+TEST(DaemonConfig, SimSectionCheckedWhateverTheDriver) {
+  expect_config_error("daq:\n  driver: modbus\nsim:\n  plant: spring\n", {"t.yaml:4", "sim.plant"});
+}
+
+TEST(DaemonConfig, DeviceLimitsNarrowToTheOutput) {
+  const DaemonConfig c = parse_daemon_config(yaml(sim_config()), "t.yaml");
+  idm::drivers::OutputCapabilities caps;
+  caps.max_sample_rate_hz = 2e4;
+  caps.max_voltage_v = 2.0;  // 2 V / 2.5e5 V/m = 8 um
+  const auto lim = device_limits(c.control, c.stage.stage, caps);
+  EXPECT_DOUBLE_EQ(lim.output_sample_rate_hz, 2e4);
+  EXPECT_LE(lim.max_freq_hz, 2e4 / 4);
+  EXPECT_DOUBLE_EQ(lim.max_stroke_m, 8e-6);
+}
+
+// ---- lock-free structures --------------------------------------------------------------------
+
+TEST(SpscRing, FifoAndCapacity) {
+  SpscRing<int, 4> ring;
+  for (int i = 0; i < 4; ++i) EXPECT_TRUE(ring.push(i));
+  EXPECT_FALSE(ring.push(99));
+  int v = -1;
+  for (int i = 0; i < 4; ++i) {
+    ASSERT_TRUE(ring.pop(v));
+    EXPECT_EQ(v, i);
+  }
+  EXPECT_FALSE(ring.pop(v));
+}
+
+TEST(SpscRing, TwoThreadsLoseNothing) {
+  SpscRing<std::uint64_t, 64> ring;
+  constexpr std::uint64_t kN = 200000;
+  std::thread producer([&] {
+    for (std::uint64_t i = 1; i <= kN; ++i)
+      while (!ring.push(i)) std::this_thread::yield();
+  });
+  std::uint64_t expected = 1, v = 0;
+  while (expected <= kN) {
+    if (ring.pop(v)) {
+      ASSERT_EQ(v, expected);
+      ++expected;
+    } else {
+      std::this_thread::yield();
+    }
+  }
+  producer.join();
+}
+
+struct Pair {
+  std::uint64_t a, b;
+};
+
+TEST(Seqlock, ReadersNeverSeeATornValue) {
+  Seqlock<Pair> s;
+  s.store({0, ~std::uint64_t{0}});
+  std::atomic<bool> done{false};
+  std::thread writer([&] {
+    for (std::uint64_t i = 1; i <= 200000; ++i) s.store({i, ~i});
+    done = true;
+  });
+  long reads = 0;
+  while (!done || reads < 1000) {
+    const Pair p = s.load();
+    ASSERT_EQ(p.b, ~p.a);
+    ++reads;
+  }
+  writer.join();
+  EXPECT_EQ(s.load().a, 200000u);
+  EXPECT_GT(reads, 0);
+}
+
+// ---- the loop ------------------------------------------------------------------------------------
+
+struct CountingBody : LoopBody {
+  std::atomic<std::uint64_t> n{0};
+  double last = 0;
+  bool monotonic = true;
+  void tick(double now_s) override {
+    if (now_s < last) monotonic = false;
+    last = now_s;
+    n.fetch_add(1);
+  }
+};
+
+TEST(RtLoop, TicksKeepsStatisticsAndStops) {
+  RealtimeConfig rc;
+  rc.period_s = 1e-3;
+  rc.sched_fifo = false;
+  rc.lock_memory = false;
+  CountingBody body;
+  RtLoop loop(rc, body);
+  EXPECT_EQ(loop.start(), "");
+  ASSERT_TRUE(wait_for([&] { return loop.stats().wakeups >= 20; }, 10));
+  loop.stop();
+  EXPECT_FALSE(loop.running());
+  const LoopStats s = loop.stats();
+  EXPECT_EQ(s.wakeups, body.n.load());
+  EXPECT_EQ(loop.ticks(), body.n.load());
+  EXPECT_TRUE(body.monotonic);
+  EXPECT_DOUBLE_EQ(s.period_s, 1e-3);
+  EXPECT_LE(s.latency_min_s, s.latency_avg_s);
+  EXPECT_LE(s.latency_avg_s, s.latency_max_s);
+  std::uint64_t in_bins = 0;
+  for (std::uint64_t b : s.bins) in_bins += b;
+  EXPECT_EQ(in_bins, s.wakeups);
+  const std::uint64_t after = body.n.load();
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(body.n.load(), after);  // stopped
+}
+
+TEST(RtLoop, RealtimeRefusalIsOneWarningThatSaysWhy) {
+  RealtimeConfig rc;
+  rc.period_s = 1e-3;
+  rc.sched_fifo = true;
+  rc.priority = 99;
+  rc.cpu = 100000 % 1024;  // not a CPU this machine has
+  rc.lock_memory = false;
+  CountingBody body;
+  RtLoop loop(rc, body);
+  const std::string warning = loop.start();
+  ASSERT_TRUE(wait_for([&] { return body.n.load() > 3; }, 10));  // carries on
+  loop.stop();
+  EXPECT_NE(warning.find("CPU affinity"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("running without it"), std::string::npos) << warning;
+}
+
+TEST(AllocationHook, CountsOnTheFlaggedThreadOnly) {
+  g_loop_allocations = 0;
+  count_on_this_thread(true);
+  auto* v = new std::vector<int>(100);
+  count_on_this_thread(false);
+  delete v;
+  std::thread([] { std::vector<int> w(100); }).join();
+  EXPECT_EQ(g_loop_allocations.load(), 2);  // the vector object and its buffer
+}
+
+// ---- the daemon on the simulated stage ---------------------------------------------------------
+
+class DaemonSim : public ::testing::Test {
+ protected:
+  std::unique_ptr<Daemon> make(const std::string& text) {
+    return std::make_unique<Daemon>(parse_daemon_config(yaml(text), "t.yaml"));
+  }
+};
+
+TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
+  auto d = make(sim_config(std::getenv("IDM_TEST_CLOCK") ? std::getenv("IDM_TEST_CLOCK") : "wall"));
+  d->set_loop_thread_hook(&count_on_this_thread);
+  g_loop_allocations = 0;
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  const double start = d->status().position_m;
+  ASSERT_TRUE(d->move_relative(3e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
+  const InstrumentStatus s = d->status();
+  EXPECT_EQ(s.state, "IDLE") << s.fault;
+  EXPECT_EQ(s.moves, 1u);
+  EXPECT_GT(s.bursts, 0u);
+  EXPECT_NEAR(s.position_m - start, 3e-6, 0.2e-6);
+  EXPECT_TRUE(d->stop().ok());
+  d->shutdown();
+  EXPECT_GT(d->loop_stats().wakeups, 10u);
+  // The hook counted on the loop thread only, from its first tick to its last.
+  EXPECT_EQ(g_loop_allocations.load(), 0) << "the real-time loop allocated";
+  EXPECT_EQ(g_loop_frees.load(), 0);
+  EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
+}
+
+TEST_F(DaemonSim, RefusalsBecomeProtocolErrors) {
+  auto d = make(sim_config("wall", ""));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  EXPECT_EQ(d->move_absolute(std::nan("")).code, error_code::kNumericDataError);
+  ASSERT_TRUE(d->set_soft_limits(-1e-3, 1e-3).ok());
+  const CommandError e = d->move_absolute(2e-3);
+  EXPECT_EQ(e.code, error_code::kDataOutOfRange) << e.text;
+  EXPECT_NE(e.text.find("soft limits"), std::string::npos);
+  EXPECT_DOUBLE_EQ(d->status().soft_upper_m, 1e-3);
+  EXPECT_EQ(d->set_soft_limits(1, -1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->step(0, 0, 0, 0).code, error_code::kDataOutOfRange);
+  std::string region;
+  double step = 0;
+  ASSERT_TRUE(d->region(200, 0.1, 0, region, step).ok());
+  EXPECT_FALSE(region.empty());
+  EXPECT_EQ(d->identity().rfind("idm,idmd,", 0), 0u);
+  d->shutdown();
+}
+
+TEST_F(DaemonSim, StopMidMoveBringsTheOutputToRest) {
+  auto d = make(sim_config("wall"));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(-200e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status().bursts > 0; }, 10));
+  EXPECT_FALSE(d->motion_done());
+  ASSERT_TRUE(d->stop().ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 5));
+  EXPECT_EQ(d->status().state, "IDLE");
+  d->shutdown();
+  EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
+}
+
+TEST_F(DaemonSim, ShutdownMidMoveEndsAtRestWithZeroOutput) {
+  auto d = make(sim_config("wall"));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(200e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status().bursts > 0; }, 10));
+  d->shutdown();
+  EXPECT_FALSE(d->loop_running());
+  EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
+  EXPECT_EQ(d->device().output->state(), idm::drivers::LifecycleState::Finalized);
+}
+
+TEST_F(DaemonSim, SweepWritesADatasetFromTheLoopsSamples) {
+  const auto dir = std::filesystem::temp_directory_path() / ("idmd-sweep-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  auto d = make(sim_config("wall"));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  const CommandError e = d->sweep(dir.string(), {500, 1000}, {0.1, 0.9}, 2, 3);
+  ASSERT_TRUE(e.ok()) << e.text;
+  EXPECT_FALSE(d->motion_done());
+  EXPECT_EQ(d->sweep(dir.string(), {500}, {0.1}, 1, 1).code, error_code::kSettingsConflict);
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
+  d->shutdown();
+  EXPECT_NE(d->last_sweep_report().find("8 trials written, 0 failed"), std::string::npos)
+      << d->last_sweep_report();
+  const idm::recording::Dataset ds = idm::recording::read_dataset(dir.string());
+  ASSERT_EQ(ds.trials.size(), 8u);
+  for (std::size_t i = 0; i < ds.trials.size(); ++i) {
+    const auto series = idm::recording::read_trial(ds, i);
+    EXPECT_EQ(ds.trials[i].cycles, 3);
+    EXPECT_DOUBLE_EQ(ds.trials[i].sample_rate_hz, 1e5);
+    ASSERT_GT(series.size(), 100u);
+    EXPECT_LT(series.t_s.front(), 0.0);  // rest before the first cycle
+    double xi_max = 0;
+    for (double xi : series.xi_cmd_m) xi_max = std::max(xi_max, xi);
+    EXPECT_NEAR(xi_max, 20.35e-6, 1e-9);
+    // The slider moved in the direction of the duty (< 0.5: negative).
+    const double moved = series.x_m.back() - series.x_m.front();
+    EXPECT_EQ(moved > 0, ds.trials[i].duty > 0.5) << ds.trials[i].id << " moved " << moved;
+  }
+  std::filesystem::remove_all(dir);
+}
+
+TEST_F(DaemonSim, SweepArgumentsCheckedAtOnce) {
+  auto d = make(sim_config("wall"));
+  d->start();
+  EXPECT_EQ(d->sweep("", {100}, {0.1}, 1, 1).code, error_code::kMissingParameter);
+  EXPECT_EQ(d->sweep("x", {1e6}, {0.1}, 1, 1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep("x", {100}, {1.5}, 1, 1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep("x", {100}, {0.1}, 0, 1).code, error_code::kDataOutOfRange);
+  d->shutdown();
+}
+
+TEST_F(DaemonSim, MissingDeviceIsANoHardwareStartError) {
+  const std::string text =
+      "daq:\n  driver: modbus\n  modbus:\n    host: 127.0.0.1\n    port: 1\n    timeout_s: 0.2\n"
+      "realtime:\n  sched_fifo: false\n  lock_memory: false\n";
+  Daemon daemon(parse_daemon_config(yaml(text), "t.yaml"));
+  try {
+    daemon.start();
+    ADD_FAILURE() << "started without a device";
+  } catch (const StartError& e) {
+    EXPECT_EQ(e.exit_code(), exit_code::kNoHardware);
+    EXPECT_NE(std::string(e.what()).find("modbus"), std::string::npos) << e.what();
+  }
+}
+
+TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
+  const auto file = std::filesystem::temp_directory_path() / ("idmd-reload-" + std::to_string(::getpid()) + ".yaml");
+  {
+    std::FILE* f = std::fopen(file.c_str(), "w");
+    const std::string text = sim_config("wall");
+    std::fwrite(text.data(), 1, text.size(), f);
+    std::fclose(f);
+  }
+  Daemon d(load_daemon_config(file.string()));
+  d.start();
+  {
+    std::FILE* f = std::fopen(file.c_str(), "w");
+    std::string changed = sim_config("wall");
+    changed.replace(changed.find("control:\n"), 9, "control:\n  soft_upper_m: 5e-4\n");
+    std::fwrite(changed.data(), 1, changed.size(), f);
+    std::fclose(f);
+  }
+  std::string error;
+  ASSERT_TRUE(d.reload_control(error)) << error;
+  EXPECT_DOUBLE_EQ(d.status().soft_upper_m, 5e-4);
+  EXPECT_EQ(d.move_absolute(1e-3).code, error_code::kDataOutOfRange);
+  {
+    std::FILE* f = std::fopen(file.c_str(), "w");
+    const std::string bad = "control:\n  max_retries: oops\n";
+    std::fwrite(bad.data(), 1, bad.size(), f);
+    std::fclose(f);
+  }
+  EXPECT_FALSE(d.reload_control(error));
+  EXPECT_NE(error.find("control.max_retries"), std::string::npos) << error;
+  EXPECT_DOUBLE_EQ(d.status().soft_upper_m, 5e-4);  // the old settings stay
+  d.shutdown();
+  std::filesystem::remove(file);
+}
+
+}  // namespace
