@@ -43,7 +43,10 @@ std::string missing_signature(const SweepCells& sweep, const std::string& effect
   }
   if (effect == "tilt") {
     bool fwd = false, rev = false;
-    for (const Cell& c : sweep.cells) (c.key.duty < 0.5 ? fwd : rev) = true;
+    for (const Cell& c : sweep.cells) {
+      if (c.key.duty < 0.5) fwd = true;
+      if (c.key.duty > 0.5) rev = true;
+    }
     if (!(fwd && rev))
       return "both directions (duties below and above 0.5): in one direction a tilt is a friction change";
   }
@@ -135,7 +138,7 @@ CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::
         solver.set_lower_bounds(std::vector<double>(n, 0.0));
         solver.set_upper_bounds(std::vector<double>(n, 1.0));
         solver.set_initial_step(std::vector<double>(n, 0.5 / (pts - 1)));
-        solver.set_maxeval(opt.refine_evals);
+        solver.set_maxeval(opt.refine_evals * static_cast<int>(n));
         solver.set_xtol_abs(1e-3);
         std::function<double(const std::vector<double>&)> eval = [&](const std::vector<double>& x) {
           const auto p = params_of(fixed, x);

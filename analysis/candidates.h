@@ -55,8 +55,8 @@ struct CandidateResult {
 struct FitOptions {
   int threads = 0;       // 0: all cores
   int grid_1d = 9;       // coarse grid points for one parameter
-  int grid_2d = 5;       // per axis for two
-  int refine_evals = 24; // NLopt evaluations after the grid
+  int grid_2d = 7;       // per axis for two
+  int refine_evals = 16; // NLopt evaluations after the grid (one parameter; twice that for two)
 };
 
 // The model with `base` effects (already chosen, fixed) plus one candidate, fitted on the training

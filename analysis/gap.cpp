@@ -69,7 +69,14 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
     const double expected_var = step_sd * step_sd + r.model_step_sd_m * r.model_step_sd_m;
     // The mean's uncertainty from what was measured (never below the noise), so that a model cannot
     // explain a mean it misses by predicting a wide spread; the spread term below scores that.
-    const double mean_var = std::max(step_sd * step_sd, sd * sd);
+    double all_mean = 0, all_ss = 0;
+    const std::size_t all_n = cell.train.size() + cell.test.size();
+    for (const auto* v : {&cell.train, &cell.test})
+      for (const TrialFeatures& t : *v) all_mean += t.steady_step_m / all_n;
+    for (const auto* v : {&cell.train, &cell.test})
+      for (const TrialFeatures& t : *v) all_ss += (t.steady_step_m - all_mean) * (t.steady_step_m - all_mean);
+    const double sd_all = all_n > 1 ? std::sqrt(all_ss / (all_n - 1)) : 0.0;
+    const double mean_var = std::max({step_sd * step_sd, sd * sd, sd_all * sd_all});
     const double d = (mean - r.model_step_m) / std::sqrt(mean_var / std::max(1, n));
     // The spread against the one expected: log ratio of the variances (regularized by the noise so
     // that identical quantized readings do not count) over its sampling error sqrt(2 / (n - 1)).

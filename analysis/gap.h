@@ -1,7 +1,8 @@
 // How far a model and the measured sweep part, cell by cell, on held-out (or training) trials.
 //
 // Residual of a cell (specs/gap-report.md): the mean steady step against the model's, in units of
-// its uncertainty (the measured trial-to-trial spread, never less than the noise on a step,
+// its uncertainty (the measured trial-to-trial spread of the cell, all its trials, never less than
+// the noise on a step,
 // sqrt(2) * reading_sd, over sqrt(trials)); a spread different from the one expected
 // (noise and the model's spread) is itself a gap, scored as the log ratio of the variances in units
 // of its sampling error; a region label the model gets wrong counts 3. `gap` is the root mean

@@ -26,7 +26,7 @@ struct CellPrediction {
 };
 
 // Trials the model runs per cell when its friction varies along the guide.
-constexpr int kSpreadTrials = 8;
+constexpr int kSpreadTrials = 6;
 
 CellPrediction predict_cell_exact(const SweepCells& sweep, const model::SimConfig& sim, const Cell& cell);
 

@@ -2,7 +2,9 @@
 //   daemon_bench loop SECONDS PERIOD_S CONFIG   the daemon's real-time loop on the simulated stage
 //                                               (moving back and forth): wake-up latency p50/p99/max
 //   daemon_bench echo                           a minimal line echo server (TCP, epoll), prints its port
-//   daemon_bench rtt PORT CLIENTS QUERIES       POS? round trips from CLIENTS threads: p50/p99
+//   daemon_bench rtt IDMD_PORT ECHO_PORT CLIENTS QUERIES ROUNDS
+//                                               POS? round trips from CLIENTS threads to each server,
+//                                               same client code, interleaved rounds: p50/p99/max
 //   daemon_bench rss MOVES CONFIG               RSS before/after MOVES moves on the simulated stage
 #include <arpa/inet.h>
 #include <netinet/in.h>
@@ -46,7 +48,8 @@ double percentile_from_bins(const LoopStats& s, double q) {
 DaemonConfig bench_config(const std::string& path, double period_s) {
   DaemonConfig c = load_daemon_config(path);
   c.realtime.period_s = period_s;
-  c.realtime.histogram_bin_s = 2e-6;  // 32 bins: 0..64 us
+  // 32 bins of 4 us: 0..124 us, the last one holds the rest (a p99 there is reported as a bound).
+  c.realtime.histogram_bin_s = 4e-6;
   c.control.calibration_file.clear();
   return c;
 }
@@ -66,10 +69,13 @@ int loop_bench(double seconds, double period_s, const std::string& config) {
   }
   const LoopStats s = d.loop_stats();
   d.shutdown();
-  std::printf("idmd_loop wakeups=%llu misses=%llu min_us=%.1f avg_us=%.1f p50_us=%.0f p99_us=%.0f max_us=%.1f\n",
+  const double p99 = percentile_from_bins(s, 0.99);
+  if (p99 >= 32 * s.bin_width_s)
+    std::fprintf(stderr, "idmd_loop: p99 is past the histogram (>= %.0f us): a bound\n", p99 * 1e6);
+  std::printf("idmd_loop wakeups=%llu misses=%llu bin_us=%.0f min_us=%.1f avg_us=%.1f p50_us=%.0f p99_us=%.0f max_us=%.1f\n",
               static_cast<unsigned long long>(s.wakeups), static_cast<unsigned long long>(s.deadline_misses),
-              s.latency_min_s * 1e6, s.latency_avg_s * 1e6, percentile_from_bins(s, 0.5) * 1e6,
-              percentile_from_bins(s, 0.99) * 1e6, s.latency_max_s * 1e6);
+              s.bin_width_s * 1e6, s.latency_min_s * 1e6, s.latency_avg_s * 1e6, percentile_from_bins(s, 0.5) * 1e6,
+              p99 * 1e6, s.latency_max_s * 1e6);
   return 0;
 }
 
@@ -115,39 +121,88 @@ int echo_server() {
   }
 }
 
-int rtt_bench(int port, int clients, int queries) {
-  std::vector<std::vector<double>> lat(clients);
+int connect_client(int port) {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  int one = 1;
+  setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(static_cast<std::uint16_t>(port));
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) {
+    close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+// One round: every client thread sends `queries` POS? one at a time and waits for each reply.
+void rtt_round(const std::vector<int>& fds, int queries, std::vector<double>& out) {
+  std::vector<std::vector<double>> lat(fds.size());
   std::vector<std::thread> threads;
-  for (int c = 0; c < clients; ++c) {
+  for (std::size_t c = 0; c < fds.size(); ++c) {
     threads.emplace_back([&, c] {
-      const int fd = socket(AF_INET, SOCK_STREAM, 0);
-      int one = 1;
-      setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
-      sockaddr_in a{};
-      a.sin_family = AF_INET;
-      a.sin_port = htons(static_cast<std::uint16_t>(port));
-      a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-      if (connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) return;
+      lat[c].reserve(static_cast<std::size_t>(queries));
       char buf[256];
       for (int q = 0; q < queries; ++q) {
         const double t0 = now_s();
-        (void)!write(fd, "POS?\n", 5);
+        if (write(fds[c], "POS?\n", 5) != 5) return;
         for (;;) {
-          const ssize_t r = read(fd, buf, sizeof buf);
-          if (r <= 0 || std::memchr(buf, '\n', static_cast<std::size_t>(r))) break;
+          const ssize_t r = read(fds[c], buf, sizeof buf);
+          if (r <= 0) return;
+          if (std::memchr(buf, '\n', static_cast<std::size_t>(r))) break;
         }
         lat[c].push_back(now_s() - t0);
       }
-      close(fd);
     });
   }
   for (auto& t : threads) t.join();
-  std::vector<double> all;
-  for (auto& v : lat) all.insert(all.end(), v.begin(), v.end());
+  for (auto& v : lat) out.insert(out.end(), v.begin(), v.end());
+}
+
+void print_rtt(const char* name, std::vector<double>& all, int expected) {
   std::sort(all.begin(), all.end());
-  if (all.empty()) return 1;
-  std::printf("rtt n=%zu p50_us=%.1f p99_us=%.1f\n", all.size(), all[all.size() / 2] * 1e6,
-              all[static_cast<std::size_t>(0.99 * static_cast<double>(all.size() - 1))] * 1e6);
+  if (all.empty()) {
+    std::printf("%s rtt n=0 (no reply)\n", name);
+    return;
+  }
+  std::printf("%s rtt n=%zu%s p50_us=%.1f p99_us=%.1f max_us=%.1f\n", name, all.size(),
+              static_cast<int>(all.size()) == expected ? "" : " (INCOMPLETE)",
+              all[all.size() / 2] * 1e6,
+              all[static_cast<std::size_t>(0.99 * static_cast<double>(all.size() - 1))] * 1e6,
+              all.back() * 1e6);
+}
+
+// The same client code against two servers in one run, interleaved: ROUNDS rounds, each one
+// QUERIES/ROUNDS per client against A then B (B first in odd rounds), so that a burst of load
+// from elsewhere on the machine falls on both alike. Connections stay open across rounds.
+int rtt_bench(int port_a, int port_b, int clients, int queries, int rounds) {
+  std::vector<int> fa, fb;
+  for (int c = 0; c < clients; ++c) {
+    fa.push_back(connect_client(port_a));
+    fb.push_back(connect_client(port_b));
+    if (fa.back() < 0 || fb.back() < 0) {
+      std::fprintf(stderr, "rtt: cannot connect\n");
+      return 1;
+    }
+  }
+  const int per_round = std::max(1, queries / rounds);
+  std::vector<double> la, lb;
+  for (int r = 0; r < rounds; ++r) {
+    if (r % 2 == 0) {
+      rtt_round(fa, per_round, la);
+      rtt_round(fb, per_round, lb);
+    } else {
+      rtt_round(fb, per_round, lb);
+      rtt_round(fa, per_round, la);
+    }
+  }
+  for (int fd : fa) close(fd);
+  for (int fd : fb) close(fd);
+  const int expected = per_round * rounds * clients;
+  print_rtt("idmd", la, expected);
+  print_rtt("echo", lb, expected);
+  if (la.empty() || lb.empty()) return 1;
   return 0;
 }
 
@@ -186,8 +241,11 @@ int main(int argc, char** argv) {
   const std::string mode = argc > 1 ? argv[1] : "";
   if (mode == "loop" && argc == 5) return loop_bench(std::atof(argv[2]), std::atof(argv[3]), argv[4]);
   if (mode == "echo") return echo_server();
-  if (mode == "rtt" && argc == 5) return rtt_bench(std::atoi(argv[2]), std::atoi(argv[3]), std::atoi(argv[4]));
+  if (mode == "rtt" && argc == 7)
+    return rtt_bench(std::atoi(argv[2]), std::atoi(argv[3]), std::atoi(argv[4]), std::atoi(argv[5]),
+                     std::atoi(argv[6]));
   if (mode == "rss" && argc == 4) return rss_bench(std::atoi(argv[2]), argv[3]);
-  std::fprintf(stderr, "usage: daemon_bench loop S PERIOD CONFIG | echo | rtt PORT CLIENTS N | rss MOVES CONFIG\n");
+  std::fprintf(stderr, "usage: daemon_bench loop S PERIOD CONFIG | echo | rtt IDMD_PORT ECHO_PORT CLIENTS N ROUNDS | "
+               "rss MOVES CONFIG\n");
   return 2;
 }

@@ -19,7 +19,8 @@ namespace idm::control {
 
 namespace {
 
-constexpr const char* kMagic = "idm-calibration 1";
+constexpr const char* kMagic = "idm-calibration 2";
+constexpr const char* kMagicV1 = "idm-calibration 1";  // no rung lines; still read
 
 [[noreturn]] void fail_range(const std::string& where, const std::string& key, double v,
                              const std::string& range) {
@@ -74,6 +75,14 @@ std::uint64_t fnv1a(const std::string& text) {
 
 bool same(double a, double b) { return std::fabs(a - b) <= 1e-12 * std::max(std::fabs(a), std::fabs(b)); }
 
+bool rung_ok(const RungEstimate& e) {
+  return std::isfinite(e.freq_hz) && std::isfinite(e.duty) && std::isfinite(e.stroke_m) &&
+         std::isfinite(e.offset_m) && std::isfinite(e.step_m) && std::isfinite(e.p_oo) &&
+         std::isfinite(e.p_os) && std::isfinite(e.p_ss) && e.freq_hz > 0 && e.duty > 0 &&
+         e.duty < 1 && e.stroke_m > 0 && e.p_oo >= 0 && e.p_ss >= 0 &&
+         e.p_os * e.p_os <= e.p_oo * e.p_ss * (1 + 1e-9) + 1e-300;
+}
+
 bool estimate_ok(const CalibrationEstimate& e) {
   return std::isfinite(e.alpha) && std::isfinite(e.alpha_mu) && std::isfinite(e.p_aa) &&
          std::isfinite(e.p_am) && std::isfinite(e.p_mm) && e.alpha > 0 && e.alpha_mu > 0 &&
@@ -91,6 +100,14 @@ void validate(const CalibrationConfig& c, const std::string& where) {
   if (!(c.max_ratio > 1 && c.max_ratio <= 100)) fail_range(where, "max_ratio", c.max_ratio, "(1, 100]");
   if (!(c.min_update_counts >= 0 && c.min_update_counts <= 1e6))
     fail_range(where, "min_update_counts", c.min_update_counts, "[0, 1e6]");
+  if (!(c.rung_initial_relative_sd > 0 && c.rung_initial_relative_sd <= 10))
+    fail_range(where, "rung_initial_relative_sd", c.rung_initial_relative_sd, "(0, 10]");
+  if (!(c.rung_forgetting > 0 && c.rung_forgetting <= 1))
+    fail_range(where, "rung_forgetting", c.rung_forgetting, "(0, 1]");
+}
+
+bool RungEstimate::same_cell(double f, double d, double s) const {
+  return same(freq_hz, f) && same(duty, d) && same(stroke_m, s);
 }
 
 Calibration::Calibration(const model::StageParams& nominal, CalibrationConfig config)
@@ -158,7 +175,78 @@ void Calibration::set_state(const CalibrationState& s) {
                                 "positive semi-definite");
     }
   }
+  for (int d = 0; d < CalibrationState::kDirections; ++d) {
+    if (s.rung_count[d] < 0 || s.rung_count[d] > CalibrationState::kMaxRungs)
+      throw model::InputError(std::string("calibration: rung count ") + direction_name(d) +
+                              " out of range [0, " + std::to_string(CalibrationState::kMaxRungs) + "]");
+    for (int i = 0; i < s.rung_count[d]; ++i)
+      if (!rung_ok(s.rungs[d][i]))
+        throw model::InputError(std::string("calibration: rung ") + direction_name(d) + " " +
+                                std::to_string(i) + ": not finite, or a bad cell or covariance");
+  }
   state_ = s;
+}
+
+bool Calibration::find_rung(int direction, double freq_hz, double duty, double stroke_m,
+                            RungEstimate& out) const {
+  if (!config_.enabled) return false;
+  const int d = direction_index(direction);
+  for (int i = 0; i < state_.rung_count[d]; ++i) {
+    if (state_.rungs[d][i].same_cell(freq_hz, duty, stroke_m)) {
+      out = state_.rungs[d][i];
+      return true;
+    }
+  }
+  return false;
+}
+
+bool Calibration::store_rung(int direction, const RungEstimate& e) {
+  if (!config_.enabled || !rung_ok(e)) return false;
+  const int d = direction_index(direction);
+  int i = 0;
+  while (i < state_.rung_count[d] && !state_.rungs[d][i].same_cell(e.freq_hz, e.duty, e.stroke_m)) ++i;
+  if (i == state_.rung_count[d]) {
+    if (i >= CalibrationState::kMaxRungs) return false;
+    ++state_.rung_count[d];
+  }
+  state_.rungs[d][i] = e;
+  ++state_.total_updates;
+  return true;
+}
+
+bool Calibration::rls_update(RungEstimate& e, std::uint64_t cycles, double measured_along_m,
+                             double count_m, double relative_sd, double forgetting,
+                             double p_max_oo, double p_max_ss) {
+  if (cycles == 0 || !std::isfinite(measured_along_m) || !(count_m > 0) || !(forgetting > 0))
+    return false;
+  const double n = static_cast<double>(cycles);
+  // Noise of one burst: the two readings (about half a count each after averaging and
+  // quantization) and the burst's own scatter (friction along the guide), relative_sd of it.
+  const double size = std::max(std::fabs(measured_along_m), std::fabs(e.predict_m(cycles)));
+  const double sd = std::sqrt(0.5 * count_m * count_m + relative_sd * relative_sd * size * size);
+  const double f_o = 1.0 / sd, f_s = n / sd, y = measured_along_m / sd;
+  const double pf_o = e.p_oo * f_o + e.p_os * f_s;
+  const double pf_s = e.p_os * f_o + e.p_ss * f_s;
+  const double denom = forgetting + f_o * pf_o + f_s * pf_s;
+  const double k_o = pf_o / denom, k_s = pf_s / denom;
+  const double innovation = y - (e.offset_m * f_o + e.step_m * f_s);
+  RungEstimate next = e;
+  next.offset_m += k_o * innovation;
+  next.step_m += k_s * innovation;
+  next.p_oo = (e.p_oo - k_o * pf_o) / forgetting;
+  next.p_os = (e.p_os - k_o * pf_s) / forgetting;
+  next.p_ss = (e.p_ss - k_s * pf_s) / forgetting;
+  if (next.p_oo > p_max_oo || next.p_ss > p_max_ss) {
+    const double shrink = std::min(p_max_oo / std::max(next.p_oo, p_max_oo),
+                                   p_max_ss / std::max(next.p_ss, p_max_ss));
+    next.p_oo *= shrink;
+    next.p_os *= shrink;
+    next.p_ss *= shrink;
+  }
+  ++next.updates;
+  if (!rung_ok(next)) return false;
+  e = next;
+  return true;
 }
 
 bool Calibration::predict(const RegionCell& cell, double& single_along_m,
@@ -247,6 +335,19 @@ std::string Calibration::serialize(const CalibrationState& s) {
       body += line;
     }
   }
+  std::snprintf(line, sizeof line, "rungs %d %d\n", s.rung_count[0], s.rung_count[1]);
+  body += line;
+  for (int d = 0; d < CalibrationState::kDirections; ++d) {
+    for (int i = 0; i < s.rung_count[d] && i < CalibrationState::kMaxRungs; ++i) {
+      const RungEstimate& e = s.rungs[d][i];
+      std::snprintf(line, sizeof line,
+                    "rung %s %.17g %.17g %.17g %llu %.17g %.17g %.17g %.17g %.17g\n",
+                    direction_name(d), e.freq_hz, e.duty, e.stroke_m,
+                    static_cast<unsigned long long>(e.updates), e.offset_m, e.step_m, e.p_oo,
+                    e.p_os, e.p_ss);
+      body += line;
+    }
+  }
   std::snprintf(line, sizeof line, "total_updates %llu\n",
                 static_cast<unsigned long long>(s.total_updates));
   body += line;
@@ -267,9 +368,26 @@ bool Calibration::parse(const std::string& text, const std::string& source, Cali
     error = source + ":" + std::to_string(line) + ": " + what;
     return false;
   };
-  const std::size_t expected_lines = 2 + CalibrationState::kRegions * CalibrationState::kDirections + 2;
-  if (lines.empty() || lines[0] != kMagic)
+  if (lines.empty() || (lines[0] != kMagic && lines[0] != kMagicV1))
     return bad(1, std::string("not a calibration file (expected first line '") + kMagic + "')");
+  const bool v1 = lines[0] == kMagicV1;
+  const std::size_t estimate_lines = CalibrationState::kRegions * CalibrationState::kDirections;
+  // Version 2: a 'rungs NEG POS' line after the estimates, then that many rung lines.
+  int rung_counts[2] = {0, 0};
+  std::size_t expected_lines = 2 + estimate_lines + 2;
+  if (!v1) {
+    const std::size_t rungs_line = 2 + estimate_lines + 1;  // 1-based
+    if (lines.size() < rungs_line + 2)
+      return bad(lines.size(), "truncated: " + std::to_string(lines.size()) + " lines, expected at least " +
+                                   std::to_string(rungs_line + 2));
+    char tail = 0;
+    if (std::sscanf(lines[rungs_line - 1].c_str(), "rungs %d %d%c", &rung_counts[0], &rung_counts[1], &tail) != 2 ||
+        rung_counts[0] < 0 || rung_counts[1] < 0 || rung_counts[0] > CalibrationState::kMaxRungs ||
+        rung_counts[1] > CalibrationState::kMaxRungs)
+      return bad(rungs_line, "expected 'rungs NEGATIVE POSITIVE' (each 0 .. " +
+                                 std::to_string(CalibrationState::kMaxRungs) + ")");
+    expected_lines += 1 + static_cast<std::size_t>(rung_counts[0] + rung_counts[1]);
+  }
   if (lines.size() != expected_lines)
     return bad(lines.size(), "truncated or extended: " + std::to_string(lines.size()) +
                                  " lines, expected " + std::to_string(expected_lines));
@@ -308,6 +426,23 @@ bool Calibration::parse(const std::string& text, const std::string& source, Cali
       if (!estimate_ok(e))
         return bad(ln, "alpha and alpha_mu must be finite and > 0, the covariance positive "
                        "semi-definite");
+    }
+  }
+  std::size_t ln = 2 + estimate_lines + 2;  // the first rung line (1-based)
+  for (int d = 0; d < CalibrationState::kDirections; ++d) {
+    s.rung_count[d] = rung_counts[d];
+    for (int i = 0; i < rung_counts[d]; ++i, ++ln) {
+      char direction[32] = {}, tail = 0;
+      unsigned long long updates = 0;
+      RungEstimate& e = s.rungs[d][i];
+      if (std::sscanf(lines[ln - 1].c_str(), "rung %31s %lf %lf %lf %llu %lf %lf %lf %lf %lf%c", direction,
+                      &e.freq_hz, &e.duty, &e.stroke_m, &updates, &e.offset_m, &e.step_m, &e.p_oo,
+                      &e.p_os, &e.p_ss, &tail) != 10)
+        return bad(ln, "expected 'rung DIRECTION FREQ DUTY STROKE UPDATES OFFSET STEP P_OO P_OS P_SS'");
+      if (std::string(direction) != direction_name(d))
+        return bad(ln, std::string("expected a rung moving ") + direction_name(d) + ", found " + direction);
+      e.updates = updates;
+      if (!rung_ok(e)) return bad(ln, "a rung must be a valid cell with finite values and a covariance");
     }
   }
   {

@@ -46,6 +46,11 @@ struct CalibrationConfig {
   double max_ratio = 3.0;
   // A burst updates the estimate only when it moved at least this many interferometer counts.
   double min_update_counts = 3.0;
+  // Per-rung estimates (see RungEstimate): relative standard deviation of the model's seed (the
+  // impulse model is off by 0.3x .. 0.8x on a compliant plant: low confidence), and the
+  // forgetting factor of their RLS (friction varies along the guide: recent bursts weigh more).
+  double rung_initial_relative_sd = 0.5;
+  double rung_forgetting = 0.9;
 };
 void validate(const CalibrationConfig& config, const std::string& where = "control.calibration");
 
@@ -59,6 +64,22 @@ struct CalibrationEstimate {
   double mu() const { return alpha != 0 ? alpha_mu / alpha : 0.0; }
 };
 
+// One rung of the positioner's step ladder (a played cell, one direction): the displacement of a
+// burst of N cycles from rest, along the motion, as D(N) = offset_m + N step_m (the first-cycle
+// transient and the steady step). For a fixed cell eq 22 makes step = alpha p - (alpha mu) q with p,
+// q fixed, so a per-cell (alpha, alpha mu) carries exactly one combination of the two: the rung
+// keeps the identifiable pair (offset, step) instead, by weighted RLS with forgetting, seeded from
+// the map's prediction. P: covariance of (offset, step) in m^2.
+struct RungEstimate {
+  double freq_hz = 0, duty = 0, stroke_m = 0;  // the key: the played cell
+  double offset_m = 0, step_m = 0;
+  double p_oo = 0, p_os = 0, p_ss = 0;
+  std::uint64_t updates = 0;
+
+  double predict_m(std::uint64_t cycles) const { return offset_m + static_cast<double>(cycles) * step_m; }
+  bool same_cell(double f, double d, double s) const;
+};
+
 // A plain snapshot (trivially copyable): what is saved and loaded.
 struct CalibrationState {
   static constexpr int kRegions = 3;     // model::Region: Cutoff, OneStep, MultiStep
@@ -68,6 +89,10 @@ struct CalibrationState {
          stroke_m = 0, step_correction = 0;
   CalibrationEstimate estimates[kRegions][kDirections];
   std::uint64_t total_updates = 0;
+  // Per-rung estimates, per direction ([0] negative, [1] positive), the first rung_count used.
+  static constexpr int kMaxRungs = 128;
+  int rung_count[kDirections] = {0, 0};
+  RungEstimate rungs[kDirections][kMaxRungs];
 };
 
 class Calibration {
@@ -109,6 +134,19 @@ class Calibration {
   bool update(const RegionCell& cell, std::uint64_t cycles, double measured_m, double count_m);
   std::uint64_t total_updates() const { return state_.total_updates; }
   const model::StageParams& nominal() const { return nominal_; }
+
+  // ---- per-rung estimates (real-time safe: fixed arrays, no allocation) ----
+  // The stored estimate of the cell (freq, duty, stroke) moving `direction`: false when disabled
+  // or none is stored.
+  bool find_rung(int direction, double freq_hz, double duty, double stroke_m, RungEstimate& out) const;
+  // Stores (adds or replaces by key) a rung estimate; false when disabled, the table is full or
+  // the estimate is not finite. Counts one update.
+  bool store_rung(int direction, const RungEstimate& estimate);
+  // One weighted RLS step of a rung estimate with a measured burst of `cycles` cycles
+  // (`measured_along_m` > 0 along the motion); noise: count_m and relative_sd of the displacement.
+  // P is bounded by p_max_* (no wind-up). Returns false (estimate untouched) on bad input.
+  static bool rls_update(RungEstimate& e, std::uint64_t cycles, double measured_along_m, double count_m,
+                         double relative_sd, double forgetting, double p_max_oo, double p_max_ss);
 
  private:
   CalibrationEstimate& slot(model::Region region, int direction);

@@ -44,6 +44,14 @@ void validate(const PositionerConfig& c, const std::string& where) {
     fail_range(where, "stall_min_counts", c.stall_min_counts, "[0, 1e6]");
   if (c.max_chunks_per_move < 0 || c.max_chunks_per_move > 100000000)
     fail_range(where, "max_chunks_per_move", c.max_chunks_per_move, "[0, 1e8] (0: the planner's max_bursts)");
+  if (!(c.final_step_counts >= 0.5 && c.final_step_counts <= 1000))
+    fail_range(where, "final_step_counts", c.final_step_counts, "[0.5, 1000]");
+  if (!(c.min_step_counts >= 0 && c.min_step_counts < c.final_step_counts))
+    fail_range(where, "min_step_counts", c.min_step_counts, "[0, final_step_counts)");
+  if (c.dead_rung_moves < 1 || c.dead_rung_moves > 1000000)
+    fail_range(where, "dead_rung_moves", c.dead_rung_moves, "[1, 1e6]");
+  if (!(c.chunk_overhead_s >= 0 && c.chunk_overhead_s <= 10))
+    fail_range(where, "chunk_overhead_s", c.chunk_overhead_s, "[0, 10]");
 }
 
 const char* motion_state_name(MotionState s) {
@@ -144,6 +152,7 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
         model::format_number(fastest_m_s) +
         " m/s: m/(M+m) times the fast phase's rate); real motion would read as glitches. Raise "
         "it above that, or narrow the map (limits.max_freq_hz, limits.max_stroke_m)");
+  build_ladder();
   status_.state = MotionState::Idle;
 }
 
@@ -164,6 +173,7 @@ Refusal Positioner::move_absolute(double target_m) {
   if (target_m < config_.soft_lower_m || target_m > config_.soft_upper_m)
     return Refusal::OutsideSoftLimits;
   if (!status_.position_valid) return Refusal::NoPosition;
+  load_rung_estimates();
   status_.target_m = target_m;
   status_.closed_loop = true;
   status_.corrections = 0;
@@ -420,15 +430,144 @@ void Positioner::finish(double now_s) {
   last_poll_s_ = now_s;
 }
 
+// ---- the step ladder ----
+
+void Positioner::build_ladder() {
+  rung_cfg_ = calibration_ != nullptr ? calibration_->config() : CalibrationConfig{};
+  // Frequency bands: one rung per (stroke, band), so that a rung that does not move on the real
+  // stage (stiction near cut-off, the actuator's resonance) has neighbours to fall back on.
+  // Frequency bands x bands of the fast phase's share min(duty, 1 - duty): one rung per (stroke,
+  // band, share band), so that a rung that does not move on the real stage (stiction near
+  // cut-off, the amplifier rounding a short fast phase, the actuator's resonance) has neighbours.
+  static constexpr double kBandEdges[] = {0, 300, 700, 1200, 1e300};
+  static constexpr double kShareEdges[] = {0, 0.03, 0.1, 0.25, 0.5};
+  constexpr std::size_t kBands = sizeof kBandEdges / sizeof kBandEdges[0] - 1;
+  constexpr std::size_t kShares = sizeof kShareEdges / sizeof kShareEdges[0] - 1;
+  const double rel = rung_cfg_.rung_initial_relative_sd;
+  for (int dir : {-1, 1}) {
+    std::vector<Rung>& ladder = ladder_[direction_index(dir)];
+    ladder.clear();
+    for (double stroke : map_.strokes_m()) {
+      for (std::size_t band = 0; band < kBands * kShares; ++band) {
+        const std::size_t fb = band / kShares, sb = band % kShares;
+        std::size_t best = 0;
+        double best_rate = 0;
+        for (std::size_t i : map_.usable_cells()) {
+          const RegionCell& c = map_.cells()[i];
+          if (c.direction() != dir || std::fabs(c.stroke_m - stroke) > 1e-9 * stroke) continue;
+          if (c.freq_hz < kBandEdges[fb] || c.freq_hz >= kBandEdges[fb + 1]) continue;
+          const double share = std::min(c.duty, 1.0 - c.duty);
+          if (share < kShareEdges[sb] || share >= kShareEdges[sb + 1]) continue;
+          // The best predicted progress per second of the band (the map's step times f).
+          const double rate = std::fabs(c.step_m) * c.freq_hz;
+          if (rate > best_rate) {
+            best_rate = rate;
+            best = i;
+          }
+        }
+        if (!(best_rate > 0)) continue;
+        const RegionCell& c = map_.cells()[best];
+        Rung r;
+        r.cell = best;
+        r.direction = dir;
+        r.seed.freq_hz = c.freq_hz;
+        r.seed.duty = c.duty;
+        r.seed.stroke_m = c.stroke_m;
+        r.seed.step_m = dir * c.step_m;
+        r.seed.offset_m = dir * (c.single_burst_m - c.step_m);
+        const double sd_step = rel * r.seed.step_m;
+        // The model's first-cycle transient means little on a compliant actuator (measured:
+        // up to a full step either way): its seed is known no better than one step.
+        const double sd_offset = std::max(rel, 1.0) * std::max(std::fabs(r.seed.offset_m), r.seed.step_m);
+        r.seed.p_ss = sd_step * sd_step;
+        r.seed.p_oo = sd_offset * sd_offset;
+        r.seed.p_os = 0;
+        r.seed.updates = 0;
+        r.est = r.seed;
+        ladder.push_back(r);
+      }
+    }
+    // Coarse to fine by the model's step.
+    std::stable_sort(ladder.begin(), ladder.end(),
+                     [](const Rung& x, const Rung& y) { return x.seed.step_m > y.seed.step_m; });
+    if (ladder.size() > static_cast<std::size_t>(CalibrationState::kMaxRungs))
+      ladder.resize(static_cast<std::size_t>(CalibrationState::kMaxRungs));
+  }
+}
+
+void Positioner::load_rung_estimates() {
+  for (std::vector<Rung>& ladder : ladder_) {
+    for (Rung& r : ladder) {
+      RungEstimate stored;
+      if (calibration_ != nullptr &&
+          calibration_->find_rung(r.direction, r.seed.freq_hz, r.seed.duty, r.seed.stroke_m, stored))
+        r.est = stored;
+      else if (calibration_ == nullptr || !calibration_->config().enabled)
+        r.est = r.seed;  // without calibration nothing is carried from one move to the next
+      r.pending_pred_m = 0;
+      r.pending_moved_m = 0;
+    }
+  }
+}
+
+bool Positioner::rung_live(Rung& r) {
+  if (r.dead) {
+    if (status_.moves < r.dead_until_move) return false;
+    // Its time is over: try it again from the seed.
+    r.dead = false;
+    r.killed_in_streak = false;
+    r.est = r.seed;
+    r.pending_pred_m = r.pending_moved_m = 0;
+    if (calibration_ != nullptr) calibration_->store_rung(r.direction, r.est);
+  }
+  if (!(r.est.step_m >= config_.min_step_counts * count_m_)) {
+    kill_rung(r);
+    return false;
+  }
+  return true;
+}
+
+void Positioner::kill_rung(Rung& r) {
+  r.dead = true;
+  r.proven = false;
+  r.dead_until_move = status_.moves + static_cast<std::uint64_t>(config_.dead_rung_moves);
+  r.pending_pred_m = r.pending_moved_m = 0;
+}
+
+Positioner::RungInfo Positioner::rung(int direction, std::size_t index) const {
+  const Rung& r = ladder_[direction_index(direction)].at(index);
+  RungInfo info;
+  info.cell = r.cell;
+  info.estimate = r.est;
+  info.dead = r.dead;
+  info.proven = r.proven;
+  info.chunks = r.chunks;
+  return info;
+}
+
+void Positioner::mark_rung_dead(int direction, std::size_t index) {
+  kill_rung(ladder_[direction_index(direction)].at(index));
+}
+
+double Positioner::finest_live_step_m(int direction) const {
+  double finest = 0;
+  for (const Rung& r : ladder_[direction_index(direction)]) {
+    if (r.dead || !(r.est.step_m >= config_.min_step_counts * count_m_)) continue;
+    if (finest == 0 || r.est.step_m < finest) finest = r.est.step_m;
+  }
+  return finest;
+}
+
 void Positioner::plan_next_chunk(double now_s) {
   const double error = status_.target_m - status_.position_m;
-  if (std::fabs(error) <= tolerance_m()) {
+  const double tolerance = tolerance_m();
+  if (std::fabs(error) <= tolerance) {
     finish(now_s);
     return;
   }
   if (last_try_done_) {
-    // The plan's last burst was played in full, or a chunk passed the target, and the target is
-    // not reached: a correction (the motor record's retry).
+    // A final chunk was played in full, or a chunk passed the target, and the target is not
+    // reached: a correction (the motor record's retry).
     last_try_done_ = false;
     if (static_cast<int>(status_.corrections) >= config_.max_retries) {
       enter_fault(MotionFault::RetryLimit);
@@ -441,36 +580,81 @@ void Positioner::plan_next_chunk(double now_s) {
     return;
   }
   const int sign = error > 0 ? 1 : -1;
-  planner_.plan(error, plan_);
-  if (plan_.bursts.empty()) {
-    // Nothing usable moves that way, or nothing comes closer than where the slider is.
-    enter_fault(planner_.largest_step_m(sign) == 0 ? MotionFault::NoPlan : MotionFault::RetryLimit);
+  const double distance = std::fabs(error);
+  std::vector<Rung>& ladder = ladder_[direction_index(sign)];
+  if (ladder.empty()) {
+    enter_fault(MotionFault::NoPlan);
     return;
   }
-  const Burst& b = plan_.bursts.front();
-  const RegionCell& cell = map_.cells()[b.cell_index];
-  const bool last = plan_.bursts.size() == 1;
-  const double distance = std::fabs(error);
-  // The step model along the motion: calibrated where the calibration knows the cell.
-  double single = sign * cell.single_burst_m, step = sign * cell.step_m;
-  const bool calibrated = calibration_ != nullptr && calibration_->predict(cell, single, step);
-  std::uint64_t cycles = b.cycles;
-  const std::uint64_t max_cycles = cell.max_cycles > 0 ? cell.max_cycles : b.cycles;
-  auto clamp = [&](double n) -> std::uint64_t {
-    if (!(n >= 1)) return 1;
-    if (n >= static_cast<double>(max_cycles)) return max_cycles;
-    return static_cast<std::uint64_t>(n);
-  };
-  if (last) {
-    if (calibrated) cycles = clamp(1 + std::round((distance - single) / step));
-  } else {
-    // Stop the planner's approach margin short even if the prediction is approach_uncertainty
-    // too small.
-    const double leave = 0.5 * planner_.config().final_approach_steps * planner_.final_step_bound_m(sign);
-    const double room = (distance - leave) / (1 + config_.approach_uncertainty);
-    cycles = clamp(1 + std::floor((room - single) / step));
-    if (!calibrated) cycles = std::min(cycles, b.cycles);
+  // The final rung: the live rung of the final class (learned step <= final_step_counts) with the
+  // best progress per second; without one, the finest live rung.
+  const double final_bound = config_.final_step_counts * count_m_;
+  int fin = -1, finest = -1;
+  double fin_rate = 0;
+  for (std::size_t i = 0; i < ladder.size(); ++i) {
+    Rung& r = ladder[i];
+    if (!rung_live(r)) continue;
+    const double b = r.est.step_m;
+    if (finest < 0 || b < ladder[static_cast<std::size_t>(finest)].est.step_m) finest = static_cast<int>(i);
+    const double rate = b * map_.cells()[r.cell].freq_hz;
+    if (b <= final_bound && rate > fin_rate) {
+      fin_rate = rate;
+      fin = static_cast<int>(i);
+    }
   }
+  if (fin < 0) fin = finest;
+  if (fin < 0) {
+    // Every rung that way has been judged not to move.
+    enter_fault(MotionFault::Stall);
+    return;
+  }
+  const Rung& final_rung = ladder[static_cast<std::size_t>(fin)];
+  const double b_final = final_rung.est.step_m;
+  int chosen = -1;
+  std::uint64_t cycles = 0;
+  bool final_chunk = false;
+  // Approach: outside the final zone, the rung with the most expected progress per second of a
+  // chunk (its cycles plus chunk_overhead_s) among those whose planned burst, grown by the
+  // approach uncertainty and the rung's own, still stops `keep` short of the target.
+  const double zone = std::max(10.0 * b_final, 3.0 * count_m_);
+  if (distance > zone) {
+    const double keep = 3.0 * b_final + tolerance;
+    double best_score = 0;
+    for (std::size_t i = 0; i < ladder.size(); ++i) {
+      Rung& r = ladder[i];
+      if (r.dead) continue;  // rung_live ran above
+      const RegionCell& cell = map_.cells()[r.cell];
+      const double a = r.est.offset_m, b = r.est.step_m;
+      // Pessimistic: offset and step two standard deviations up, and the whole grown by
+      // approach_uncertainty (friction along the guide).
+      const double a_hi = a + 2.0 * std::sqrt(std::max(r.est.p_oo, 0.0));
+      const double b_hi = b + 2.0 * std::sqrt(std::max(r.est.p_ss, 0.0));
+      const double n_real = std::floor(((distance - keep) / (1.0 + config_.approach_uncertainty) - a_hi) / b_hi);
+      if (!(n_real >= 1)) continue;
+      std::uint64_t n = n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real);
+      if (cell.max_cycles > 0) n = std::min(n, cell.max_cycles);
+      const std::uint64_t n_chunk = std::min(n, chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles));
+      const double progress = a + b * static_cast<double>(n_chunk);
+      if (!(progress > 0)) continue;
+      const double score = progress / (static_cast<double>(n_chunk) / cell.freq_hz + config_.chunk_overhead_s);
+      if (score > best_score) {
+        best_score = score;
+        chosen = static_cast<int>(i);
+        cycles = n;
+      }
+    }
+  }
+  if (chosen < 0) {
+    // Final: the final rung, the number of cycles whose learned displacement lands nearest.
+    chosen = fin;
+    final_chunk = true;
+    const double n_real = std::round((distance - final_rung.est.offset_m) / b_final);
+    cycles = !(n_real >= 1) ? 1 : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real));
+    const std::uint64_t max_cycles = map_.cells()[final_rung.cell].max_cycles;
+    if (max_cycles > 0) cycles = std::min(cycles, max_cycles);
+  }
+  Rung& r = ladder[static_cast<std::size_t>(chosen)];
+  const RegionCell& cell = map_.cells()[r.cell];
   chunk_.freq_hz = cell.freq_hz;
   chunk_.duty = cell.duty;
   chunk_.stroke_m = cell.stroke_m;
@@ -478,12 +662,85 @@ void Positioner::plan_next_chunk(double now_s) {
   chunk_.extension_samples = cell.extension_samples;
   chunk_.cell = &cell;
   chunk_.direction = sign;
+  chunk_.rung = chosen;
   const std::uint64_t limit = chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles);
   chunk_.cycles = std::min(cycles, limit);
-  chunk_.completes_last_burst = last && chunk_.cycles == cycles;
-  const double predicted = sign * (single + static_cast<double>(chunk_.cycles - 1) * step);
-  chunk_.predicted_m = std::fabs(predicted) >= config_.stall_min_counts * count_m_ ? predicted : 0.0;
+  chunk_.completes_last_burst = final_chunk && chunk_.cycles == cycles;
+  chunk_.predicted_along_m = r.est.predict_m(chunk_.cycles);
+  chunk_.predicted_m = 0;  // closed loop: judged per rung (judge_and_learn)
+  // The plan of this chunk: one burst of the rung (its planned cycles, before cutting).
+  plan_.target_m = error;
+  plan_.bursts.clear();
+  Burst burst;
+  burst.freq_hz = cell.freq_hz;
+  burst.duty = cell.duty;
+  burst.stroke_m = cell.stroke_m;
+  burst.period_samples = cell.period_samples;
+  burst.extension_samples = cell.extension_samples;
+  burst.cycles = cycles;
+  burst.step_m = sign * r.est.step_m;
+  burst.displacement_m = sign * r.est.predict_m(cycles);
+  burst.cell_index = r.cell;
+  plan_.bursts.push_back(burst);
+  plan_.predicted_m = burst.displacement_m;
+  plan_.final_step_m = final_chunk ? r.est.step_m : b_final;
   start_chunk();
+}
+
+bool Positioner::judge_and_learn(double moved_m) {
+  const int sign = chunk_.direction;
+  std::vector<Rung>& ladder = ladder_[direction_index(sign)];
+  Rung& r = ladder[static_cast<std::size_t>(chunk_.rung)];
+  ++r.chunks;
+  const double along = sign * moved_m;
+  const double predicted = std::max(chunk_.predicted_along_m, 0.0);
+  r.pending_pred_m += predicted;
+  r.pending_moved_m += along;
+  const bool judged = r.pending_pred_m >= config_.stall_min_counts * count_m_;
+  const bool wrong_way = along < -2.0 * count_m_;
+  // Not moving: less than stall_fraction of the prediction and less than two counts (a rung
+  // that moves a quarter of its seed is slow, not dead: its estimate learns that).
+  const bool failed =
+      wrong_way || (judged && r.pending_moved_m < std::min(config_.stall_fraction * r.pending_pred_m, 2.0 * count_m_));
+  if (judged || failed) r.pending_pred_m = r.pending_moved_m = 0;
+  if (failed) {
+    // A rung that does not move (or moves back) is left out; it is a stall only when it had
+    // moved before, or is one of the coarse rungs (within half of the largest live step): a
+    // fine rung near cut-off that never moved is the map being wrong, not the slider stuck.
+    double largest = 0;
+    for (const Rung& x : ladder)
+      if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
+    const bool counts = r.proven || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
+    kill_rung(r);
+    r.killed_in_streak = true;
+    if (counts && ++stall_count_ >= config_.stall_bursts) {
+      // The slider is stuck: the rungs are not to blame.
+      for (std::vector<Rung>& l : ladder_)
+        for (Rung& x : l)
+          if (x.killed_in_streak) {
+            x.dead = false;
+            x.killed_in_streak = false;
+          }
+      enter_fault(MotionFault::Stall);
+      return false;
+    }
+    return true;
+  }
+  if (judged) {
+    stall_count_ = 0;
+    r.proven = true;
+    for (std::vector<Rung>& l : ladder_)
+      for (Rung& x : l) x.killed_in_streak = false;
+  }
+  if (along > -count_m_ &&
+      Calibration::rls_update(r.est, chunk_.cycles, along, count_m_, rung_cfg_.observation_relative_sd,
+                              rung_cfg_.rung_forgetting, r.seed.p_oo, r.seed.p_ss)) {
+    if (calibration_ != nullptr) calibration_->store_rung(sign, r.est);
+  }
+  if (!(r.est.step_m >= config_.min_step_counts * count_m_)) kill_rung(r);
+  if (calibration_ != nullptr && chunk_.cell != nullptr)
+    calibration_->update(*chunk_.cell, chunk_.cycles, moved_m, count_m_);
+  return true;
 }
 
 void Positioner::next_open_loop_chunk(double now_s) {
@@ -505,8 +762,10 @@ void Positioner::after_chunk(double now_s) {
   double position = 0;
   if (!latch_position(position)) return;
   const double moved = position - chunk_start_position_m_;
-  // Stall: a chunk that moved less than stall_fraction of its prediction (or backwards).
-  if (chunk_.predicted_m != 0) {
+  if (status_.closed_loop && chunk_.rung >= 0) {
+    if (!judge_and_learn(moved)) return;
+  } else if (chunk_.predicted_m != 0) {
+    // Open loop. Stall: a chunk that moved less than stall_fraction of its prediction.
     const double along = moved / chunk_.predicted_m;
     if (along < config_.stall_fraction) {
       if (++stall_count_ >= config_.stall_bursts) {
@@ -515,8 +774,6 @@ void Positioner::after_chunk(double now_s) {
       }
     } else {
       stall_count_ = 0;
-      if (calibration_ != nullptr && chunk_.cell != nullptr)
-        calibration_->update(*chunk_.cell, chunk_.cycles, moved, count_m_);
     }
   }
   if (stop_requested_) {
@@ -525,7 +782,11 @@ void Positioner::after_chunk(double now_s) {
   }
   if (status_.closed_loop) {
     const bool passed = (status_.target_m - position) * chunk_.direction < 0;
-    last_try_done_ = chunk_.completes_last_burst || passed;
+    // A final chunk is a try at the target once its rung is known to move (a rung still being
+    // judged, or just found not to move, is the ladder learning, not a correction).
+    const bool rung_known =
+        chunk_.rung < 0 || ladder_[direction_index(chunk_.direction)][static_cast<std::size_t>(chunk_.rung)].proven;
+    last_try_done_ = (chunk_.completes_last_burst && rung_known) || passed;
     plan_next_chunk(now_s);
   } else {
     next_open_loop_chunk(now_s);

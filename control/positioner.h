@@ -24,14 +24,13 @@
 #include <string>
 #include <vector>
 
+#include "control/calibration.h"
 #include "control/planner.h"
 #include "control/region_map.h"
 #include "drivers/interfaces.h"
 #include "drivers/position_word.h"
 
 namespace idm::control {
-
-class Calibration;
 
 struct PositionerConfig {
   // |target - position| that counts as arrived; 0: one interferometer count.
@@ -61,6 +60,18 @@ struct PositionerConfig {
   double stall_min_counts = 3.0;
   // Most chunks in one move (a guard; 0: the planner's max_bursts).
   int max_chunks_per_move = 0;
+  // ---- the step ladder (control/README.md, "Positioner") ----
+  // The last chunks of a move use a rung whose learned step is at most this many counts (a step
+  // under two counts always lands in the +/- one count window when played one cycle at a time).
+  double final_step_counts = 2.0;
+  // A rung whose learned step falls below this many counts per cycle is treated as not moving.
+  double min_step_counts = 0.3;
+  // A rung judged not to move (or to move the wrong way) is left out for this many moves, then
+  // tried again from its seed.
+  int dead_rung_moves = 100;
+  // Time a chunk costs beyond its cycles (device settle, the positioner's settle, the reading),
+  // used to weigh fewer, longer chunks against more, shorter ones.
+  double chunk_overhead_s = 5e-3;
 };
 
 // Throws model::InputError naming the key and the allowed range.
@@ -153,6 +164,23 @@ class Positioner {
   std::uint64_t move_chunks() const { return move_chunks_; }
   std::uint64_t move_cycles() const { return move_cycles_; }
 
+  // The step ladder: per direction, the rungs built from the map at construction (one usable
+  // cell per stroke and frequency band), coarse to fine by the model's step. `estimate` is what
+  // the positioner currently believes a burst of the rung moves (along the motion).
+  struct RungInfo {
+    std::size_t cell = 0;        // into map().cells()
+    RungEstimate estimate;       // learned (offset, step), seeded from the map
+    bool dead = false;           // judged not to move that way (left out for a while)
+    bool proven = false;         // has moved as predicted in this session
+    std::uint64_t chunks = 0;    // chunks played with it since construction
+  };
+  std::size_t rung_count(int direction) const { return ladder_[direction > 0 ? 1 : 0].size(); }
+  RungInfo rung(int direction, std::size_t index) const;
+  // Marks a rung dead for dead_rung_moves moves (for tests and tools; the loop does it itself).
+  void mark_rung_dead(int direction, std::size_t index);
+  // The learned step of the finest live rung toward `direction` (0: none).
+  double finest_live_step_m(int direction) const;
+
  private:
   enum class Phase : std::uint8_t { Idle, Pending, Playing, Settling, Fault };
   struct Chunk {
@@ -163,7 +191,26 @@ class Positioner {
     const RegionCell* cell = nullptr;     // the map cell (closed loop), for calibration
     bool completes_last_burst = false;    // ends the plan's last burst (a try at the target)
     int direction = 0;                    // +1 / -1
+    int rung = -1;                        // index into the ladder of `direction`; -1 open loop
+    double predicted_along_m = 0;         // the rung's estimate for the chunk (closed loop)
   };
+  struct Rung {
+    std::size_t cell = 0;
+    int direction = 0;
+    RungEstimate seed;      // the map's prediction, low confidence
+    RungEstimate est;       // current
+    bool dead = false;
+    bool killed_in_streak = false;  // marked dead during the current run of non-moving chunks
+    bool proven = false;
+    std::uint64_t dead_until_move = 0;
+    double pending_pred_m = 0, pending_moved_m = 0;  // small chunks awaiting a stall judgement
+    std::uint64_t chunks = 0;
+  };
+  void build_ladder();
+  void load_rung_estimates();           // at a move's start: from the calibration, or the seeds
+  bool rung_live(Rung& r);              // revives a rung whose dead time is over
+  void kill_rung(Rung& r);
+  bool judge_and_learn(double moved_m);  // false: a fault was entered
 
   void enter_fault(MotionFault fault);
   void driver_fault(const drivers::DriverStatus& status);
@@ -197,6 +244,8 @@ class Positioner {
   bool buffered_ = true;          // write_burst (samples) or write_burst_parameters
   double sample_rate_hz_ = 0;     // the output clock for buffered bursts
   int max_chunks_ = 0;
+  std::vector<Rung> ladder_[2];
+  CalibrationConfig rung_cfg_;  // the calibration's (or the default) RLS settings for the rungs
   std::size_t largest_cell_[2] = {0, 0};  // [0] negative, [1] positive: largest |step|
   bool has_largest_cell_[2] = {false, false};
 

@@ -3,10 +3,12 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <limits>
 #include <sstream>
 #include <system_error>
+#include <utility>
 
 #include "drivers/backends.h"
 #include "drivers/clock.h"
@@ -85,6 +87,11 @@ std::string Daemon::start() {
       }
     }
     build_positioner();
+    if (calibration_) {
+      const control::CalibrationState state = calibration_->state();
+      calibration_snapshot_.store(state);
+      calibration_published_updates_ = calibration_saved_updates_ = state.total_updates;
+    }
   } catch (const model::InputError& e) {
     device_.shutdown();
     throw StartError(exit_code::kBadConfig, e.what());
@@ -98,7 +105,7 @@ std::string Daemon::start() {
   pub_.soft_upper_m = soft_upper_m_;
   pub_.motion = positioner_->status();
   published_.store(pub_);
-  recorder_ = std::thread([this] { recorder_main(); });
+  recorder_ = StackThread(kRecorderStackBytes, [this] { recorder_main(); });
   started_ = true;
   return loop_.start();
 }
@@ -121,13 +128,8 @@ void Daemon::shutdown() {
   // The loop has ended: this thread owns the device again.
   device_.output->stop();
   device_.deactivate();
-  if (calibration_ && !config_.control.calibration_file.empty()) {
-    try {
-      calibration_->save(config_.control.calibration_file);
-    } catch (const std::exception&) {
-      // Reported by the caller through the file's absence; the motion is already safe.
-    }
-  }
+  // The recorder has ended: this thread saves the final state (a failure becomes a note).
+  if (calibration_) save_calibration(calibration_->state());
   device_.shutdown();
 }
 
@@ -317,6 +319,34 @@ void Daemon::publish() {
   pub_.motion = positioner_->status();
   pub_.sweep_trial_active = sweep_phase_ != SweepPhase::Idle;
   published_.store(pub_);
+  if (pub_.motion.fault != noted_fault_) note_fault();
+  // Only when a burst updated it (at most once per chunk): a copy of a few hundred bytes.
+  if (calibration_ && calibration_->total_updates() != calibration_published_updates_) {
+    calibration_published_updates_ = calibration_->total_updates();
+    calibration_snapshot_.store(calibration_->state());
+  }
+}
+
+void Daemon::note_fault() {
+  noted_fault_ = pub_.motion.fault;
+  if (noted_fault_ == control::MotionFault::None) return;
+  ErrorNote note;
+  note.t_s = drivers::monotonic_s();
+  // "fault <name>" or "fault driver: <the driver's message>"; no allocation (fixed buffer).
+  auto append = [&note, used = std::size_t{0}](const char* s, std::size_t n) mutable {
+    n = std::min(n, sizeof note.text - 1 - used);
+    std::memcpy(note.text + used, s, n);
+    used += n;
+    note.text[used] = '\0';
+  };
+  append("fault ", 6);
+  const char* name = control::motion_fault_name(noted_fault_);
+  append(name, std::strlen(name));
+  if (noted_fault_ == control::MotionFault::Driver && !positioner_->last_driver_error().empty()) {
+    append(": ", 2);
+    append(positioner_->last_driver_error().data(), positioner_->last_driver_error().size());
+  }
+  fault_note_.store(note);
 }
 
 void Daemon::sweep_fail(TrialFailure why) {
@@ -497,18 +527,31 @@ bool Daemon::wait_at_rest(double timeout_s) {
 std::string Daemon::identity() { return std::string("idm,idmd,0,") + IDM_VERSION; }
 
 CommandError Daemon::reset() {
-  stop();
-  sweep_abort_.store(true);
-  // Wait for a running sweep to wind down (its current trial is stopped at once).
-  const double deadline = drivers::monotonic_s() + 5.0;
-  while (sweep_active_.load() && drivers::monotonic_s() < deadline) sleep_s(1e-3);
+  errors_cleared_s_ = drivers::monotonic_s();
+  if (CommandError e = stop(); !e.ok()) return e;
+  if (reset_pending_.load(std::memory_order_acquire)) return {};  // already on its way
+  {
+    std::lock_guard<std::mutex> lock(recorder_mutex_);
+    if (sweep_active_.load(std::memory_order_acquire)) {
+      // A sweep winds down on the recorder thread (the playing trial is stopped at once, a trial
+      // being written finishes first): rather than hold the server thread (and every other
+      // client) meanwhile, the recorder reloads the settings once the sweep has ended.
+      // motion_done() is false until then, so "*RST;*OPC?" waits for the reset to be complete.
+      sweep_abort_.store(true, std::memory_order_release);
+      reset_pending_.store(true, std::memory_order_release);
+      recorder_cv_.notify_all();
+      return {};
+    }
+  }
+  // No sweep: the loop parks at the playing chunk's end (at most control.max_chunk_s).
   std::string error;
   if (!reload_control(error)) return {error_code::kExecutionError, "*RST: " + error};
   return {};
 }
 
 bool Daemon::motion_done() {
-  if (sweep_active_.load(std::memory_order_acquire)) return false;
+  if (sweep_active_.load(std::memory_order_acquire) || reset_pending_.load(std::memory_order_acquire))
+    return false;
   const Published p = published_.load();
   return (p.motion.state == control::MotionState::Idle ||
           p.motion.state == control::MotionState::Fault) &&
@@ -529,6 +572,10 @@ InstrumentStatus Daemon::status() {
   s.moves = p.motion.moves;
   s.bursts = p.motion.bursts;
   s.cycles = p.motion.cycles;
+  const ErrorNote fault = fault_note_.load();
+  const ErrorNote other = housekeeping_note_.load();
+  const ErrorNote& last = fault.t_s >= other.t_s ? fault : other;
+  if (last.t_s >= 0 && last.t_s >= errors_cleared_s_) s.last_error = last.text;
   return s;
 }
 
@@ -607,6 +654,64 @@ std::string Daemon::last_sweep_report() {
   return sweep_report_;
 }
 
+std::vector<std::string> Daemon::take_notes() {
+  std::lock_guard<std::mutex> lock(recorder_mutex_);
+  return std::exchange(notes_, {});
+}
+
+void Daemon::add_note(std::string line) {
+  std::lock_guard<std::mutex> lock(recorder_mutex_);
+  if (notes_.size() < 100) notes_.push_back(std::move(line));
+}
+
+void Daemon::set_housekeeping_error(const std::string& text) {
+  ErrorNote note;
+  note.t_s = drivers::monotonic_s();
+  const std::size_t n = std::min(text.size(), sizeof note.text - 1);
+  std::memcpy(note.text, text.data(), n);
+  note.text[n] = '\0';
+  housekeeping_note_.store(note);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Calibration: saved by the recorder thread after each move that changed it.
+
+void Daemon::save_calibration_if_changed() {
+  if (!calibration_) return;
+  const control::CalibrationState state = calibration_snapshot_.load();
+  if (state.total_updates == calibration_saved_updates_ || !motion_done()) return;
+  save_calibration(state);
+}
+
+void Daemon::save_calibration(const control::CalibrationState& state) {
+  std::string path;
+  control::CalibrationConfig cal_config;
+  {
+    std::lock_guard<std::mutex> lock(control_mutex_);
+    path = config_.control.calibration_file;
+    cal_config = config_.control.calibration;
+  }
+  calibration_saved_updates_ = state.total_updates;  // a failure is retried at the next change
+  if (path.empty()) return;
+  std::string error;
+  try {
+    // A copy of the loop's calibration, so that the loop's own object is never read here.
+    control::Calibration copy(config_.stage.stage, cal_config);
+    copy.set_state(state);
+    copy.save(path);
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  if (error.empty()) {
+    calibration_save_error_.clear();
+    return;
+  }
+  const std::string text = "cannot save the calibration to " + path + ": " + error;
+  set_housekeeping_error(text);
+  if (text != calibration_save_error_) add_note(text);  // once per distinct failure
+  calibration_save_error_ = text;
+}
+
 // ---------------------------------------------------------------------------------------------
 // SWEEP: argument checks here (server thread), trials in the recorder thread.
 
@@ -681,17 +786,33 @@ CommandError Daemon::sweep(const std::string& dir, const std::vector<double>& fr
   return {};
 }
 
+// The recorder is also the daemon's housekeeping thread: it saves the calibration after the moves
+// that changed it, and finishes a *RST that had to wait for a sweep.
 void Daemon::recorder_main() {
   for (;;) {
     std::unique_ptr<SweepJob> job;
     {
       std::unique_lock<std::mutex> lock(recorder_mutex_);
-      recorder_cv_.wait(lock, [&] { return recorder_quit_ || pending_job_; });
+      recorder_cv_.wait_for(lock, std::chrono::milliseconds(100), [&] {
+        return recorder_quit_ || pending_job_ || reset_pending_.load(std::memory_order_acquire);
+      });
       if (!pending_job_ && recorder_quit_) return;
       job = std::move(pending_job_);
     }
-    run_sweep(*job);
-    sweep_active_.store(false, std::memory_order_release);
+    if (job) {
+      run_sweep(*job);
+      std::lock_guard<std::mutex> lock(recorder_mutex_);
+      sweep_active_.store(false, std::memory_order_release);
+    }
+    if (reset_pending_.load(std::memory_order_acquire)) {
+      std::string error;
+      if (!reload_control(error)) {
+        set_housekeeping_error("*RST: " + error);
+        add_note("*RST after the sweep: " + error);
+      }
+      reset_pending_.store(false, std::memory_order_release);
+    }
+    save_calibration_if_changed();
   }
 }
 
@@ -816,6 +937,7 @@ void Daemon::run_sweep(SweepJob& job) {
   std::ostringstream report;
   report << "sweep " << job.dir << ": " << written << " trials written, " << failed << " failed"
          << (aborted ? ", stopped" : "") << (first_error.empty() ? "" : " (first: " + first_error + ")");
+  if (failed > 0) set_housekeeping_error(report.str());
   std::lock_guard<std::mutex> lock(recorder_mutex_);
   sweep_report_ = report.str();
 }

@@ -30,6 +30,7 @@
 #include "daemon/instrument.h"
 #include "daemon/lockfree.h"
 #include "daemon/rt_loop.h"
+#include "daemon/thread.h"
 #include "drivers/interfaces.h"
 #include "drivers/position_word.h"
 #include "recording/dataset.h"
@@ -87,6 +88,10 @@ class Daemon final : public Instrument, private LoopBody {
   drivers::Device& device() { return device_; }
   // Description of the last finished SWEEP ("" before any): trials written, failures, errors.
   std::string last_sweep_report();
+  // Lines to log (warnings) that arose on the daemon's own threads since the last call: a failed
+  // calibration save (once per distinct failure, naming the file and the reason), a deferred
+  // *RST that failed. idmd logs them; also after shutdown() (the final save).
+  std::vector<std::string> take_notes();
 
   // ---- Instrument ----
   std::string identity() override;
@@ -132,6 +137,12 @@ class Daemon final : public Instrument, private LoopBody {
     double t_s = 0;
     std::uint64_t word = 0;
   };
+  // An error text with the time it happened (CLOCK_MONOTONIC), through a seqlock. text is NUL
+  // terminated (truncated to fit).
+  struct ErrorNote {
+    double t_s = -1;  // < 0: none
+    char text[224] = {};
+  };
   // Published by the loop after every tick.
   struct Published {
     control::MotionStatus motion;
@@ -145,6 +156,7 @@ class Daemon final : public Instrument, private LoopBody {
   void sweep_tick(double now_s);
   void sweep_fail(TrialFailure why);
   void publish();
+  void note_fault();  // loop: the fault the positioner just entered -> fault_note_
 
   // Server side.
   CommandError submit(Command cmd);
@@ -158,8 +170,14 @@ class Daemon final : public Instrument, private LoopBody {
   void build_positioner();  // new Positioner from config_.control and the current map
   void build_map();
 
-  // Recorder thread.
+  // Recorder (housekeeping) thread.
   void recorder_main();
+  void save_calibration_if_changed();
+  // Saves a snapshot; on failure logs once per distinct error (note) and sets the housekeeping
+  // error. Recorder thread, or the main thread after the recorder has ended.
+  void save_calibration(const control::CalibrationState& state);
+  void set_housekeeping_error(const std::string& text);
+  void add_note(std::string line);
   struct SweepJob;
   void run_sweep(SweepJob& job);
 
@@ -183,6 +201,21 @@ class Daemon final : public Instrument, private LoopBody {
   std::atomic<bool> parked_{false};
   Seqlock<Published> published_;
   Published pub_;                           // loop thread's copy
+  // Last errors: the loop's (faults) and the recorder's (calibration save, sweep, deferred *RST);
+  // STATus? shows the later one. errors_cleared_s_: *RST's time (server thread).
+  Seqlock<ErrorNote> fault_note_;
+  Seqlock<ErrorNote> housekeeping_note_;
+  control::MotionFault noted_fault_ = control::MotionFault::None;  // loop thread
+  double errors_cleared_s_ = -1;
+  // Calibration: the loop publishes a snapshot whenever its update count changes; the recorder
+  // thread saves it once the motion is done.
+  Seqlock<control::CalibrationState> calibration_snapshot_;
+  std::uint64_t calibration_published_updates_ = 0;  // loop thread
+  std::uint64_t calibration_saved_updates_ = 0;      // recorder thread (main after shutdown)
+  std::string calibration_save_error_;               // the last failure logged ("" after a success)
+  // *RST while a sweep winds down: the recorder reloads the settings after it (motion_done() is
+  // false until then).
+  std::atomic<bool> reset_pending_{false};
   double soft_lower_m_ = 0, soft_upper_m_ = 0;  // loop thread
 
   // Sweep: loop-side state (preallocated).
@@ -197,11 +230,12 @@ class Daemon final : public Instrument, private LoopBody {
   std::atomic<bool> sweep_abort_{false};
 
   // Sweep: recorder-side state.
-  std::thread recorder_;
+  StackThread recorder_;
   std::mutex recorder_mutex_;
   std::condition_variable recorder_cv_;
   std::unique_ptr<SweepJob> pending_job_;
   bool recorder_quit_ = false;
+  std::vector<std::string> notes_;  // recorder_mutex_
   std::atomic<bool> sweep_active_{false};
   std::string sweep_report_;
 };

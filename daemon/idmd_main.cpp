@@ -199,7 +199,7 @@ int main(int argc, char** argv) {
   sc.tcp_port = config.server.tcp_port;
   sc.unix_path = config.server.unix_socket;
   sc.max_clients = config.server.max_clients;
-  sc.log = [](std::string_view line) { spdlog::debug("server: {}", line); };
+  sc.log = [](std::string_view line) { spdlog::debug("{}", line); };  // "command server: ..."
   Server server(daemon, sc);
   if (const std::string err = server.start(); !err.empty()) {
     spdlog::error("cannot listen: {}", err);
@@ -228,6 +228,7 @@ int main(int argc, char** argv) {
       exit_status = exit_code::kRuntimeError;
       break;
     }
+    for (const std::string& note : daemon.take_notes()) spdlog::warn("{}", note);
     if (const std::string rep = daemon.last_sweep_report(); rep != last_report) {
       spdlog::info("{}", rep);
       last_report = rep;
@@ -257,6 +258,7 @@ int main(int argc, char** argv) {
   notifier.stop_watchdog();
   server.stop();
   daemon.shutdown();
+  for (const std::string& note : daemon.take_notes()) spdlog::warn("{}", note);
   const double xi = daemon.sim_output_m();
   if (std::isnan(xi)) spdlog::info("stopped: output at zero, device shut down");
   else spdlog::info("stopped: output at zero (commanded elongation {} m), device shut down",

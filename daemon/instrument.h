@@ -62,6 +62,10 @@ struct InstrumentStatus {
   std::uint64_t moves = 0;
   std::uint64_t bursts = 0;
   std::uint64_t cycles = 0;
+  // The daemon core's last error, "" for none: the fault the last failed motion ended in (with
+  // the driver's message for a driver fault), a failed calibration save (file and reason), a
+  // sweep's failures, a deferred *RST that could not reload the settings. *RST clears it.
+  std::string last_error;
 };
 
 // The real-time loop's timing, for the loop-statistics queries.

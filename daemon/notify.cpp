@@ -28,7 +28,7 @@ double Notifier::start_watchdog(std::function<std::uint64_t()> ticks) {
     std::lock_guard<std::mutex> lock(mutex_);
     quit_ = false;
   }
-  thread_ = std::thread([this, interval, ticks = std::move(ticks)] {
+  thread_ = StackThread(kSmallStackBytes, [this, interval, ticks = std::move(ticks)] {
     std::uint64_t last = ticks();
     bool stalled = false;
     std::unique_lock<std::mutex> lock(mutex_);

@@ -11,6 +11,8 @@
 #include <string>
 #include <thread>
 
+#include "daemon/thread.h"
+
 namespace idm::daemon {
 
 class Notifier {
@@ -39,7 +41,7 @@ class Notifier {
  private:
   void send(const std::string& text);
 
-  std::thread thread_;
+  StackThread thread_;
   std::mutex mutex_;
   std::condition_variable cv_;
   bool quit_ = false;

@@ -1,11 +1,13 @@
 #include "daemon/protocol.h"
 
+#include <array>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <exception>
 #include <limits>
 
+#include "model/text_list.h"
 #include "model/yaml_util.h"
 
 namespace idm::daemon {
@@ -254,8 +256,26 @@ struct PatternKeyword {
   bool optional;
 };
 
-std::vector<PatternKeyword> split_pattern(std::string_view pattern) {
-  std::vector<PatternKeyword> out;
+// Fixed capacity, no allocation: a header is matched against the table for every line. No pattern
+// has more than kMaxKeywords keywords, so a header with more matches none.
+constexpr std::size_t kMaxKeywords = 8;
+template <typename T>
+struct SmallList {
+  std::array<T, kMaxKeywords> items{};
+  std::size_t count = 0;
+  bool overflow = false;
+  void push_back(const T& v) {
+    if (count < kMaxKeywords)
+      items[count++] = v;
+    else
+      overflow = true;
+  }
+  std::size_t size() const { return count; }
+  const T& operator[](std::size_t i) const { return items[i]; }
+};
+
+SmallList<PatternKeyword> split_pattern(std::string_view pattern) {
+  SmallList<PatternKeyword> out;
   std::size_t i = 0;
   while (i < pattern.size()) {
     bool optional = false;
@@ -275,8 +295,8 @@ std::vector<PatternKeyword> split_pattern(std::string_view pattern) {
   return out;
 }
 
-bool match_from(const std::vector<PatternKeyword>& pattern, std::size_t p,
-                const std::vector<std::string_view>& words, std::size_t w) {
+bool match_from(const SmallList<PatternKeyword>& pattern, std::size_t p,
+                const SmallList<std::string_view>& words, std::size_t w) {
   if (p == pattern.size()) return w == words.size();
   if (w < words.size() && keyword_matches(pattern[p].keyword, words[w]) &&
       match_from(pattern, p + 1, words, w + 1))
@@ -289,7 +309,7 @@ bool match_from(const std::vector<PatternKeyword>& pattern, std::size_t p,
 bool header_matches(std::string_view pattern, std::string_view header) {
   if (!header.empty() && header.front() == ':') header.remove_prefix(1);
   if (!pattern.empty() && pattern.front() == '*') return iequals(pattern, header);
-  std::vector<std::string_view> words;
+  SmallList<std::string_view> words;
   std::size_t start = 0;
   for (std::size_t i = 0; i <= header.size(); ++i) {
     if (i == header.size() || header[i] == ':') {
@@ -297,6 +317,7 @@ bool header_matches(std::string_view pattern, std::string_view header) {
       start = i + 1;
     }
   }
+  if (words.overflow) return false;
   return match_from(split_pattern(pattern), 0, words, 0);
 }
 
@@ -354,31 +375,23 @@ CommandError parse_list(std::string_view text, std::string_view what, std::vecto
   values.clear();
   const std::string_view t = trim(text);
   if (t.find(':') != std::string_view::npos) {
-    const std::size_t c1 = t.find(':'), c2 = t.find(':', c1 + 1);
-    if (c2 == std::string_view::npos || t.find(':', c2 + 1) != std::string_view::npos)
+    std::string_view parts[3];
+    if (!model::split_range(t, parts))
       return make_error(ec::kSyntaxError,
                         std::string(what) + ": " + echo(t) + " is not start:stop:step");
-    double start = 0, stop = 0, step = 0;
-    for (auto [part, out] :
-         {std::pair{t.substr(0, c1), &start}, std::pair{t.substr(c1 + 1, c2 - c1 - 1), &stop},
-          std::pair{t.substr(c2 + 1), &step}})
-      if (CommandError e = parse_number(part, what, *out); !e.ok()) return e;
-    if (!(step > 0) || stop < start)
-      return make_error(ec::kDataOutOfRange,
-                        std::string(what) + ": " + echo(t) + " needs step > 0 and stop >= start");
-    const double n = std::floor((stop - start) / step + 1e-9);
-    if (n + 1 > static_cast<double>(kMaxListValues))
-      return make_error(ec::kDataOutOfRange, std::string(what) + ": " + echo(t) +
-                                                 " has more than " +
-                                                 std::to_string(kMaxListValues) + " values");
-    for (long k = 0; k <= static_cast<long>(n); ++k) {
-      // 12 significant digits, so 0.05:0.95:0.1 gives 0.35, not 0.35000000000000003
-      const std::string rounded = format_value(start + static_cast<double>(k) * step);
-      double v = 0;
-      std::from_chars(rounded.data(), rounded.data() + rounded.size(), v);
-      values.push_back(v);
+    double range[3] = {};  // start, stop, step
+    for (int i = 0; i < 3; ++i)
+      if (CommandError e = parse_number(parts[i], what, range[i]); !e.ok()) return e;
+    switch (model::expand_range(range[0], range[1], range[2], kMaxListValues, values)) {
+      case model::RangeError::None: return {};
+      case model::RangeError::BadRange:
+        return make_error(ec::kDataOutOfRange,
+                          std::string(what) + ": " + echo(t) + " needs step > 0 and stop >= start");
+      case model::RangeError::TooMany: break;
     }
-    return {};
+    return make_error(ec::kDataOutOfRange, std::string(what) + ": " + echo(t) +
+                                               " has more than " +
+                                               std::to_string(kMaxListValues) + " values");
   }
   std::size_t start = 0;
   for (std::size_t i = 0; i <= t.size(); ++i) {
@@ -607,13 +620,15 @@ void Session::execute_line(std::string_view line, std::string& replies) {
   }
   if (command) {
     const int n = static_cast<int>(parsed.args.size());
-    const std::string usage = std::string(command->info.pattern) +
-                              (command->info.query ? "?" : "") +
-                              (command->info.max_args > 0 ? " " : "") + command->info.arguments;
+    // Built only for an error: this is the path of every command.
+    const auto usage = [command] {
+      return std::string("usage: ") + command->info.pattern + (command->info.query ? "?" : "") +
+             (command->info.max_args > 0 ? " " : "") + command->info.arguments;
+    };
     if (n > command->info.max_args)
-      error = make_error(ec::kParameterNotAllowed, "usage: " + usage);
+      error = make_error(ec::kParameterNotAllowed, usage());
     else if (n < command->info.min_args)
-      error = make_error(ec::kMissingParameter, "usage: " + usage);
+      error = make_error(ec::kMissingParameter, usage());
   }
   std::string reply;
   if (error.ok()) {
@@ -837,7 +852,8 @@ CommandError Session::status(const Args&, std::string& reply) {
           " lower=" + format_value(s.soft_lower_m) + " upper=" + format_value(s.soft_upper_m) +
           " moves=" + std::to_string(s.moves) + " bursts=" + std::to_string(s.bursts) +
           " cycles=" + std::to_string(s.cycles) + " errors=" + std::to_string(errors_.size()) +
-          " last_error=" + std::to_string(errors_.last_code());
+          " last_error=" + std::to_string(errors_.last_code()) +
+          " daemon_error=" + word(replace_controls(s.last_error));
   return {};
 }
 

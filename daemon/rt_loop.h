@@ -18,6 +18,7 @@
 #include "daemon/config.h"
 #include "daemon/instrument.h"
 #include "daemon/lockfree.h"
+#include "daemon/thread.h"
 
 namespace idm::daemon {
 
@@ -60,7 +61,7 @@ class RtLoop {
   RealtimeConfig config_;
   LoopBody& body_;
   LoopThreadHook hook_ = nullptr;
-  std::thread thread_;
+  StackThread thread_;
   std::atomic<bool> stop_{false};
   std::atomic<bool> running_{false};
   std::atomic<int> setup_done_{0};

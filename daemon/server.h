@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "daemon/instrument.h"
+#include "daemon/thread.h"
 
 namespace idm::daemon {
 
@@ -89,7 +90,7 @@ class Server {
   std::uint64_t unix_dev_ = 0, unix_ino_ = 0;  // the file we bound, so stop() unlinks only it
   std::atomic<int> clients_{0};
   std::atomic<std::uint64_t> counters_[6] = {};
-  std::thread thread_;
+  StackThread thread_;
 };
 
 }  // namespace idm::daemon

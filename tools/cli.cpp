@@ -1,10 +1,12 @@
 #include "tools/cli.h"
+#include "model/text_list.h"
 #include "model/yaml_util.h"
 
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <sstream>
+#include <string_view>
 
 namespace idm::tools {
 
@@ -90,24 +92,19 @@ double parse_number(const std::string& text, const std::string& what) {
 std::vector<double> parse_list(const std::string& text, const std::string& what) {
   std::vector<double> out;
   if (text.find(':') != std::string::npos) {
-    std::stringstream ss(text);
-    std::string a, b, c;
-    if (!std::getline(ss, a, ':') || !std::getline(ss, b, ':') || !std::getline(ss, c) ||
-        c.find(':') != std::string::npos)
+    std::string_view parts[3];
+    if (!model::split_range(text, parts))
       throw InputError(what + ": '" + text + "' is not start:stop:step");
-    const double start = parse_number(a, what), stop = parse_number(b, what),
-                 step = parse_number(c, what);
-    if (!(step > 0) || stop < start)
-      throw InputError(what + ": '" + text + "' needs step > 0 and stop >= start");
-    const double n = std::floor((stop - start) / step + 1e-9);
-    if (n > 1e6) throw InputError(what + ": '" + text + "' has more than 1e6 values");
-    for (long k = 0; k <= static_cast<long>(n); ++k) {
-      // 12 significant digits, so 0.05:0.95:0.1 gives 0.35, not 0.35000000000000003
-      char buf[32];
-      std::snprintf(buf, sizeof buf, "%.12g", start + static_cast<double>(k) * step);
-      out.push_back(std::strtod(buf, nullptr));
+    const double start = parse_number(std::string(parts[0]), what),
+                 stop = parse_number(std::string(parts[1]), what),
+                 step = parse_number(std::string(parts[2]), what);
+    switch (model::expand_range(start, stop, step, 1000000, out)) {
+      case model::RangeError::None: return out;
+      case model::RangeError::BadRange:
+        throw InputError(what + ": '" + text + "' needs step > 0 and stop >= start");
+      case model::RangeError::TooMany: break;
     }
-    return out;
+    throw InputError(what + ": '" + text + "' has more than 1e6 values");
   }
   std::stringstream ss(text);
   std::string item;

@@ -14,6 +14,7 @@
 
 #include "analysis/gap_cells.h"
 #include "analysis/report_json.h"
+#include "analysis/report_plots.h"
 #include "analysis/selection.h"
 #include "analysis/validate.h"
 #include "model/yaml_util.h"
@@ -68,8 +69,10 @@ int diagnose(int argc, char** argv) {
   if (!std::filesystem::is_directory(path)) throw InputError(path + ": no such dataset directory");
   const analysis::SweepCells sweep = analysis::collect_cells(recording::read_dataset(path));
   const analysis::Diagnosis d = analysis::diagnose(sweep, opt);
-  std::fputs(analysis::text_summary(sweep, d).c_str(), stdout);
+  const std::string summary = analysis::text_summary(sweep, d);
+  std::fputs(summary.c_str(), stdout);
   if (f.has("json")) analysis::write_file_atomic(f.text("json"), analysis::gap_report_json(sweep, d, path));
+  if (f.has("report")) std::printf("report: %s\n", analysis::write_report(sweep, d, summary, f.text("report")).c_str());
   return 0;
 }
 

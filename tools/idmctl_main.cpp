@@ -49,7 +49,7 @@ const char* kUsage =
     "  region FREQ DUTY [STROKE]   CUTOFF, ONESTEP or MULTISTEP and the predicted step\n"
     "  limits [LOWER UPPER]        show or set the soft limits\n"
     "  loop                        real-time loop statistics\n"
-    "  reset                       *RST: stop, clear the fault and the errors, reload settings\n"
+    "  reset                       *RST: stop, clear the fault and the errors, reload settings; waits\n"
     "  idn                         *IDN?\n"
     "  raw LINE...                 send one protocol line (the arguments joined by spaces)\n"
     "  (none)                      interactive: send stdin's lines, print the replies of queries\n"
@@ -331,7 +331,9 @@ int run(const std::vector<std::string>& a, Connection& c, bool wait) {
     return print_query(c, "SYST:LOOP?");
   }
   if (verb == "reset") {
-    return command(c, "*RST");
+    // *RST during a sweep completes in the background (MOVE:DONE? is 0 until then): wait for it,
+    // so that the next command finds the daemon reset.
+    return motion(c, "*RST", wait, false);
   }
   if (verb == "idn") {
     return print_query(c, "*IDN?");

@@ -127,9 +127,9 @@ TwoRounds two_identical_rounds(Calibration* calibration) {
 
 TEST(Calibration, SecondOfTwoIdenticalMovesNeedsFewerCorrections) {
   const TwoRounds without = two_identical_rounds(nullptr);
-  // Without calibration both rounds are the same problem: the same corrections.
+  // Without calibration the rung estimates start from the map's seeds at every move (only the
+  // session's dead-rung marks carry over), so round 2 is not helped by what round 1 measured.
   EXPECT_GE(without.corrections[0], 2u);
-  EXPECT_EQ(without.corrections[1], without.corrections[0]);
   Calibration cal(ideal_map().config().stage);
   const TwoRounds with = two_identical_rounds(&cal);
   EXPECT_LT(with.corrections[1], with.corrections[0]);

@@ -324,3 +324,93 @@ TEST(Positioner, RetryLimitFaultsWhenTheStageNeverArrives) {
 }
 
 }  // namespace
+
+namespace {
+
+const RegionMap& realistic_map() {
+  static const RegionMap map(test_rig::realistic_map_config());
+  return map;
+}
+
+// On the realistic plant the map's predictions are off by 0.3x .. 0.8x and its finest cells do
+// not move at all; the ladder learns which rungs move and how far.
+TEST(PositionerRealistic, ConvergesWithinOneCount) {
+  Calibration cal(realistic_map().config().stage);
+  Rig rig(realistic_map(), test_rig::realistic_device(3), {}, &cal);
+  Positioner& p = *rig.positioner;
+  const double distances[] = {-2.3e-6, 47e-9, 180e-6, -31e-9, 12.5e-6, -0.6e-6, 3.1e-3, -90e-9};
+  for (double d : distances) {
+    const double target = p.status().position_m + d;
+    ASSERT_EQ(p.move_absolute(target), Refusal::None);
+    ASSERT_EQ(rig.run(), MotionState::Idle) << d << ": " << motion_fault_name(p.status().fault);
+    EXPECT_LE(std::fabs(p.status().position_m - target), p.count_m()) << d;
+    EXPECT_LE(std::fabs(rig.sim->true_position_m() - target), 3 * p.count_m()) << d;
+    EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
+  }
+}
+
+TEST(PositionerRealistic, DeadRungsAreSkippedAndTheMoveConverges) {
+  Rig rig(realistic_map(), test_rig::realistic_device(5));
+  Positioner& p = *rig.positioner;
+  // Short moves both ways: the map's finest rungs (0.1 um stroke) do not move on this plant.
+  for (int i = 0; i < 8; ++i) {
+    const double target = p.status().position_m + (i % 2 == 0 ? 60e-9 : -45e-9);
+    ASSERT_EQ(p.move_absolute(target), Refusal::None);
+    ASSERT_EQ(rig.run(), MotionState::Idle) << i << ": " << motion_fault_name(p.status().fault);
+    EXPECT_LE(std::fabs(p.status().position_m - target), p.count_m()) << i;
+  }
+  std::size_t dead = 0, proven = 0;
+  for (int dir : {-1, 1}) {
+    for (std::size_t i = 0; i < p.rung_count(dir); ++i) {
+      dead += p.rung(dir, i).dead;
+      proven += p.rung(dir, i).proven;
+    }
+  }
+  EXPECT_GT(dead, 0u) << "some rungs of the map do not move here";
+  EXPECT_GT(proven, 0u);
+  // Mark the most used rung of each direction dead (as if it had stopped moving): the move goes
+  // on with the others, and still converges.
+  for (int dir : {-1, 1}) {
+    std::size_t most = 0;
+    for (std::size_t i = 0; i < p.rung_count(dir); ++i)
+      if (p.rung(dir, i).chunks > p.rung(dir, most).chunks) most = i;
+    p.mark_rung_dead(dir, most);
+    EXPECT_TRUE(p.rung(dir, most).dead);
+  }
+  const double target = p.status().position_m + 0.8e-6;
+  ASSERT_EQ(p.move_absolute(target), Refusal::None);
+  ASSERT_EQ(rig.run(), MotionState::Idle) << motion_fault_name(p.status().fault);
+  EXPECT_LE(std::fabs(p.status().position_m - target), p.count_m());
+}
+
+// Calibration on the realistic plant: the second round of the same moves needs fewer chunks and
+// cycles than the first (the rung estimates start from what the first round measured).
+TEST(PositionerRealistic, CalibrationMakesTheSecondRoundCheaper) {
+  Calibration cal(realistic_map().config().stage);
+  Rig rig(realistic_map(), test_rig::realistic_device(11), {}, &cal);
+  Positioner& p = *rig.positioner;
+  const double targets[] = {25.3e-6, -3.21e-6, 412e-9, -61.7e-6, 1.9e-6};
+  std::uint64_t chunks[2] = {0, 0}, cycles[2] = {0, 0};
+  std::uint32_t corrections[2] = {0, 0};
+  for (int round = 0; round < 2; ++round) {
+    for (double target : targets) {
+      for (double t : {target, 0.0}) {
+        ASSERT_EQ(p.move_absolute(t), Refusal::None);
+        ASSERT_EQ(rig.run(), MotionState::Idle) << motion_fault_name(p.status().fault);
+        EXPECT_LE(std::fabs(p.status().position_m - t), p.count_m());
+        chunks[round] += p.move_chunks();
+        cycles[round] += p.move_cycles();
+        corrections[round] += p.status().corrections;
+      }
+    }
+  }
+  std::printf("realistic plant: chunks %llu -> %llu, cycles %llu -> %llu, corrections %u -> %u\n",
+              static_cast<unsigned long long>(chunks[0]), static_cast<unsigned long long>(chunks[1]),
+              static_cast<unsigned long long>(cycles[0]), static_cast<unsigned long long>(cycles[1]),
+              corrections[0], corrections[1]);
+  EXPECT_LT(chunks[1], chunks[0]);
+  EXPECT_LE(corrections[1], corrections[0]);
+  EXPECT_GT(cal.state().rung_count[0] + cal.state().rung_count[1], 0);
+}
+
+}  // namespace

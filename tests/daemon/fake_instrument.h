@@ -42,6 +42,10 @@ class FakeInstrument : public Instrument {
     status_.position_m = x;
     status_.position_valid = valid;
   }
+  void set_last_error(std::string text) {
+    std::lock_guard l(m_);
+    status_.last_error = std::move(text);
+  }
   void set_fault(std::string f) {
     std::lock_guard l(m_);
     status_.fault = std::move(f);
@@ -189,7 +193,7 @@ class FakeInstrument : public Instrument {
 
   mutable std::mutex m_;
   std::vector<std::string> calls_;
-  InstrumentStatus status_{"IDLE", true, 0.0, 0.0, "none", true, -1e-3, 1e-3, 0, 0, 0};
+  InstrumentStatus status_{"IDLE", true, 0.0, 0.0, "none", true, -1e-3, 1e-3, 0, 0, 0, ""};
   CommandError refusal_;
   int polls_until_done_ = 0;
   int remaining_ = 0;

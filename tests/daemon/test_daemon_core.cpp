@@ -13,6 +13,7 @@
 #include <thread>
 #include <vector>
 
+#include "control/calibration.h"
 #include "daemon/config.h"
 #include "daemon/daemon.h"
 #include "daemon/lockfree.h"
@@ -446,6 +447,109 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   EXPECT_DOUBLE_EQ(d.status().soft_upper_m, 5e-4);  // the old settings stay
   d.shutdown();
   std::filesystem::remove(file);
+}
+
+// sim_config() with control.calibration_file set.
+std::string with_calibration_file(const std::string& path) {
+  std::string text = sim_config("wall");
+  text.replace(text.find("control:\n"), 9, "control:\n  calibration_file: " + path + "\n");
+  return text;
+}
+
+std::filesystem::path write_config(const std::string& name, const std::string& text) {
+  const auto file = std::filesystem::temp_directory_path() /
+                    ("idmd-" + name + "-" + std::to_string(::getpid()) + ".yaml");
+  std::FILE* f = std::fopen(file.c_str(), "w");
+  std::fwrite(text.data(), 1, text.size(), f);
+  std::fclose(f);
+  return file;
+}
+
+TEST_F(DaemonSim, CalibrationIsSavedAfterTheMoveThatChangedIt) {
+  const auto cal = std::filesystem::temp_directory_path() /
+                   ("idmd-cal-" + std::to_string(::getpid()) + ".txt");
+  std::filesystem::remove(cal);
+  auto d = make(with_calibration_file(cal.string()));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(5e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
+  // Saved by the housekeeping thread while the daemon runs, not only at shutdown.
+  ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(cal); }, 10))
+      << "no calibration file after a move";
+  idm::control::Calibration loaded(d->config().stage.stage, d->config().control.calibration);
+  std::string error;
+  ASSERT_TRUE(loaded.load(cal.string(), error)) << error;
+  EXPECT_GT(loaded.total_updates(), 0u);
+  EXPECT_TRUE(d->take_notes().empty());
+  EXPECT_EQ(d->status().last_error, "");
+  d->shutdown();
+  std::filesystem::remove(cal);
+}
+
+TEST_F(DaemonSim, AFailedCalibrationSaveIsLoggedOnceWithTheFileAndReason) {
+  const std::string cal = "/nonexistent-idmd-dir/cal.txt";
+  auto d = make(with_calibration_file(cal));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  std::vector<std::string> notes;
+  for (double step : {5e-6, -5e-6}) {
+    ASSERT_TRUE(d->move_relative(step).ok());
+    ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
+    ASSERT_TRUE(wait_for([&] {
+      for (auto& n : d->take_notes()) notes.push_back(n);
+      return !notes.empty();
+    }, 10));
+  }
+  d->shutdown();
+  for (auto& n : d->take_notes()) notes.push_back(n);
+  ASSERT_EQ(notes.size(), 1u) << "the same failure is logged once";
+  EXPECT_NE(notes[0].find(cal), std::string::npos) << notes[0];
+  EXPECT_NE(notes[0].find("cannot save the calibration"), std::string::npos) << notes[0];
+}
+
+TEST_F(DaemonSim, StatusCarriesTheLastFailedSaveUntilReset) {
+  const auto file = write_config(
+      "lasterr", with_calibration_file("/nonexistent-idmd-dir/cal.txt"));
+  Daemon d(load_daemon_config(file.string()));
+  d.start();
+  ASSERT_TRUE(wait_for([&] { return d.status().position_valid; }, 10));
+  EXPECT_EQ(d.status().last_error, "");
+  ASSERT_TRUE(d.move_relative(5e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return !d.status().last_error.empty(); }, 60));
+  EXPECT_NE(d.status().last_error.find("/nonexistent-idmd-dir/cal.txt"), std::string::npos)
+      << d.status().last_error;
+  const CommandError e = d.reset();
+  ASSERT_TRUE(e.ok()) << e.text;
+  EXPECT_EQ(d.status().last_error, "");
+  d.shutdown();
+  std::filesystem::remove(file);
+}
+
+TEST_F(DaemonSim, ResetDuringASweepLetsTheSweepWindDownInTheBackground) {
+  const auto dir = std::filesystem::temp_directory_path() / ("idmd-rst-sweep-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  const auto file = write_config("rst", sim_config("wall"));
+  Daemon d(load_daemon_config(file.string()));
+  d.start();
+  ASSERT_TRUE(wait_for([&] { return d.status().position_valid; }, 10));
+  ASSERT_TRUE(d.sweep(dir.string(), {500, 1000}, {0.1, 0.9}, 200, 3).ok());
+  ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(dir / "sweep.csv"); }, 30));
+  const CommandError e = d.reset();
+  ASSERT_TRUE(e.ok()) << e.text;
+  // *OPC? semantics: not done until the sweep has ended and the settings are reloaded.
+  ASSERT_TRUE(wait_for([&] { return d.motion_done(); }, 60));
+  EXPECT_NE(d.last_sweep_report().find("stopped"), std::string::npos) << d.last_sweep_report();
+  EXPECT_EQ(d.status().last_error, "");
+  EXPECT_TRUE(d.take_notes().empty());
+  // The daemon moves again after the reset.
+  const CommandError m = d.move_relative(2e-6);
+  EXPECT_TRUE(m.ok()) << m.text;
+  ASSERT_TRUE(wait_for([&] { return d.motion_done(); }, 60));
+  EXPECT_EQ(d.status().state, "IDLE");
+  d.shutdown();
+  std::filesystem::remove(file);
+  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

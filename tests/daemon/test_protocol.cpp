@@ -330,7 +330,7 @@ INSTANTIATE_TEST_SUITE_P(
             {"STAT?", "STATUS?", "status?"},
             "",
             "state=IDLE done=1 position=0 position_valid=1 target=0 fault=none lower=-0.001 "
-            "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0"},
+            "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none"},
         CommandCase{
             {"SWEEP /tmp/s,100:300:100,0.1;0.2,3", "sweep \"/tmp/s\", 100:300:100, 0.1;0.2, 3"},
             "sweep(/tmp/s,100;200;300,0.1;0.2,3,12)",
@@ -586,6 +586,15 @@ TEST(ProtocolSession, MoveDoneFollowsTheInstrument) {
   EXPECT_EQ(h.line("MOVE:DONE?"), "0\n");
   EXPECT_EQ(h.line("MOVE:DONE?"), "1\n");
   EXPECT_EQ(h.line("POS?"), "1e-06\n");
+}
+
+TEST(ProtocolSession, StatusShowsTheDaemonsLastErrorAsOneWord) {
+  Harness h;
+  h.fake.set_last_error("fault driver: read\ttimed out\n");
+  const std::string stat = h.line("STAT?");
+  EXPECT_NE(stat.find(" daemon_error=fault_driver:_read_timed_out_\n"), std::string::npos) << stat;
+  h.fake.set_last_error("");
+  EXPECT_NE(h.line("STAT?").find(" daemon_error=none\n"), std::string::npos);
 }
 
 TEST(ProtocolSession, AMotionThatEndsInAFaultLeavesItsPositiveCode) {

@@ -1,0 +1,147 @@
+// idm-gap as a user runs it: diagnose on a dataset written by the simulated stage (summary, JSON,
+// report), bad input answered by one line with exit status 2 and nothing written, and a small
+// validate.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "analysis/simulated_sweep.h"
+
+namespace {
+
+struct Result {
+  int status;
+  std::string out;
+};
+
+Result run(const std::string& args) {
+  const std::string cmd = std::string(IDM_BUILD_DIR) + "/tools/idm-gap " + args + " 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  std::string out;
+  char buf[4096];
+  while (p && fgets(buf, sizeof buf, p)) out += buf;
+  const int raw = p ? pclose(p) : -1;
+  return {WIFEXITED(raw) ? WEXITSTATUS(raw) : -1, out};
+}
+
+std::string slurp(const std::filesystem::path& p) {
+  std::ifstream in(p);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+std::filesystem::path temp(const std::string& name) {
+  const auto d = std::filesystem::temp_directory_path() / (name + "_" + std::to_string(getpid()));
+  std::filesystem::remove_all(d);
+  return d;
+}
+
+// An amplifier-limited stage, both directions and two strokes, 3 trials per cell.
+std::string amplifier_sweep() {
+  const auto dir = temp("idm_gap_amp");
+  idm::model::SimConfig sim;
+  sim.noise_m = 2e-9;
+  sim.effects.push_back(idm::model::complete_effect({"amplifier", {{"cutoff_hz", 2500}, {"order", 2}}}, "test"));
+  idm::analysis::SweepPlan plan;
+  plan.freqs_hz = {200, 400, 600, 800};
+  plan.duties = {0.05, 0.25, 0.45, 0.75};
+  plan.strokes_m = {20.35e-6, 10e-6};
+  plan.trials = 3;
+  plan.cycles = 10;
+  plan.sample_rate_hz = 200e3;
+  idm::analysis::run_simulated_sweep(idm::model::StageFile{}, sim, plan, dir.string());
+  return dir.string();
+}
+
+}  // namespace
+
+TEST(IdmGap, DiagnoseNamesTheAmplifierAndWritesJsonAndReport) {
+  const std::string ds = amplifier_sweep();
+  const auto json = temp("idm_gap_json") += ".json";
+  const auto report = temp("idm_gap_report");
+  const Result r = run("diagnose " + ds + " --effects amplifier,hysteresis,tilt,friction_spread --json " +
+                       json.string() + " --report " + report.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("diagnosis: amplifier;"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("friction_spread: not identifiable"), std::string::npos) << r.out;
+  const std::string j = slurp(json);
+  EXPECT_NE(j.find("\"diagnosis\": {\"effects\": [\"amplifier\"]"), std::string::npos) << j;
+  EXPECT_NE(j.find("\"effect\": \"hysteresis\""), std::string::npos);
+  for (const char* f : {"report.html", "regions.svg", "steps.svg", "gap_before.svg", "gap_after.svg", "ranking.svg"})
+    EXPECT_TRUE(std::filesystem::exists(report / f)) << f;
+  EXPECT_NE(slurp(report / "report.html").find("ranking.svg"), std::string::npos);
+  std::filesystem::remove_all(ds);
+  std::filesystem::remove(json);
+  std::filesystem::remove_all(report);
+}
+
+TEST(IdmGap, BadInputIsOneLineWithStatus2AndNothingWritten) {
+  const auto json = temp("idm_gap_bad") += ".json";
+  struct Case {
+    std::string args, expect;
+  } cases[] = {
+      {"diagnose /nonexistent/sweep --json " + json.string(), "/nonexistent/sweep"},
+      {"diagnose", "DATASET: missing"},
+      {"diagnose . --bogus 1", "--bogus: unknown flag"},
+      {"diagnose . --effects amplifier,warp", "unknown effect 'warp'"},
+      {"diagnose . --json /nonexistent/dir/x.json", "does not exist"},
+      {"validate --seeds 0", "--seeds"},
+      {"validate --effects creep", "validate cannot hide 'creep'"},
+      {"frobnicate", "unknown command"},
+  };
+  for (const Case& c : cases) {
+    const Result r = run(c.args);
+    EXPECT_EQ(r.status, 2) << c.args << ": " << r.out;
+    EXPECT_NE(r.out.find(c.expect), std::string::npos) << c.args << ": " << r.out;
+    EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << c.args << ": " << r.out;
+  }
+  EXPECT_FALSE(std::filesystem::exists(json));
+}
+
+TEST(IdmGap, AFormatErrorNamesFileLineAndColumn) {
+  const auto dir = temp("idm_gap_fmt");
+  idm::analysis::SweepPlan plan;
+  plan.freqs_hz = {100};
+  plan.duties = {0.05};
+  plan.trials = 3;
+  plan.cycles = 4;
+  idm::analysis::run_simulated_sweep(idm::model::StageFile{}, idm::model::SimConfig{}, plan, dir.string());
+  std::string csv = slurp(dir / "sweep.csv");
+  const std::size_t row2 = csv.find('\n') + 1;
+  const std::size_t c1 = csv.find(',', row2), c2 = csv.find(',', c1 + 1);
+  csv.replace(c1 + 1, c2 - c1 - 1, "abc");  // freq_hz of the first trial
+  std::ofstream(dir / "sweep.csv") << csv;
+  const auto json = temp("idm_gap_fmtjson") += ".json";
+  const Result r = run("diagnose " + dir.string() + " --json " + json.string());
+  EXPECT_EQ(r.status, 2) << r.out;
+  EXPECT_NE(r.out.find("sweep.csv:2:2"), std::string::npos) << r.out;
+  EXPECT_FALSE(std::filesystem::exists(json));
+  // Too small: 2 trials per cell.
+  const auto small = temp("idm_gap_small");
+  plan.trials = 2;
+  idm::analysis::run_simulated_sweep(idm::model::StageFile{}, idm::model::SimConfig{}, plan, small.string());
+  const Result s = run("diagnose " + small.string());
+  EXPECT_EQ(s.status, 2) << s.out;
+  EXPECT_NE(s.out.find("too small to diagnose"), std::string::npos) << s.out;
+  std::filesystem::remove_all(dir);
+  std::filesystem::remove_all(small);
+}
+
+TEST(IdmGap, SmallValidateNamesNothingOnAnIdealStage) {
+  const auto json = temp("idm_gap_validate") += ".json";
+  const Result r = run("validate --seeds 1 --effects none --quick 1 --json " + json.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("accuracy 1.000"), std::string::npos) << r.out;
+  const std::string j = slurp(json);
+  EXPECT_NE(j.find("\"hidden\": \"none\""), std::string::npos) << j;
+  EXPECT_NE(j.find("\"named\": []"), std::string::npos) << j;
+  EXPECT_NE(j.find("\"by_effect\": {\"none\": {\"runs\": 1, \"correct\": 1}}"), std::string::npos) << j;
+  std::filesystem::remove(json);
+}
