@@ -116,4 +116,31 @@ std::vector<double> parse_list(const std::string& text, const std::string& what)
   return out;
 }
 
+int run_subcommands(const char* tool, const char* usage, std::initializer_list<Subcommand> commands,
+                    int argc, char** argv) {
+  if (argc < 2) {
+    std::fputs(usage, stderr);
+    return 2;
+  }
+  const std::string cmd = argv[1];
+  try {
+    for (const Subcommand& c : commands)
+      if (cmd == c.name) return c.run(argc, argv);
+    if (cmd == "--help" || cmd == "-h" || cmd == "help") {
+      std::fputs(usage, stdout);
+      return 0;
+    }
+    std::string allowed;
+    for (const Subcommand& c : commands) allowed += (allowed.empty() ? "" : ", ") + std::string(c.name);
+    std::fprintf(stderr, "%s: unknown command '%s', allowed %s\n", tool, cmd.c_str(), allowed.c_str());
+    return 2;
+  } catch (const model::InputError& e) {
+    std::fprintf(stderr, "%s %s: %s\n", tool, cmd.c_str(), e.what());
+    return 2;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "%s %s: error: %s\n", tool, cmd.c_str(), e.what());
+    return 1;
+  }
+}
+
 }  // namespace idm::tools

@@ -2,6 +2,7 @@
 // the argument and the allowed range. Errors are model::InputError; mains print them on one line.
 #pragma once
 
+#include <initializer_list>
 #include <map>
 #include <string>
 #include <vector>
@@ -32,5 +33,18 @@ class Flags {
 double parse_number(const std::string& text, const std::string& what);
 // "a,b,c" or "start:stop:step" (inclusive of stop within 1e-9 of a step).
 std::vector<double> parse_list(const std::string& text, const std::string& what);
+
+// One subcommand of a tool: `tool NAME --flags...`; run gets the whole argv.
+struct Subcommand {
+  const char* name;
+  int (*run)(int argc, char** argv);
+};
+
+// The main of a tool with subcommands: usage on no argument (exit 2) or --help (exit 0), an
+// unknown name lists the allowed ones (exit 2), and an error is one line on stderr:
+// "TOOL CMD: message" for bad input (model::InputError, exit 2), "TOOL CMD: error: message" for
+// anything else (exit 1).
+int run_subcommands(const char* tool, const char* usage, std::initializer_list<Subcommand> commands,
+                    int argc, char** argv);
 
 }  // namespace idm::tools

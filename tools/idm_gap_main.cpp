@@ -112,25 +112,5 @@ int validate(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2) {
-    std::fputs(kUsage, stderr);
-    return 2;
-  }
-  const std::string cmd = argv[1];
-  try {
-    if (cmd == "diagnose") return diagnose(argc, argv);
-    if (cmd == "validate") return validate(argc, argv);
-    if (cmd == "--help" || cmd == "-h" || cmd == "help") {
-      std::fputs(kUsage, stdout);
-      return 0;
-    }
-    std::fprintf(stderr, "idm-gap: unknown command '%s', allowed diagnose, validate\n", cmd.c_str());
-    return 2;
-  } catch (const InputError& e) {
-    std::fprintf(stderr, "idm-gap %s: %s\n", cmd.c_str(), e.what());
-    return 2;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "idm-gap %s: error: %s\n", cmd.c_str(), e.what());
-    return 1;
-  }
+  return idm::tools::run_subcommands("idm-gap", kUsage, {{"diagnose", diagnose}, {"validate", validate}}, argc, argv);
 }

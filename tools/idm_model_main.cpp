@@ -144,26 +144,5 @@ int sweep(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2) {
-    std::fputs(kUsage, stderr);
-    return 2;
-  }
-  const std::string cmd = argv[1];
-  try {
-    if (cmd == "regions") return regions(argc, argv);
-    if (cmd == "simulate") return simulate(argc, argv);
-    if (cmd == "sweep") return sweep(argc, argv);
-    if (cmd == "--help" || cmd == "-h" || cmd == "help") {
-      std::fputs(kUsage, stdout);
-      return 0;
-    }
-    std::fprintf(stderr, "idm-model: unknown command '%s', allowed regions, simulate, sweep\n", cmd.c_str());
-    return 2;
-  } catch (const InputError& e) {
-    std::fprintf(stderr, "idm-model %s: %s\n", cmd.c_str(), e.what());
-    return 2;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "idm-model %s: error: %s\n", cmd.c_str(), e.what());
-    return 1;
-  }
+  return idm::tools::run_subcommands("idm-model", kUsage, {{"regions", regions}, {"simulate", simulate}, {"sweep", sweep}}, argc, argv);
 }
