@@ -2,6 +2,8 @@
 // input answered by one line naming the argument and the allowed range, with exit status 2.
 #include <gtest/gtest.h>
 
+#include "tests/tools/run_tool.h"
+
 #include <sys/wait.h>
 
 #include <unistd.h>
@@ -17,20 +19,9 @@
 
 namespace {
 
-struct Result {
-  int status;
-  std::string out;
-};
+using Result = idm::test::ToolResult;
 
-Result run(const std::string& args) {
-  const std::string cmd = std::string(IDM_BUILD_DIR) + "/tools/idm-model " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
-  std::string out;
-  char buf[4096];
-  while (p && fgets(buf, sizeof buf, p)) out += buf;
-  const int raw = p ? pclose(p) : -1;
-  return {WIFEXITED(raw) ? WEXITSTATUS(raw) : -1, out};
-}
+Result run(const std::string& args) { return idm::test::run_tool("idm-model", args); }
 
 }  // namespace
 
