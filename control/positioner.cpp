@@ -506,6 +506,7 @@ void Positioner::load_rung_estimates() {
         r.est = r.seed;  // without calibration nothing is carried from one move to the next
       r.pending_pred_m = 0;
       r.pending_moved_m = 0;
+      r.pending_cycles = 0;
     }
   }
 }
@@ -518,6 +519,7 @@ bool Positioner::rung_live(Rung& r) {
     r.killed_in_streak = false;
     r.est = r.seed;
     r.pending_pred_m = r.pending_moved_m = 0;
+    r.pending_cycles = 0;
     if (calibration_ != nullptr) calibration_->store_rung(r.direction, r.est);
   }
   if (!(r.est.step_m >= config_.min_step_counts * count_m_)) {
@@ -527,11 +529,20 @@ bool Positioner::rung_live(Rung& r) {
   return true;
 }
 
+double Positioner::rung_uncertainty(const Rung& r) const {
+  // Two standard deviations of its scatter once a few chunks have shown it; until then 100 %
+  // (on a real stage a rung's first chunks move anywhere from nothing to twice the model's
+  // step). Never below the step model's approach uncertainty.
+  if (r.scatter_chunks < 3) return 1.0;
+  return std::clamp(2.0 * std::sqrt(r.scatter_var), config_.approach_uncertainty, 1.0);
+}
+
 void Positioner::kill_rung(Rung& r) {
   r.dead = true;
   r.proven = false;
   r.dead_until_move = status_.moves + static_cast<std::uint64_t>(config_.dead_rung_moves);
   r.pending_pred_m = r.pending_moved_m = 0;
+  r.pending_cycles = 0;
 }
 
 Positioner::RungInfo Positioner::rung(int direction, std::size_t index) const {
@@ -644,14 +655,34 @@ void Positioner::plan_next_chunk(double now_s) {
       }
     }
   }
+  bool capped = false;
   if (chosen < 0) {
-    // Final: the final rung, the number of cycles whose learned displacement lands nearest.
+    // Final: the final rung, the number of cycles whose learned displacement lands nearest;
+    // fewer when that burst, grown by the rung's uncertainty, could pass the target by more than
+    // 0.8 of its own steps (displacement / cycles). Such a shortened chunk is approach, not a
+    // try at the target: it stops short and the next chunk is planned from where it stopped.
     chosen = fin;
     final_chunk = true;
-    const double n_real = std::round((distance - final_rung.est.offset_m) / b_final);
+    const double a = final_rung.est.offset_m;
+    const double n_real = std::round((distance - a) / b_final);
     cycles = !(n_real >= 1) ? 1 : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real));
     const std::uint64_t max_cycles = map_.cells()[final_rung.cell].max_cycles;
     if (max_cycles > 0) cycles = std::min(cycles, max_cycles);
+    const double u = rung_uncertainty(final_rung);
+    constexpr double kPassSteps = 0.8;  // planned to pass by at most this share of a step
+    auto passes = [&](std::uint64_t n) {
+      const double nd = static_cast<double>(n);
+      const double most = a + nd * b_final + u * (std::fabs(a) + nd * b_final);
+      return most * (1.0 - kPassSteps / nd) > distance;
+    };
+    // Never below the cycles that are predicted to move at least half a step: a burst's first
+    // cycles can move nothing (offset about -step), and a chunk that moves nothing teaches nothing.
+    const double n_moving = std::ceil((0.5 * b_final - a) / b_final);
+    const std::uint64_t n_min = n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
+    while (cycles > n_min && passes(cycles)) {
+      --cycles;
+      capped = true;
+    }
   }
   Rung& r = ladder[static_cast<std::size_t>(chosen)];
   const RegionCell& cell = map_.cells()[r.cell];
@@ -665,7 +696,7 @@ void Positioner::plan_next_chunk(double now_s) {
   chunk_.rung = chosen;
   const std::uint64_t limit = chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles);
   chunk_.cycles = std::min(cycles, limit);
-  chunk_.completes_last_burst = final_chunk && chunk_.cycles == cycles;
+  chunk_.completes_last_burst = final_chunk && !capped && chunk_.cycles == cycles;
   chunk_.predicted_along_m = r.est.predict_m(chunk_.cycles);
   chunk_.predicted_m = 0;  // closed loop: judged per rung (judge_and_learn)
   // The plan of this chunk: one burst of the rung (its planned cycles, before cutting).
@@ -696,21 +727,30 @@ bool Positioner::judge_and_learn(double moved_m) {
   const double predicted = std::max(chunk_.predicted_along_m, 0.0);
   r.pending_pred_m += predicted;
   r.pending_moved_m += along;
-  const bool judged = r.pending_pred_m >= config_.stall_min_counts * count_m_;
+  r.pending_cycles += chunk_.cycles;
+  // Judged once the prediction is a few counts and more than one cycle was played (a burst's
+  // first cycle can stay in static friction: one cycle alone says little).
+  const bool judged = r.pending_pred_m >= config_.stall_min_counts * count_m_ && r.pending_cycles >= 2;
   const bool wrong_way = along < -2.0 * count_m_;
   // Not moving: less than stall_fraction of the prediction and less than two counts (a rung
   // that moves a quarter of its seed is slow, not dead: its estimate learns that).
   const bool failed =
       wrong_way || (judged && r.pending_moved_m < std::min(config_.stall_fraction * r.pending_pred_m, 2.0 * count_m_));
-  if (judged || failed) r.pending_pred_m = r.pending_moved_m = 0;
+  if (judged || failed) {
+    r.pending_pred_m = r.pending_moved_m = 0;
+    r.pending_cycles = 0;
+  }
   if (failed) {
     // A rung that does not move (or moves back) is left out; it is a stall only when it had
-    // moved before, or is one of the coarse rungs (within half of the largest live step): a
-    // fine rung near cut-off that never moved is the map being wrong, not the slider stuck.
+    // moved before and is not of the final class, or is one of the coarse rungs (within half of
+    // the largest live step): a fine rung near cut-off that does not move is the map being
+    // wrong, or a stretch of the guide with more friction (where it moved before), not the
+    // slider stuck.
     double largest = 0;
     for (const Rung& x : ladder)
       if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
-    const bool counts = r.proven || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
+    const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
+    const bool counts = (r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
     kill_rung(r);
     r.killed_in_streak = true;
     if (counts && ++stall_count_ >= config_.stall_bursts) {
@@ -731,6 +771,13 @@ bool Positioner::judge_and_learn(double moved_m) {
     r.proven = true;
     for (std::vector<Rung>& l : ladder_)
       for (Rung& x : l) x.killed_in_streak = false;
+  }
+  if (along > -count_m_ && predicted >= 2.0 * count_m_) {
+    // Scored against the estimate the chunk was planned with, before it learns from it.
+    const double rel = (along - predicted) / predicted;
+    ++r.scatter_chunks;
+    const double w = std::max(0.1, 1.0 / static_cast<double>(r.scatter_chunks));
+    r.scatter_var += w * (rel * rel - r.scatter_var);
   }
   if (along > -count_m_ &&
       Calibration::rls_update(r.est, chunk_.cycles, along, count_m_, rung_cfg_.observation_relative_sd,

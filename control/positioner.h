@@ -204,8 +204,16 @@ class Positioner {
     bool proven = false;
     std::uint64_t dead_until_move = 0;
     double pending_pred_m = 0, pending_moved_m = 0;  // small chunks awaiting a stall judgement
+    std::uint64_t pending_cycles = 0;
     std::uint64_t chunks = 0;
+    // The scatter of its chunks about the estimate: a running mean of the squared relative
+    // error of their displacements (friction along the guide moves a fine rung's step by tens
+    // of per cent), and how many chunks it holds.
+    double scatter_var = 0;
+    std::uint64_t scatter_chunks = 0;
   };
+  // How far this rung's next chunk may move beyond its estimate, as a share of it.
+  double rung_uncertainty(const Rung& r) const;
   void build_ladder();
   void load_rung_estimates();           // at a move's start: from the calibration, or the seeds
   bool rung_live(Rung& r);              // revives a rung whose dead time is over
