@@ -25,7 +25,7 @@ const std::vector<CandidateSpec>& candidate_library() {
       {"creep", {{"per_decade", 0.001, 0.1, true}}, {{}}, {}},
       {"stribeck",
        {{"static_over_kinetic", 1.01, 2.5, false}, {"stribeck_velocity_m_s", 1e-5, 0.1, true}}, {{}}, {}},
-      {"friction_spread", {{"relative_sd", 0.005, 0.4, true}}, {{{"correlation_m", 2e-3}}}, {}},
+      {"friction_spread", {{"relative_sd", 0.005, 0.4, true}, {"mean_shift", -0.3, 0.3, false}}, {{}}, {}},
       {"tilt", {{"angle_deg", -10, 10, false}}, {{}}, {}},
       {"quantization",
        {{"bits", 6, 16, false}, {"update_rate_hz", 1e4, 1e6, true}},

@@ -25,6 +25,27 @@ std::vector<CellPrediction> from_features(const std::vector<TrialFeatures>& f) {
 }
 }  // namespace
 
+LogVarianceMoments log_sample_variance_moments(int dof) {
+  // log(chi2_k / k) = log(chi2_k / 2) - log(k / 2): mean psi(k/2) - log(k/2), variance psi'(k/2).
+  // psi and psi' at k/2 from psi(1/2) = -gamma - 2 log 2, psi(1) = -gamma, psi'(1/2) = pi^2/2,
+  // psi'(1) = pi^2/6 and x -> x + 1: psi += 1/x, psi' -= 1/x^2.
+  constexpr double kEulerGamma = 0.57721566490153286061;
+  LogVarianceMoments m;
+  if (dof < 1) return m;
+  double x = dof % 2 == 1 ? 0.5 : 1.0;
+  double psi = dof % 2 == 1 ? -kEulerGamma - 2.0 * std::log(2.0) : -kEulerGamma;
+  double psi1 = dof % 2 == 1 ? M_PI * M_PI / 2.0 : M_PI * M_PI / 6.0;
+  const double half = 0.5 * dof;
+  while (x < half - 1e-9) {
+    psi += 1.0 / x;
+    psi1 -= 1.0 / (x * x);
+    x += 1.0;
+  }
+  m.mean = psi - std::log(half);
+  m.sd = std::sqrt(psi1);
+  return m;
+}
+
 double fit_step_scale(const SweepCells& sweep, const std::vector<CellPrediction>& pred) {
   double num = 0, den = 0;
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
@@ -79,11 +100,13 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
     const double mean_var = std::max({step_sd * step_sd, sd * sd, sd_all * sd_all});
     const double d = (mean - r.model_step_m) / std::sqrt(mean_var / std::max(1, n));
     // The spread against the one expected: log ratio of the variances (regularized by the noise so
-    // that identical quantized readings do not count) over its sampling error sqrt(2 / (n - 1)).
+    // that identical quantized readings do not count) in units of the exact sampling error of a
+    // log sample variance with n - 1 degrees of freedom (sqrt(psi'((n-1)/2)); 2.2 for two trials,
+    // sqrt(2 / (n - 1)) for many).
     double spread = 0;
     if (n > 1) {
       const double q = step_sd * step_sd;
-      spread = std::log((sd * sd + q) / (expected_var + q)) / std::sqrt(2.0 / (n - 1));
+      spread = std::log((sd * sd + q) / (expected_var + q)) / log_sample_variance_moments(n - 1).sd;
     }
     const double label = r.measured_region == r.model_region ? 0.0 : kSignificantResidual;
     r.residual = std::sqrt(d * d + spread * spread + label * label);

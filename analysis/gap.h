@@ -5,7 +5,7 @@
 // the noise on a step,
 // sqrt(2) * reading_sd, over sqrt(trials)); a spread different from the one expected
 // (noise and the model's spread) is itself a gap, scored as the log ratio of the variances in units
-// of its sampling error; a region label the model gets wrong counts 3. `gap` is the root mean
+// of its exact sampling error (log_sample_variance_moments); a region label the model gets wrong counts 3. `gap` is the root mean
 // square over the cells: about 1 means "within the noise of the measurement".
 #pragma once
 
@@ -35,6 +35,14 @@ struct GapEvaluation {
 enum class TrialSet { Train, Test };
 
 constexpr double kSignificantResidual = 3.0;
+
+// Mean and standard deviation of log(s^2 / sigma^2) for a sample variance s^2 with `dof` degrees
+// of freedom from a normal population (log of chi2_dof / dof): psi(dof/2) - log(dof/2) and
+// sqrt(psi'(dof/2)); for dof = 1: -1.27 and 2.22, for many: -1/dof and sqrt(2/dof).
+struct LogVarianceMoments {
+  double mean = 0, sd = 0;
+};
+LogVarianceMoments log_sample_variance_moments(int dof);
 
 // The scale (the paper's alpha for the impulse model) that best fits the training trials: least
 // squares of measured steady steps against the predictions, over cells the model does not cut off.

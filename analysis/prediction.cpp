@@ -1,6 +1,7 @@
 #include "analysis/prediction.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include "analysis/parallel.h"
@@ -57,19 +58,58 @@ double internal_rate_for(const model::SimConfig& sim, double floor_hz) {
   return std::min(rate, 1e6);
 }
 
+const std::array<double, kSpreadTrials>& spread_quadrature() {
+  // z_k = the normal quantiles at (k + 1/2) / K, rescaled so that their mean square is 1: K equally
+  // weighted points with the mean and the variance of a standard normal.
+  static const std::array<double, kSpreadTrials> z = [] {
+    std::array<double, kSpreadTrials> q{};
+    double ss = 0;
+    for (int k = 0; k < kSpreadTrials; ++k) {
+      const double p = (k + 0.5) / kSpreadTrials;
+      // Inverse of the normal CDF by bisection on erfc (only once, K points).
+      double lo = -10, hi = 10;
+      for (int i = 0; i < 200; ++i) {
+        const double mid = 0.5 * (lo + hi);
+        (0.5 * std::erfc(-mid / std::sqrt(2.0)) < p ? lo : hi) = mid;
+      }
+      q[static_cast<std::size_t>(k)] = 0.5 * (lo + hi);
+      ss += q[static_cast<std::size_t>(k)] * q[static_cast<std::size_t>(k)];
+    }
+    for (double& v : q) v /= std::sqrt(ss / kSpreadTrials);
+    return q;
+  }();
+  return z;
+}
+
 CellPrediction predict_cell_exact(const SweepCells& sweep, const model::SimConfig& sim, const Cell& cell) {
   model::InterferometerParams exact;
   exact.resolution_m = 1e-12;
   model::SimConfig quiet = sim;
   quiet.noise_m = 0;
-  model::SimulatedStage stage(sweep.stage.stage, exact, quiet);
-  const int trials = sim.has("friction_spread") ? kSpreadTrials : 1;
   std::vector<TrialFeatures> f;
-  f.reserve(static_cast<std::size_t>(trials));
-  // Trials on stretches of the guide further apart than the friction's correlation length.
-  double corr = 2e-3;
-  if (const model::EffectSpec* e = sim.find("friction_spread")) corr = e->params.at("correlation_m");
-  for (int k = 0; k < trials; ++k) f.push_back(one_trial(sweep, stage, cell, 0.37 * corr + 2.5 * corr * k));
+  const model::EffectSpec* spread = sim.find("friction_spread");
+  if (spread == nullptr) {
+    model::SimulatedStage stage(sweep.stage.stage, exact, quiet);
+    f.push_back(one_trial(sweep, stage, cell, 0.0));
+  } else {
+    // Friction along the guide: a burst covers a small part of the correlation length, so each
+    // trial sees one friction coefficient, mu (1 + mean_shift + relative_sd n), n standard normal. Its
+    // distribution is integrated by quadrature (K equally weighted normal quantiles), not sampled,
+    // so the predicted mean and spread carry no sampling error of their own.
+    const double sd = spread->params.at("relative_sd");
+    const double shift = spread->params.at("mean_shift");
+    quiet.effects.erase(std::remove_if(quiet.effects.begin(), quiet.effects.end(),
+                                       [](const model::EffectSpec& e) { return e.name == "friction_spread"; }),
+                        quiet.effects.end());
+    f.reserve(kSpreadTrials);
+    for (double z : spread_quadrature()) {
+      model::StageParams stage = sweep.stage.stage;
+      stage.friction_coefficient *= std::max(0.05, 1.0 + shift + sd * z);  // as model::GuideProfile bounds it
+      model::SimulatedStage sim_stage(stage, exact, quiet);
+      f.push_back(one_trial(sweep, sim_stage, cell, 0.0));
+    }
+  }
+  const double trials = static_cast<double>(f.size());
   CellPrediction p;
   std::vector<model::Region> votes;
   for (const TrialFeatures& t : f) {
@@ -80,9 +120,9 @@ CellPrediction predict_cell_exact(const SweepCells& sweep, const model::SimConfi
   }
   double ss = 0;
   for (const TrialFeatures& t : f) ss += (t.steady_step_m - p.steady_step_m) * (t.steady_step_m - p.steady_step_m);
-  p.step_sd_m = trials > 1 ? std::sqrt(ss / (trials - 1)) : 0.0;
+  p.step_sd_m = std::sqrt(ss / trials);  // the spread of the integrated distribution (0 without spread)
   p.region = majority_region(votes);
-  p.transient_cycles = f.front().transient_cycles;
+  p.transient_cycles = f[f.size() / 2].transient_cycles;
   return p;
 }
 

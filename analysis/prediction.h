@@ -6,7 +6,9 @@
 // for the measurement then reads the steps and the region, with the measurement's tolerances, so
 // model and measurement are compared by one procedure and nothing depends on the simulator's
 // integration grid. An effect that varies from trial to trial (friction_spread) is predicted as
-// several trials at different places on the guide: the mean steady step and its spread.
+// the distribution it gives the trials: the friction coefficient of a trial is mu (1 + sd n), n
+// standard normal, integrated over n by kSpreadTrials equally weighted normal quantiles; the
+// prediction is the mean steady step and its spread.
 #pragma once
 
 #include <vector>
@@ -25,7 +27,7 @@ struct CellPrediction {
   model::Region region = model::Region::Cutoff;  // majority over the predicted trials
 };
 
-// Trials the model runs per cell when its friction varies along the guide.
+// Quadrature points (model trials) per cell when the friction varies along the guide.
 constexpr int kSpreadTrials = 6;
 
 CellPrediction predict_cell_exact(const SweepCells& sweep, const model::SimConfig& sim, const Cell& cell);

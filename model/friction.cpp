@@ -15,8 +15,8 @@ std::uint64_t mix(std::uint64_t z) {
 double unit_open(std::uint64_t bits) { return (static_cast<double>(bits >> 11) + 0.5) * 0x1.0p-53; }
 }  // namespace
 
-GuideProfile::GuideProfile(double relative_sd, double correlation_m, std::uint64_t seed)
-    : relative_sd_(relative_sd), correlation_m_(correlation_m), seed_(seed) {}
+GuideProfile::GuideProfile(double relative_sd, double correlation_m, std::uint64_t seed, double mean_shift)
+    : relative_sd_(relative_sd), mean_shift_(mean_shift), correlation_m_(correlation_m), seed_(seed) {}
 
 double GuideProfile::node_value(std::int64_t index) const {
   const std::uint64_t h = mix(seed_ ^ mix(static_cast<std::uint64_t>(index)));
@@ -26,7 +26,7 @@ double GuideProfile::node_value(std::int64_t index) const {
 }
 
 double GuideProfile::multiplier(double x_m) const {
-  if (relative_sd_ == 0.0) return 1.0;
+  if (relative_sd_ == 0.0 && mean_shift_ == 0.0) return 1.0;
   const double s = x_m / correlation_m_;
   const double k = std::floor(s);
   const double w = s - k;
@@ -34,7 +34,7 @@ double GuideProfile::multiplier(double x_m) const {
   // Linear between nodes, rescaled so the variance is 1 everywhere.
   const double n = ((1 - w) * node_value(i) + w * node_value(i + 1)) /
                    std::sqrt((1 - w) * (1 - w) + w * w);
-  const double m = 1.0 + relative_sd_ * n;
+  const double m = 1.0 + mean_shift_ + relative_sd_ * n;
   return m > 0.05 ? m : 0.05;  // friction never vanishes or turns negative
 }
 

@@ -12,18 +12,21 @@
 
 namespace idm::model {
 
-// A smooth random multiplier 1 + relative_sd * n(x) along the guide; n has unit variance and is
-// linear between independent normal values every correlation_m. Seeded, deterministic, unbounded.
+// A smooth random multiplier 1 + mean_shift + relative_sd * n(x) along the guide; n has unit
+// variance and is linear between independent normal values every correlation_m. Seeded,
+// deterministic, unbounded. mean_shift (default 0): the stretch in use is on average that much off
+// the nominal mu (a short guide's few correlation lengths do not average to the nominal).
 class GuideProfile {
  public:
   GuideProfile() = default;
-  GuideProfile(double relative_sd, double correlation_m, std::uint64_t seed);
+  GuideProfile(double relative_sd, double correlation_m, std::uint64_t seed, double mean_shift = 0.0);
   double multiplier(double x_m) const;
   double relative_sd() const { return relative_sd_; }
 
  private:
   double node_value(std::int64_t index) const;
   double relative_sd_ = 0.0;
+  double mean_shift_ = 0.0;
   double correlation_m_ = 1e-3;
   std::uint64_t seed_ = 0;
 };

@@ -44,7 +44,8 @@ const std::vector<EffectInfo>& effect_library() {
         {"stribeck_velocity_m_s", 1e-3, 1e-6, 1, "Stribeck velocity"}}},
       {"friction_spread", "friction that varies along the guide, trial to trial",
        {{"relative_sd", 0.1, 0, 0.5, "relative standard deviation of mu along the guide"},
-        {"correlation_m", 2e-3, 1e-6, 1, "correlation length along the guide"}}},
+        {"correlation_m", 2e-3, 1e-6, 1, "correlation length along the guide"},
+        {"mean_shift", 0, -0.5, 0.5, "mean relative change of mu over the stretch of guide in use"}}},
       {"tilt", "a gravity component along the axis (guide not level)",
        {{"angle_deg", 1, -30, 30, "positive: the positive direction is uphill"}}},
       {"quantization", "the DAC's finite resolution and update clock of the waveform",
@@ -193,7 +194,8 @@ FrictionLaw friction_law(const StageParams& stage, const SimConfig& config) {
   }
   if (const EffectSpec* e = config.find("tilt")) f.tilt_rad = e->params.at("angle_deg") * M_PI / 180.0;
   if (const EffectSpec* e = config.find("friction_spread"))
-    f.profile = GuideProfile(e->params.at("relative_sd"), e->params.at("correlation_m"), config.seed * 7919 + 17);
+    f.profile = GuideProfile(e->params.at("relative_sd"), e->params.at("correlation_m"), config.seed * 7919 + 17,
+                             e->params.at("mean_shift"));
   return f;
 }
 

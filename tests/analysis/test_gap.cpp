@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <random>
 
 #include "analysis/gap.h"
 #include "analysis/simulated_sweep.h"
@@ -68,4 +69,37 @@ TEST(Gap, TooSmallASweepSaysSo) {
     EXPECT_NE(std::string(e.what()).find("too small to diagnose"), std::string::npos) << e.what();
   }
   std::filesystem::remove_all(dir);
+}
+
+// log(chi2_k / k): closed forms (psi(1/2) = -gamma - 2 log 2, psi'(1/2) = pi^2 / 2, psi(1) =
+// -gamma, psi'(1) = pi^2 / 6), the large-k limit, and a Monte Carlo check of the recurrence.
+TEST(Gap, LogSampleVarianceMoments) {
+  constexpr double kGamma = 0.5772156649015329;
+  const LogVarianceMoments one = log_sample_variance_moments(1);
+  EXPECT_NEAR(one.mean, -kGamma - 2 * std::log(2.0) + std::log(2.0), 1e-12);  // -1.2704
+  EXPECT_NEAR(one.sd, M_PI / std::sqrt(2.0), 1e-12);                          // 2.2214
+  const LogVarianceMoments two = log_sample_variance_moments(2);
+  EXPECT_NEAR(two.mean, -kGamma, 1e-12);
+  EXPECT_NEAR(two.sd, M_PI / std::sqrt(6.0), 1e-12);
+  const LogVarianceMoments many = log_sample_variance_moments(2000);
+  EXPECT_NEAR(many.mean, -1.0 / 2000, 1e-6);
+  EXPECT_NEAR(many.sd, std::sqrt(2.0 / 2000), 1e-5);
+  EXPECT_EQ(log_sample_variance_moments(0).sd, 0.0);
+  // k = 5 by sampling: 200,000 sample variances of 6 normal values.
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> n01;
+  double sum = 0, sum2 = 0;
+  const int reps = 200000;
+  for (int r = 0; r < reps; ++r) {
+    double x[6], mean = 0, ss = 0;
+    for (double& v : x) mean += (v = n01(rng)) / 6;
+    for (double v : x) ss += (v - mean) * (v - mean);
+    const double l = std::log(ss / 5);
+    sum += l;
+    sum2 += l * l;
+  }
+  const double mc_mean = sum / reps, mc_sd = std::sqrt(sum2 / reps - mc_mean * mc_mean);
+  const LogVarianceMoments five = log_sample_variance_moments(5);
+  EXPECT_NEAR(five.mean, mc_mean, 0.005);
+  EXPECT_NEAR(five.sd, mc_sd, 0.005);
 }

@@ -208,4 +208,8 @@ TEST(Friction, GuideProfileVariesAlongTheGuideWithTheRequestedSpread) {
   EXPECT_NE(p.multiplier(0.0123), GuideProfile(0.1, 1e-3, 43).multiplier(0.0123));
   // smooth: nearby points are close
   EXPECT_NEAR(p.multiplier(0.0123), p.multiplier(0.0123 + 1e-6), 0.01);
+  // mean_shift moves the whole profile: the same spread about 1 + shift
+  const GuideProfile shifted(0.1, 1e-3, 42, 0.07);
+  EXPECT_NEAR(shifted.multiplier(0.0123), p.multiplier(0.0123) + 0.07, 1e-12);
+  EXPECT_EQ(GuideProfile(0.0, 1e-3, 42, -0.2).multiplier(0.5), 0.8);
 }
