@@ -661,28 +661,58 @@ void Positioner::plan_next_chunk(double now_s) {
     // fewer when that burst, grown by the rung's uncertainty, could pass the target by more than
     // 0.8 of its own steps (displacement / cycles). Such a shortened chunk is approach, not a
     // try at the target: it stops short and the next chunk is planned from where it stopped.
+    // Never below the cycles predicted to move at least half a step: a burst's first cycles can
+    // move nothing (offset about -step), and a chunk that moves nothing teaches nothing. When
+    // even that shortest chunk could pass too far, a finer live rung whose shortest chunk cannot
+    // is taken instead.
+    constexpr double kPassSteps = 0.8;  // planned to pass by at most this share of a step
+    struct FinalChunk {
+      std::uint64_t cycles = 1;
+      bool cut = false, safe = false;
+    };
+    auto final_chunk_of = [&](const Rung& fr) {
+      const double a = fr.est.offset_m, b = fr.est.step_m;
+      const double u = rung_uncertainty(fr);
+      auto passes = [&](std::uint64_t n) {
+        const double nd = static_cast<double>(n);
+        const double most = a + nd * b + u * (std::fabs(a) + nd * b);
+        return most * (1.0 - kPassSteps / nd) > distance;
+      };
+      FinalChunk out;
+      const double n_real = std::round((distance - a) / b);
+      out.cycles = !(n_real >= 1) ? 1 : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real));
+      const std::uint64_t max_cycles = map_.cells()[fr.cell].max_cycles;
+      if (max_cycles > 0) out.cycles = std::min(out.cycles, max_cycles);
+      const double n_moving = std::ceil((0.5 * b - a) / b);
+      const std::uint64_t n_min = n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
+      while (out.cycles > n_min && passes(out.cycles)) {
+        --out.cycles;
+        out.cut = true;
+      }
+      out.safe = !passes(out.cycles);
+      return out;
+    };
     chosen = fin;
     final_chunk = true;
-    const double a = final_rung.est.offset_m;
-    const double n_real = std::round((distance - a) / b_final);
-    cycles = !(n_real >= 1) ? 1 : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real));
-    const std::uint64_t max_cycles = map_.cells()[final_rung.cell].max_cycles;
-    if (max_cycles > 0) cycles = std::min(cycles, max_cycles);
-    const double u = rung_uncertainty(final_rung);
-    constexpr double kPassSteps = 0.8;  // planned to pass by at most this share of a step
-    auto passes = [&](std::uint64_t n) {
-      const double nd = static_cast<double>(n);
-      const double most = a + nd * b_final + u * (std::fabs(a) + nd * b_final);
-      return most * (1.0 - kPassSteps / nd) > distance;
-    };
-    // Never below the cycles that are predicted to move at least half a step: a burst's first
-    // cycles can move nothing (offset about -step), and a chunk that moves nothing teaches nothing.
-    const double n_moving = std::ceil((0.5 * b_final - a) / b_final);
-    const std::uint64_t n_min = n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
-    while (cycles > n_min && passes(cycles)) {
-      --cycles;
-      capped = true;
+    FinalChunk plan = final_chunk_of(final_rung);
+    if (!plan.safe) {
+      double best_rate = 0;
+      for (std::size_t i = 0; i < ladder.size(); ++i) {
+        const Rung& x = ladder[i];
+        if (static_cast<int>(i) == fin || x.dead || !(x.est.step_m < b_final) ||
+            !(x.est.step_m >= config_.min_step_counts * count_m_))
+          continue;
+        const FinalChunk alt = final_chunk_of(x);
+        const double rate = x.est.step_m * map_.cells()[x.cell].freq_hz;
+        if (alt.safe && rate > best_rate) {
+          best_rate = rate;
+          chosen = static_cast<int>(i);
+          plan = alt;
+        }
+      }
     }
+    cycles = plan.cycles;
+    capped = plan.cut;
   }
   Rung& r = ladder[static_cast<std::size_t>(chosen)];
   const RegionCell& cell = map_.cells()[r.cell];

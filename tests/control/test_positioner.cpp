@@ -408,8 +408,10 @@ TEST(PositionerRealistic, CalibrationMakesTheSecondRoundCheaper) {
               static_cast<unsigned long long>(chunks[0]), static_cast<unsigned long long>(chunks[1]),
               static_cast<unsigned long long>(cycles[0]), static_cast<unsigned long long>(cycles[1]),
               corrections[0], corrections[1]);
-  EXPECT_LT(chunks[1], chunks[0]);
-  EXPECT_LE(corrections[1], corrections[0]);
+  // Chunks are the reads-and-corrections of a move (the motor record's retries count only the
+  // final chunks played whole, which a rung with a learned scatter plays more often).
+  EXPECT_LT(chunks[1] * 10, chunks[0] * 8) << "at least 20 % fewer chunks";
+  EXPECT_LT(cycles[1], cycles[0]);
   EXPECT_GT(cal.state().rung_count[0] + cal.state().rung_count[1], 0);
 }
 
