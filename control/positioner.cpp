@@ -537,6 +537,30 @@ double Positioner::rung_uncertainty(const Rung& r) const {
   return std::clamp(2.0 * std::sqrt(r.scatter_var), config_.approach_uncertainty, 1.0);
 }
 
+Positioner::FinalChunk Positioner::final_chunk_for(const Rung& r, double distance) const {
+  constexpr double kPassSteps = 0.8;  // planned to pass by at most this share of a step
+  const double a = r.est.offset_m, b = r.est.step_m;
+  const double u = rung_uncertainty(r);
+  auto passes = [&](std::uint64_t n) {
+    const double nd = static_cast<double>(n);
+    const double most = a + nd * b + u * (std::fabs(a) + nd * b);
+    return most * (1.0 - kPassSteps / nd) > distance;
+  };
+  FinalChunk out;
+  const double n_real = std::round((distance - a) / b);
+  out.cycles = !(n_real >= 1) ? 1 : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real));
+  const std::uint64_t max_cycles = map_.cells()[r.cell].max_cycles;
+  if (max_cycles > 0) out.cycles = std::min(out.cycles, max_cycles);
+  const double n_moving = std::ceil((0.5 * b - a) / b);
+  const std::uint64_t n_min = n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
+  while (out.cycles > n_min && passes(out.cycles)) {
+    --out.cycles;
+    out.cut = true;
+  }
+  out.safe = !passes(out.cycles);
+  return out;
+}
+
 void Positioner::kill_rung(Rung& r) {
   r.dead = true;
   r.proven = false;
@@ -665,36 +689,9 @@ void Positioner::plan_next_chunk(double now_s) {
     // move nothing (offset about -step), and a chunk that moves nothing teaches nothing. When
     // even that shortest chunk could pass too far, a finer live rung whose shortest chunk cannot
     // is taken instead.
-    constexpr double kPassSteps = 0.8;  // planned to pass by at most this share of a step
-    struct FinalChunk {
-      std::uint64_t cycles = 1;
-      bool cut = false, safe = false;
-    };
-    auto final_chunk_of = [&](const Rung& fr) {
-      const double a = fr.est.offset_m, b = fr.est.step_m;
-      const double u = rung_uncertainty(fr);
-      auto passes = [&](std::uint64_t n) {
-        const double nd = static_cast<double>(n);
-        const double most = a + nd * b + u * (std::fabs(a) + nd * b);
-        return most * (1.0 - kPassSteps / nd) > distance;
-      };
-      FinalChunk out;
-      const double n_real = std::round((distance - a) / b);
-      out.cycles = !(n_real >= 1) ? 1 : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real));
-      const std::uint64_t max_cycles = map_.cells()[fr.cell].max_cycles;
-      if (max_cycles > 0) out.cycles = std::min(out.cycles, max_cycles);
-      const double n_moving = std::ceil((0.5 * b - a) / b);
-      const std::uint64_t n_min = n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
-      while (out.cycles > n_min && passes(out.cycles)) {
-        --out.cycles;
-        out.cut = true;
-      }
-      out.safe = !passes(out.cycles);
-      return out;
-    };
     chosen = fin;
     final_chunk = true;
-    FinalChunk plan = final_chunk_of(final_rung);
+    FinalChunk plan = final_chunk_for(final_rung, distance);
     if (!plan.safe) {
       double best_rate = 0;
       for (std::size_t i = 0; i < ladder.size(); ++i) {
@@ -702,7 +699,7 @@ void Positioner::plan_next_chunk(double now_s) {
         if (static_cast<int>(i) == fin || x.dead || !(x.est.step_m < b_final) ||
             !(x.est.step_m >= config_.min_step_counts * count_m_))
           continue;
-        const FinalChunk alt = final_chunk_of(x);
+        const FinalChunk alt = final_chunk_for(x, distance);
         const double rate = x.est.step_m * map_.cells()[x.cell].freq_hz;
         if (alt.safe && rate > best_rate) {
           best_rate = rate;

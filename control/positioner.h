@@ -214,6 +214,14 @@ class Positioner {
   };
   // How far this rung's next chunk may move beyond its estimate, as a share of it.
   double rung_uncertainty(const Rung& r) const;
+  // A final chunk of rung r for the remaining distance: the cycles that land nearest, cut so that
+  // the pessimistic landing passes by at most 0.8 step (`cut`), never below the cycles predicted
+  // to move half a step; `safe`: the result keeps to that.
+  struct FinalChunk {
+    std::uint64_t cycles = 1;
+    bool cut = false, safe = false;
+  };
+  FinalChunk final_chunk_for(const Rung& r, double distance) const;
   void build_ladder();
   void load_rung_estimates();           // at a move's start: from the calibration, or the seeds
   bool rung_live(Rung& r);              // revives a rung whose dead time is over
