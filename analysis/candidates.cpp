@@ -126,14 +126,32 @@ CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::
       Trial local;
       std::vector<double> u(n);
       const int total = n == 1 ? pts : pts * pts;
+      std::vector<Trial> grid;
       for (int k = 0; k < total; ++k) {
         u[0] = (k % pts) / double(pts - 1);
         if (n == 2) u[1] = (k / pts) / double(pts - 1);
         const auto p = params_of(fixed, u);
         const double v = objective(p);
+        grid.push_back({v, u, p});
         if (v < local.train_gap) local = {v, u, p};
       }
-      if (opt.refine_evals > 0) {
+      // Refined from the best grid point and, for two parameters, from the next best ones that
+      // are not its grid neighbours (a narrow valley, e.g. the actuator's resonance against its
+      // damping, can hide between grid points and trap a single start).
+      std::vector<std::vector<double>> starts{local.u};
+      if (n == 2) {
+        std::sort(grid.begin(), grid.end(), [](const Trial& a, const Trial& b) { return a.train_gap < b.train_gap; });
+        const double cell = 1.0 / (pts - 1);
+        for (const Trial& g : grid) {
+          if (starts.size() >= static_cast<std::size_t>(opt.starts_2d)) break;
+          bool near = false;
+          for (const std::vector<double>& st : starts)
+            near = near || (std::fabs(g.u[0] - st[0]) <= cell * 1.01 && std::fabs(g.u[1] - st[1]) <= cell * 1.01);
+          if (!near) starts.push_back(g.u);
+        }
+      }
+      for (const std::vector<double>& start : starts) {
+        if (opt.refine_evals <= 0) break;
         nlopt::opt solver(nlopt::LN_SBPLX, static_cast<unsigned>(n));
         solver.set_lower_bounds(std::vector<double>(n, 0.0));
         solver.set_upper_bounds(std::vector<double>(n, 1.0));
@@ -151,7 +169,7 @@ CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::
               return (*static_cast<std::function<double(const std::vector<double>&)>*>(data))(x);
             },
             &eval);
-        std::vector<double> x = local.u;
+        std::vector<double> x = start;
         double fx = 0;
         try {
           solver.optimize(x, fx);

@@ -57,6 +57,8 @@ struct FitOptions {
   int grid_1d = 9;       // coarse grid points for one parameter
   int grid_2d = 7;       // per axis for two
   int refine_evals = 16; // NLopt evaluations after the grid (one parameter; twice that for two)
+  int starts_2d = 3;     // refinements for two parameters: the best grid point and the next
+                         // best ones that are not its neighbours
 };
 
 // The model with `base` effects (already chosen, fixed) plus one candidate, fitted on the training
