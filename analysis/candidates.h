@@ -66,8 +66,9 @@ struct FitOptions {
 CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::EffectSpec>& base,
                               const CandidateSpec& spec, double gap_before, const FitOptions& options);
 
-// The configuration a set of effects is simulated with (rigid plant, internal rate as needed).
-model::SimConfig config_with(const std::vector<model::EffectSpec>& effects);
+// The configuration a set of effects is simulated with (rigid plant), at the internal rate it is
+// scored at (internal_rate_for) or, with `search`, the cheaper one a fit searches at.
+model::SimConfig config_with(const std::vector<model::EffectSpec>& effects, bool search = false);
 
 // Predictions, step scale (fitted on training trials) and held-out evaluation of a configuration.
 GapEvaluation evaluate_config(const SweepCells& sweep, const model::SimConfig& sim, int threads,

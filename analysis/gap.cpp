@@ -47,12 +47,23 @@ LogVarianceMoments log_sample_variance_moments(int dof) {
 }
 
 double fit_step_scale(const SweepCells& sweep, const std::vector<CellPrediction>& pred) {
+  // Weighted least squares: each cell by the inverse of its measured step variance (never below
+  // the reading noise), so that a cell whose steps scatter does not pull the scale off the cells
+  // that pin it.
+  const double noise_var = 2.0 * sweep.reading_sd_m * sweep.reading_sd_m;
   double num = 0, den = 0;
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     if (pred[c].region == model::Region::Cutoff) continue;
-    for (const TrialFeatures& t : sweep.cells[c].train) {
-      num += t.steady_step_m * pred[c].steady_step_m;
-      den += pred[c].steady_step_m * pred[c].steady_step_m;
+    const std::vector<TrialFeatures>& train = sweep.cells[c].train;
+    if (train.empty()) continue;
+    double mean = 0, ss = 0;
+    for (const TrialFeatures& t : train) mean += t.steady_step_m / train.size();
+    for (const TrialFeatures& t : train) ss += (t.steady_step_m - mean) * (t.steady_step_m - mean);
+    const double var = train.size() > 1 ? ss / (train.size() - 1) : 0.0;
+    const double w = 1.0 / (noise_var + var + pred[c].step_sd_m * pred[c].step_sd_m);
+    for (const TrialFeatures& t : train) {
+      num += w * t.steady_step_m * pred[c].steady_step_m;
+      den += w * pred[c].steady_step_m * pred[c].steady_step_m;
     }
   }
   return den > 0 ? num / den : 1.0;
@@ -97,7 +108,7 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
     for (const auto* v : {&cell.train, &cell.test})
       for (const TrialFeatures& t : *v) all_ss += (t.steady_step_m - all_mean) * (t.steady_step_m - all_mean);
     const double sd_all = all_n > 1 ? std::sqrt(all_ss / (all_n - 1)) : 0.0;
-    const double mean_var = std::max({step_sd * step_sd, sd * sd, sd_all * sd_all});
+    const double mean_var = std::max({step_sd * step_sd, sd * sd, sd_all * sd_all, r.model_step_sd_m * r.model_step_sd_m});
     const double d = (mean - r.model_step_m) / std::sqrt(mean_var / std::max(1, n));
     // The spread against the one expected: log ratio of the variances (regularized by the noise so
     // that identical quantized readings do not count) in units of the exact sampling error of a

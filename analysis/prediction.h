@@ -35,8 +35,13 @@ CellPrediction predict_cell_exact(const SweepCells& sweep, const model::SimConfi
 // Every cell, spread over `threads` threads (0: all cores).
 std::vector<CellPrediction> predict_sweep(const SweepCells& sweep, const model::SimConfig& sim, int threads);
 
-// The internal rate a configuration needs: effects that smooth the command are integrated at a rate
-// that resolves them (the amplifier's cutoff), never below `floor_hz`.
-double internal_rate_for(const model::SimConfig& sim, double floor_hz = 50e3);
+// The plant rate a configuration with an actuator chain is scored at: one that resolves the
+// stick-slip transitions under a smoothed command (steady steps within ~1.5 nm of a 16 MHz
+// integration, against up to 36 nm at 100 kHz), and a DAC's update rate twice over.
+double internal_rate_for(const model::SimConfig& sim);
+// The cheaper rate a fit searches at: the amplifier's cutoff 20 times over, at least 50 kHz (and
+// never below the data's sample rate, which the prediction steps at anyway). Parameters found at
+// it are scored at internal_rate_for.
+double search_rate_for(const model::SimConfig& sim);
 
 }  // namespace idm::analysis

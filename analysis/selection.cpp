@@ -54,7 +54,12 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
       gap = first->gap;
       d.steps.push_back({names_of(d.chosen), gap});
     }
-    // Further rounds: each remaining effect on top of the chosen set.
+    // Further rounds: each remaining effect on top of the chosen set. These fits refine from the
+    // best grid point only: each model run carries the chosen effects too (a friction spread on
+    // top of an amplifier is 6 runs through the actuator chain a cell), and a second effect is a
+    // correction on a fitted model, not a search for a hidden resonance.
+    FitOptions further = options.fit;
+    further.starts_2d = 1;
     while (!d.chosen.empty() && gap > kExplainedGap) {
       CandidateResult best;
       bool found = false;
@@ -66,7 +71,7 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
         if (std::find_if(d.chosen.begin(), d.chosen.end(),
                          [&](const model::EffectSpec& e) { return e.name == spec->effect; }) != d.chosen.end())
           continue;
-        CandidateResult r = fit_candidate(sweep, d.chosen, *spec, gap, options.fit);
+        CandidateResult r = fit_candidate(sweep, d.chosen, *spec, gap, further);
         if (r.plausible && r.shrink >= kMinFurtherShrink && (!found || r.gap < best.gap)) {
           best = std::move(r);
           found = true;
