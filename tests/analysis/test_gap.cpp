@@ -1,4 +1,5 @@
-// The gap of the baseline (impulse model, fitted correction factor) on held-out trials.
+// The gap of the baseline (impulse model, fitted correction factor) on held-out trials, and the plant
+// rate a model is scored at.
 #include <gtest/gtest.h>
 
 #include <unistd.h>
@@ -8,6 +9,9 @@
 #include <random>
 
 #include "analysis/gap.h"
+#include "analysis/prediction.h"
+#include "model/simulation.h"
+#include "model/waveform.h"
 #include "analysis/simulated_sweep.h"
 
 using namespace idm;
@@ -102,4 +106,33 @@ TEST(Gap, LogSampleVarianceMoments) {
   const LogVarianceMoments five = log_sample_variance_moments(5);
   EXPECT_NEAR(five.mean, mc_mean, 0.005);
   EXPECT_NEAR(five.sd, mc_sd, 0.005);
+}
+
+// The rate a candidate is scored at resolves the stick-slip transitions under a smoothed command:
+// a steady step there is within 2 nm a cycle of a 16 MHz integration, where the search rate
+// (20 x the cutoff, the data's 100 kHz samples) is off by more than 5 nm in some cell.
+TEST(Prediction, AnAmplifierIsScoredAtAConvergedPlantRate) {
+  model::SimConfig sim;
+  sim.effects.push_back(model::complete_effect({"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}}, "test"));
+  auto step_per_cycle_nm = [&](double rate_hz, double freq_hz, double duty) {
+    model::SimConfig s = sim;
+    s.internal_rate_hz = rate_hz;
+    model::InterferometerParams exact;
+    exact.resolution_m = 1e-12;
+    const model::StageFile stage;
+    model::SimulatedStage plant(stage.stage, exact, s);
+    const model::TriangleWave w{freq_hz, duty, stage.stage.stroke_m, 12};
+    model::TrialSamples out;
+    plant.run_burst(w, 100e3, 0, 0, out);
+    return out.x_m.back() / 12 * 1e9;
+  };
+  double worst_scored = 0, worst_search = 0;
+  for (double f : {500.0, 800.0})
+    for (double duty : {0.1, 0.3}) {
+      const double fine = step_per_cycle_nm(16e6, f, duty);
+      worst_scored = std::max(worst_scored, std::fabs(step_per_cycle_nm(internal_rate_for(sim), f, duty) - fine));
+      worst_search = std::max(worst_search, std::fabs(step_per_cycle_nm(search_rate_for(sim), f, duty) - fine));
+    }
+  EXPECT_LT(worst_scored, 2.0);
+  EXPECT_GT(worst_search, 5.0);
 }
