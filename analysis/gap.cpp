@@ -23,6 +23,22 @@ std::vector<CellPrediction> from_features(const std::vector<TrialFeatures>& f) {
   for (const TrialFeatures& t : f) out.push_back(from_features(t));
   return out;
 }
+// Mean and sample variance (n - 1) of the steady steps of some trials (0 and 0 for none).
+struct StepMoments {
+  double mean = 0, var = 0;
+};
+StepMoments step_moments(const std::vector<TrialFeatures>& trials) {
+  StepMoments m;
+  const std::size_t n = trials.size();
+  if (n == 0) return m;
+  for (const TrialFeatures& t : trials) m.mean += t.steady_step_m;
+  m.mean /= static_cast<double>(n);
+  double ss = 0;
+  for (const TrialFeatures& t : trials) ss += (t.steady_step_m - m.mean) * (t.steady_step_m - m.mean);
+  m.var = n > 1 ? ss / static_cast<double>(n - 1) : 0.0;
+  return m;
+}
+
 }  // namespace
 
 LogVarianceMoments log_sample_variance_moments(int dof) {
@@ -56,11 +72,7 @@ double fit_step_scale(const SweepCells& sweep, const std::vector<CellPrediction>
     if (pred[c].region == model::Region::Cutoff) continue;
     const std::vector<TrialFeatures>& train = sweep.cells[c].train;
     if (train.empty()) continue;
-    double mean = 0, ss = 0;
-    for (const TrialFeatures& t : train) mean += t.steady_step_m / train.size();
-    for (const TrialFeatures& t : train) ss += (t.steady_step_m - mean) * (t.steady_step_m - mean);
-    const double var = train.size() > 1 ? ss / (train.size() - 1) : 0.0;
-    const double w = 1.0 / (noise_var + var + pred[c].step_sd_m * pred[c].step_sd_m);
+    const double w = 1.0 / (noise_var + step_moments(train).var + pred[c].step_sd_m * pred[c].step_sd_m);
     for (const TrialFeatures& t : train) {
       num += w * t.steady_step_m * pred[c].steady_step_m;
       den += w * pred[c].steady_step_m * pred[c].steady_step_m;
@@ -86,12 +98,9 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
     r.key = cell.key;
     const int n = static_cast<int>(trials.size());
     r.trials = n;
-    double mean = 0;
-    for (const TrialFeatures& t : trials) mean += t.steady_step_m;
-    mean /= std::max(1, n);
-    double ss = 0;
-    for (const TrialFeatures& t : trials) ss += (t.steady_step_m - mean) * (t.steady_step_m - mean);
-    const double sd = n > 1 ? std::sqrt(ss / (n - 1)) : 0.0;
+    const StepMoments moments = step_moments(trials);
+    const double mean = moments.mean;
+    const double sd = std::sqrt(moments.var);
     r.measured_step_m = mean;
     r.measured_step_sd_m = sd;
     r.model_step_m = scale * pred[c].steady_step_m;
