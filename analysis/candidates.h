@@ -4,8 +4,9 @@
 //
 // Fitting: the parameters are mapped to [0, 1] (log scale where they span decades), a coarse grid
 // finds the basin (the objective is piecewise flat where region labels change), then NLopt's
-// bounded derivative-free Subplex (LN_SBPLX) refines it. The objective is the training gap of the
-// model with the effect, its step scale (the paper's alpha) refitted at every evaluation.
+// bounded derivative-free Subplex (LN_SBPLX) refines it, and a last Subplex with a tenth of the
+// step polishes the winner. The objective is the training gap of the model with the effect, its
+// step scale (the paper's alpha) refitted at every evaluation.
 // A fit is implausible when it ends on a bound of its range (the data asks for more than the
 // physics allows, or for no effect at all) or needs a step scale outside (0.05, 2].
 #pragma once
@@ -59,6 +60,7 @@ struct FitOptions {
   int refine_evals = 16; // NLopt evaluations after the grid (one parameter; twice that for two)
   int starts_2d = 3;     // refinements for two parameters: the best grid point and the next
                          // best ones that are not its neighbours
+  bool polish = true;    // a last refinement of the winner with a step a tenth as large
 };
 
 // The model with `base` effects (already chosen, fixed) plus one candidate, fitted on the training
