@@ -112,6 +112,7 @@ CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::
     return e.gap;
   };
 
+  auto grid_points = [&](std::size_t n) { return n == 1 ? opt.grid_1d : opt.grid_2d; };  // per axis
   // Subplex from `start` (in [0, 1] per parameter), keeping the best point it meets in `local`.
   auto refine = [&](const std::map<std::string, double>& fixed, const std::vector<double>& start,
                     double step, double xtol, Trial& local) {
@@ -155,7 +156,7 @@ CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::
   } else {
     for (const std::map<std::string, double>& fixed : spec.variants) {
       const std::size_t n = spec.fit.size();
-      const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
+      const int pts = grid_points(n);
       Trial local;
       std::vector<double> u(n);
       const int total = n == 1 ? pts : pts * pts;
@@ -193,7 +194,7 @@ CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::
     // V around the optimum (1 % in a stage's stiffness can be 30 noise units), and a refinement
     // that ran out of evaluations partway down it leaves most of the gap behind.
     if (opt.polish && !winner.u.empty())
-      refine(winner_fixed, winner.u, 0.05 / ((winner.u.size() == 1 ? opt.grid_1d : opt.grid_2d) - 1), 1e-4, winner);
+      refine(winner_fixed, winner.u, 0.05 / (grid_points(winner.u.size()) - 1), 1e-4, winner);
   }
   best.params = winner.params;
   best.train_gap = winner.train_gap;

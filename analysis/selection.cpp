@@ -55,9 +55,9 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
       d.steps.push_back({names_of(d.chosen), gap});
     }
     // Further rounds: each remaining effect on top of the chosen set. These fits refine from the
-    // best grid point only, without the polish: each model run carries the chosen effects too (a friction spread on
-    // top of an amplifier is 6 runs through the actuator chain a cell), and a second effect is a
-    // correction on a fitted model, not a search for a hidden resonance.
+    // best grid point only, without the polish: each model run carries the chosen effects too (a
+    // friction spread on top of an amplifier is 6 runs through the actuator chain a cell), and a
+    // second effect is a correction on a fitted model, not a search for a hidden resonance.
     FitOptions further = options.fit;
     further.starts_2d = 1;
     further.polish = false;
