@@ -72,6 +72,7 @@ const char* motion_fault_name(MotionFault f) {
     case MotionFault::RetryLimit: return "retry_limit";
     case MotionFault::Driver: return "driver";
     case MotionFault::NoPlan: return "no_plan";
+    case MotionFault::CaptureOverrun: return "capture_overrun";
   }
   return "?";
 }
@@ -122,6 +123,25 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
     n = std::min(n, static_cast<double>(caps.max_burst_samples));
     samples_.assign(static_cast<std::size_t>(n), 0.0);
   }
+  // A chunk's samples must fit the interferometer's capture: some devices keep a whole burst's
+  // records until its end (a Modbus capture), so a longer chunk would overrun it mid-move.
+  {
+    const drivers::InterferometerCapabilities& ic = interferometer_.capabilities();
+    const double longest_s = std::max(config_.max_chunk_s, 1.0 / limits.min_freq_hz);
+    const double records = std::ceil(longest_s * ic.stream_rate_hz) + 1;
+    if (records > static_cast<double>(ic.stream_capacity)) {
+      const double fit_s = (static_cast<double>(ic.stream_capacity) - 1) / ic.stream_rate_hz;
+      throw model::InputError(
+          "control.max_chunk_s / control.min_freq_hz: the longest chunk (" +
+          model::format_number(longest_s) + " s: max_chunk_s, or one cycle at min_freq_hz) is " +
+          model::format_number(records) + " records of the interferometer's " +
+          model::format_number(ic.stream_rate_hz) + " Hz capture, more than the " +
+          std::to_string(ic.stream_capacity) +
+          " it holds for one burst; set max_chunk_s <= " + model::format_number(fit_s) +
+          " and min_freq_hz >= " + model::format_number(1.0 / fit_s) +
+          " (or a larger capture: the device's stream/capture capacity)");
+    }
+  }
   stream_.resize(kStreamSlice);
   max_chunks_ = config_.max_chunks_per_move > 0 ? config_.max_chunks_per_move : planner_.config().max_bursts;
   plan_.bursts.reserve(static_cast<std::size_t>(planner_.config().max_bursts));
@@ -167,6 +187,7 @@ bool Positioner::at_rest() const {
 // ---- commands ----
 
 Refusal Positioner::move_absolute(double target_m) {
+  requested_target_m_ = target_m;
   if (!std::isfinite(target_m)) return Refusal::NotFinite;
   if (phase_ == Phase::Fault) return Refusal::Faulted;
   if (phase_ != Phase::Idle) return Refusal::Busy;
@@ -175,6 +196,7 @@ Refusal Positioner::move_absolute(double target_m) {
   if (!status_.position_valid) return Refusal::NoPosition;
   load_rung_estimates();
   status_.target_m = target_m;
+  target_known_ = true;
   status_.closed_loop = true;
   status_.corrections = 0;
   status_.fault = MotionFault::None;
@@ -191,10 +213,9 @@ Refusal Positioner::move_absolute(double target_m) {
 }
 
 Refusal Positioner::move_relative(double distance_m) {
+  requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
   if (!std::isfinite(distance_m)) return Refusal::NotFinite;
-  if (phase_ == Phase::Fault) return Refusal::Faulted;
-  if (phase_ != Phase::Idle) return Refusal::Busy;
-  if (!status_.position_valid) return Refusal::NoPosition;
+  if (!status_.position_valid) return phase_ == Phase::Fault ? Refusal::Faulted : Refusal::NoPosition;
   return move_absolute(status_.position_m + distance_m);
 }
 
@@ -204,8 +225,10 @@ double Positioner::nominal_open_loop_step_m(double freq_hz, double duty, double 
 
 Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq_hz,
                                    double stroke_m) {
-  if (!std::isfinite(duty) || !std::isfinite(freq_hz) || !std::isfinite(stroke_m))
-    return Refusal::NotFinite;
+  requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
+  const bool cell_omitted = std::isnan(duty) && std::isnan(freq_hz);
+  if (!cell_omitted && (!std::isfinite(duty) || !std::isfinite(freq_hz))) return Refusal::NotFinite;
+  if (std::isinf(stroke_m)) return Refusal::NotFinite;
   if (phase_ == Phase::Fault) return Refusal::Faulted;
   if (phase_ != Phase::Idle) return Refusal::Busy;
   if (!status_.position_valid) return Refusal::NoPosition;
@@ -213,23 +236,24 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
   const int sign = cycles > 0 ? 1 : -1;
   const std::uint64_t n = static_cast<std::uint64_t>(cycles > 0 ? cycles : -cycles);
   const DeviceLimits& lim = map_.config().limits;
+  if (std::isnan(stroke_m)) stroke_m = lim.max_stroke_m;
+  if (stroke_m < lim.min_stroke_m * (1 - 1e-12) || stroke_m > lim.max_stroke_m * (1 + 1e-12))
+    return Refusal::OutOfRange;
   Chunk c;
-  if (duty <= 0 || freq_hz <= 0 || stroke_m <= 0) {
-    // The map's largest-step cell moving that way (positive cycles: positive).
+  if (cell_omitted) {
+    // The map's largest-step cell moving that way (positive cycles: positive) at the stroke.
     const int d = direction_index(sign);
     if (!has_largest_cell_[d]) return Refusal::OutOfRange;
     const RegionCell& cell = map_.cells()[largest_cell_[d]];
     c.freq_hz = cell.freq_hz;
     c.duty = cell.duty;
-    c.stroke_m = cell.stroke_m;
+    c.stroke_m = std::min(stroke_m, cell.stroke_m);
     c.period_samples = cell.period_samples;
     c.extension_samples = cell.extension_samples;
   } else {
     if (!(duty > 0 && duty < 1) || duty == 0.5) return Refusal::OutOfRange;
     if (cycles < 0) duty = 1.0 - duty;
     if (freq_hz < lim.min_freq_hz * (1 - 1e-12) || freq_hz > lim.max_freq_hz * (1 + 1e-12))
-      return Refusal::OutOfRange;
-    if (stroke_m < lim.min_stroke_m * (1 - 1e-12) || stroke_m > lim.max_stroke_m * (1 + 1e-12))
       return Refusal::OutOfRange;
     c.stroke_m = stroke_m;
     if (buffered_) {
@@ -246,15 +270,21 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
   }
   if (n > lim.max_burst_cycles * 1000000ull) return Refusal::OutOfRange;
   if (buffered_ && c.period_samples + 1 > samples_.size()) return Refusal::OutOfRange;
-  // Soft limits: the nominal steady step times the cycles must stay inside.
+  // Soft limits: the nominal steady step times the cycles, grown by the step model's uncertainty,
+  // must stay inside.
   const double step = nominal_open_loop_step_m(c.freq_hz, c.duty, c.stroke_m);
   const double end = status_.position_m + static_cast<double>(n) * step;
-  if (end < config_.soft_lower_m || end > config_.soft_upper_m) return Refusal::OutsideSoftLimits;
+  requested_target_m_ = end;
+  const double reach = static_cast<double>(n) * step * (1.0 + config_.approach_uncertainty);
+  const double far_end = status_.position_m + reach;
+  if (std::min(end, far_end) < config_.soft_lower_m || std::max(end, far_end) > config_.soft_upper_m)
+    return Refusal::OutsideSoftLimits;
   c.predicted_m = step;  // per cycle here; per chunk when a chunk is made
   c.cell = nullptr;
   open_loop_ = c;
   open_loop_remaining_ = n;
   status_.target_m = end;
+  target_known_ = true;
   status_.closed_loop = false;
   status_.corrections = 0;
   status_.fault = MotionFault::None;
@@ -294,6 +324,18 @@ Refusal Positioner::set_soft_limits(double lower_m, double upper_m) {
   config_.soft_lower_m = lower_m;
   config_.soft_upper_m = upper_m;
   return Refusal::None;
+}
+
+void Positioner::continue_from(const MotionStatus& previous) {
+  status_.target_m = previous.target_m;
+  target_known_ = previous.position_valid || previous.moves > 0;
+  status_.closed_loop = previous.closed_loop;
+  status_.position_m = previous.position_m;
+  status_.position_valid = previous.position_valid;
+  status_.moves = previous.moves;
+  status_.bursts = previous.bursts;
+  status_.cycles = previous.cycles;
+  status_.last_move_time_s = previous.last_move_time_s;
 }
 
 // ---- faults ----
@@ -338,6 +380,10 @@ bool Positioner::latch_position(double& position_m) {
   position_m = sum / config_.latch_words;
   status_.position_m = position_m;
   status_.position_valid = true;
+  if (!target_known_) {  // before the first motion the target is where the slider is (VAL = RBV)
+    status_.target_m = position_m;
+    target_known_ = true;
+  }
   return true;
 }
 
@@ -350,7 +396,10 @@ bool Positioner::drain_stream() {
       if (!p.valid()) {
         status_.position_valid = false;
         invalid_sample_status_ = p.status;
-        enter_fault(MotionFault::InvalidSample);
+        // An overrun is the capture being too small for the chunk, not the beam: say so.
+        enter_fault((p.status & drivers::sample_status::kSampleOverrun) != 0
+                        ? MotionFault::CaptureOverrun
+                        : MotionFault::InvalidSample);
         return false;
       }
       status_.position_m = p.position_m;

@@ -87,6 +87,7 @@ enum class MotionFault : std::uint8_t {
   RetryLimit,     // still outside tolerance after max_retries corrections
   Driver,         // a driver call failed (the driver's message is in last_driver_error())
   NoPlan,         // no usable cell moves toward the target (map empty for that direction)
+  CaptureOverrun, // the interferometer's capture filled before it was read (a chunk too long for it)
 };
 const char* motion_fault_name(MotionFault fault);  // "none", "invalid_sample", ...
 
@@ -129,21 +130,30 @@ class Positioner {
   Refusal move_absolute(double target_m);
   Refusal move_relative(double distance_m);
   // Open-loop burst of |cycles| cycles of (duty, freq_hz, stroke_m); negative cycles mirror the
-  // duty (1 - duty) to move the other way. duty/freq/stroke <= 0: the map's largest-step cell
-  // for that direction.
-  Refusal step_open_loop(std::int64_t cycles, double duty = 0, double freq_hz = 0,
-                         double stroke_m = 0);
+  // duty (1 - duty) to move the other way. duty and freq_hz NaN (omitted): the map's largest-step
+  // cell for that direction; stroke_m NaN: the map's largest stroke. A given value outside the
+  // device limits is refused (OutOfRange), never replaced; so is a burst whose predicted end,
+  // grown by approach_uncertainty, lies outside the soft limits (OutsideSoftLimits).
+  static constexpr double kOmitted = std::numeric_limits<double>::quiet_NaN();
+  Refusal step_open_loop(std::int64_t cycles, double duty = kOmitted, double freq_hz = kOmitted,
+                         double stroke_m = kOmitted);
   // Ends motion at the next chunk end (see above). No effect when idle.
   void stop();
   // Leaves FAULT for IDLE (the output is already at zero); re-reads the position.
   void reset_fault();
   Refusal set_soft_limits(double lower_m, double upper_m);
+  // After a rebuild at rest (new settings): carry on from the previous positioner's status (the
+  // target, the position read at rest, the counters), so that a reset does not show target 0.
+  void continue_from(const MotionStatus& previous);
 
   // ---- the state machine ----
   // Advances by polling the devices; now_s on any monotonic clock (seconds). Never blocks.
   void tick(double now_s);
 
   const MotionStatus& status() const { return status_; }
+  // The target of the last move or step command, accepted or refused (NaN when it had none, e.g.
+  // a non-finite argument): what a refusal's message names.
+  double requested_target_m() const { return requested_target_m_; }
   bool at_rest() const;  // IDLE or FAULT (the motor record's DMOV = 1)
   const PositionerConfig& config() const { return config_; }
   double tolerance_m() const;
@@ -266,6 +276,8 @@ class Positioner {
   bool has_largest_cell_[2] = {false, false};
 
   std::uint8_t invalid_sample_status_ = 0;
+  double requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
+  bool target_known_ = false;  // target_m holds a move's target or the first position read
   Phase phase_ = Phase::Idle;
   bool stop_requested_ = false;
   bool poll_due_ = true;

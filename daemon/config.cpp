@@ -126,10 +126,23 @@ ControlConfig parse_control_config(const YAML::Node& root, const std::string& f,
                              "must not exceed max_freq_hz (" + model::format_number(c.max_freq_hz) + ")"));
   if (c.max_stroke_m > 0 && c.min_stroke_m > c.max_stroke_m)
     throw InputError(located(f, node, "control.min_stroke_m", "must not exceed max_stroke_m"));
-  if (p.soft_lower_m > p.soft_upper_m)
-    throw InputError(located(f, node, "control.soft_lower_m", "must not exceed soft_upper_m"));
-  if (!node || !node["soft_lower_m"]) p.soft_lower_m = -kInf;
-  if (!node || !node["soft_upper_m"]) p.soft_upper_m = kInf;
+  // Soft limits: default to the stage's travel, and never outside it.
+  if (!node || !node["soft_lower_m"]) p.soft_lower_m = stage.has_travel() ? stage.travel_lower_m : -kInf;
+  if (!node || !node["soft_upper_m"]) p.soft_upper_m = stage.has_travel() ? stage.travel_upper_m : kInf;
+  if (!(p.soft_lower_m < p.soft_upper_m))
+    throw InputError(located(f, node, "control.soft_lower_m",
+                             model::format_number(p.soft_lower_m) + " must be below soft_upper_m (" +
+                                 model::format_number(p.soft_upper_m) + ")"));
+  if (stage.has_travel()) {
+    const std::string travel = "the stage's travel [" + model::format_number(stage.travel_lower_m) +
+                               ", " + model::format_number(stage.travel_upper_m) + "] m (stage.travel_m)";
+    if (p.soft_lower_m < stage.travel_lower_m)
+      throw InputError(located(f, node["soft_lower_m"], "control.soft_lower_m",
+                               model::format_number(p.soft_lower_m) + " lies outside " + travel));
+    if (p.soft_upper_m > stage.travel_upper_m)
+      throw InputError(located(f, node["soft_upper_m"], "control.soft_upper_m",
+                               model::format_number(p.soft_upper_m) + " lies outside " + travel));
+  }
   at_section(root, "control", f, [&] {
     control::validate(c.planner, "control");
     control::validate(c.positioner, "control");
@@ -141,6 +154,7 @@ ControlConfig parse_control_config(const YAML::Node& root, const std::string& f,
 DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
   if (!root.IsDefined() || root.IsNull()) throw InputError(f + ": empty configuration");
   if (!root.IsMap()) throw InputError(located(f, root, "(top)", "expected a YAML map of sections"));
+  model::require_unique_keys(root, f);
   for (const auto& kv : root) {
     const std::string name = kv.first.as<std::string>();
     static const char* const kSections[] = {"stage",   "interferometer", "daq",       "control",
@@ -208,6 +222,12 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
   if (rec.data_dir.empty())
     throw InputError(located(f, drivers::detail::child(root, "recording"), "recording.data_dir",
                              "must not be empty"));
+  // Last, so that a typo elsewhere is reported first.
+  if (!c.stage.has_travel())
+    throw InputError(located(f, drivers::detail::child(root, "stage"), "stage.travel_m",
+                             "missing: the stage's mechanical range in metres, e.g. "
+                             "`travel_m: [-5e-3, 5e-3]` under stage:; the soft limits default to it "
+                             "and no move or STEP may leave it"));
   return c;
 }
 

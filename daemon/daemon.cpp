@@ -10,6 +10,7 @@
 #include <system_error>
 #include <utility>
 
+#include "daemon/data_dir.h"
 #include "drivers/backends.h"
 #include "drivers/clock.h"
 #include "drivers/sim/sim_backend.h"
@@ -168,7 +169,7 @@ bool Daemon::with_loop_parked(double timeout_s, Fn&& fn) {
   return true;
 }
 
-bool Daemon::reload_control(std::string& error) {
+bool Daemon::reload_control(std::string& error, SoftLimits limits) {
   ControlConfig fresh;
   try {
     const YAML::Node root = model::load_yaml_file(config_.file);
@@ -199,14 +200,15 @@ bool Daemon::reload_control(std::string& error) {
     error = e.what();
     return false;
   }
-  // A move in progress stops at its chunk end first.
-  Command stop_cmd;
-  stop_cmd.kind = CommandKind::Stop;
+  // A move in progress stops at its chunk end first (the loop does it while parking).
   std::string build_error;
   const bool ok = with_loop_parked(std::max(2.0, 4 * fresh.positioner.max_chunk_s), [&] {
+    const control::MotionStatus previous = positioner_->status();
     config_.control = fresh;
-    soft_lower_m_ = fresh.positioner.soft_lower_m;
-    soft_upper_m_ = fresh.positioner.soft_upper_m;
+    if (limits == SoftLimits::FromFile) {
+      soft_lower_m_ = fresh.positioner.soft_lower_m;
+      soft_upper_m_ = fresh.positioner.soft_upper_m;
+    }
     if (new_map) {
       positioner_.reset();
       map_ = std::move(new_map);
@@ -217,10 +219,13 @@ bool Daemon::reload_control(std::string& error) {
     } catch (const std::exception& e) {
       build_error = e.what();
       config_.control = old;
-      soft_lower_m_ = old.positioner.soft_lower_m;
-      soft_upper_m_ = old.positioner.soft_upper_m;
+      if (limits == SoftLimits::FromFile) {
+        soft_lower_m_ = old.positioner.soft_lower_m;
+        soft_upper_m_ = old.positioner.soft_upper_m;
+      }
       build_positioner();
     }
+    positioner_->continue_from(previous);
     pub_.soft_lower_m = soft_lower_m_;
     pub_.soft_upper_m = soft_upper_m_;
   });
@@ -312,6 +317,10 @@ void Daemon::apply(const Command& cmd) {
       }
       break;
   }
+  acked_target_m_.store(cmd.kind == CommandKind::SetLimits || cmd.kind == CommandKind::Stop
+                            ? kNaN
+                            : positioner_->requested_target_m(),
+                        std::memory_order_relaxed);
   acked_refusal_.store(static_cast<std::uint8_t>(r), std::memory_order_relaxed);
 }
 
@@ -472,34 +481,34 @@ CommandError Daemon::submit(Command cmd) {
     sleep_s(2e-5);
   }
   const auto r = static_cast<control::Refusal>(acked_refusal_.load(std::memory_order_relaxed));
-  return refusal_error(r, cmd.a);
+  return refusal_error(r, acked_target_m_.load(std::memory_order_relaxed), cmd.kind);
 }
 
 CommandError Daemon::fault_error(control::MotionFault fault) {
-  std::string text = std::string("in FAULT (") + control::motion_fault_name(fault) +
-                     "): send *RST to clear it";
-  switch (fault) {
-    case control::MotionFault::InvalidSample: return {error_code::kFaultInvalidSample, text};
-    case control::MotionFault::Stall: return {error_code::kFaultStall, text};
-    case control::MotionFault::RetryLimit: return {error_code::kFaultRetryLimit, text};
-    case control::MotionFault::Driver: return {error_code::kFaultDriver, text};
-    case control::MotionFault::NoPlan: return {error_code::kFaultNoPlan, text};
-    case control::MotionFault::None: break;
-  }
+  const char* name = control::motion_fault_name(fault);
+  const std::string text = std::string("in FAULT (") + name + "): send *RST to clear it";
+  for (const DeviceFault& f : kDeviceFaults)
+    if (std::strcmp(f.name, name) == 0) return {f.code, text};
   return {error_code::kSettingsConflict, text};
 }
 
-CommandError Daemon::refusal_error(control::Refusal r, double value) {
+CommandError Daemon::refusal_error(control::Refusal r, double value, CommandKind kind) {
   const Published p = published_.load();
   switch (r) {
     case control::Refusal::None: return {};
     case control::Refusal::NotFinite:
       return {error_code::kNumericDataError, "the argument is not a finite number"};
     case control::Refusal::OutsideSoftLimits:
-      return {error_code::kDataOutOfRange, "target " + num(value) + " m is outside the soft limits [" +
-                                               num(p.soft_lower_m) + ", " + num(p.soft_upper_m) + "] m"};
+      return {error_code::kDataOutOfRange,
+              (std::isnan(value) ? std::string("the motion's end") : "target " + num(value) + " m") +
+                  " is outside the soft limits [" + num(p.soft_lower_m) + ", " +
+                  num(p.soft_upper_m) + "] m; nothing moved"};
     case control::Refusal::Faulted: return fault_error(p.motion.fault);
     case control::Refusal::Busy:
+      if (kind == CommandKind::SetLimits)
+        return {error_code::kSettingsConflict,
+                "the motion in progress ends at " + num(p.motion.target_m) +
+                    " m, outside the new limits: STOP it first"};
       if (stop_all_.load()) return {error_code::kSettingsConflict, "the daemon is shutting down"};
       if (sweep_active_.load()) return {error_code::kSettingsConflict, "a sweep is running: STOP it first"};
       return {error_code::kSettingsConflict, "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
@@ -545,7 +554,7 @@ CommandError Daemon::reset() {
   }
   // No sweep: the loop parks at the playing chunk's end (at most control.max_chunk_s).
   std::string error;
-  if (!reload_control(error)) return {error_code::kExecutionError, "*RST: " + error};
+  if (!reload_control(error, SoftLimits::Keep)) return {error_code::kExecutionError, "*RST: " + error};
   return {};
 }
 
@@ -594,9 +603,31 @@ CommandError Daemon::move_relative(double distance_m) {
 }
 
 CommandError Daemon::step(std::int64_t cycles, double duty, double freq_hz, double stroke_m) {
-  if (!std::isfinite(duty) || !std::isfinite(freq_hz) || !std::isfinite(stroke_m))
-    return {error_code::kNumericDataError, "the argument is not a finite number"};
-  if (cycles == 0) return {error_code::kDataOutOfRange, "cycles must not be 0"};
+  if (cycles == 0) return {error_code::kDataOutOfRange, "STEP cycles: must not be 0"};
+  const bool cell_given = !std::isnan(duty) || !std::isnan(freq_hz);
+  if (cell_given && (std::isnan(duty) || std::isnan(freq_hz)))
+    return {error_code::kMissingParameter, "STEP takes <n> or <n>,<duty>,<freq_hz>[,<stroke_m>]"};
+  if (!std::isnan(stroke_m) && !cell_given)
+    return {error_code::kMissingParameter, "STEP stroke_m needs duty and freq_hz before it"};
+  const auto out_of_range = [](const char* what, double v, const std::string& allowed) {
+    return CommandError{error_code::kDataOutOfRange,
+                        std::string("STEP ") + what + ": " + num(v) + " is out of range, allowed " + allowed};
+  };
+  control::DeviceLimits limits;
+  {
+    std::lock_guard<std::mutex> lock(control_mutex_);
+    limits = limits_;
+  }
+  if (cell_given) {
+    if (!(duty > 0 && duty < 1) || duty == 0.5)
+      return out_of_range("duty", duty, "(0, 1) except 0.5 (the sign of n picks the direction)");
+    if (!(freq_hz >= limits.min_freq_hz && freq_hz <= limits.max_freq_hz))
+      return out_of_range("freq_hz", freq_hz,
+                          "[" + num(limits.min_freq_hz) + ", " + num(limits.max_freq_hz) + "] Hz");
+  }
+  if (!std::isnan(stroke_m) && !(stroke_m >= limits.min_stroke_m && stroke_m <= limits.max_stroke_m))
+    return out_of_range("stroke_m", stroke_m,
+                        "[" + num(limits.min_stroke_m) + ", " + num(limits.max_stroke_m) + "] m");
   Command c;
   c.kind = CommandKind::Step;
   c.n = cycles;
@@ -615,9 +646,16 @@ CommandError Daemon::stop() {
 CommandError Daemon::set_soft_limits(double lower_m, double upper_m) {
   if (std::isnan(lower_m) || std::isnan(upper_m))
     return {error_code::kNumericDataError, "a soft limit is not a number"};
-  if (lower_m > upper_m)
-    return {error_code::kDataOutOfRange, "lower limit " + num(lower_m) + " m above the upper " +
-                                             num(upper_m) + " m"};
+  if (!(lower_m < upper_m))
+    return {error_code::kDataOutOfRange, "the lower limit " + num(lower_m) +
+                                             " m must be below the upper limit " + num(upper_m) + " m"};
+  const model::StageFile& st = config_.stage;
+  const std::string travel = "the stage's travel [" + num(st.travel_lower_m) + ", " +
+                             num(st.travel_upper_m) + "] m";
+  if (lower_m < st.travel_lower_m)
+    return {error_code::kDataOutOfRange, "the lower limit " + num(lower_m) + " m lies outside " + travel};
+  if (upper_m > st.travel_upper_m)
+    return {error_code::kDataOutOfRange, "the upper limit " + num(upper_m) + " m lies outside " + travel};
   Command c;
   c.kind = CommandKind::SetLimits;
   c.a = lower_m;
@@ -720,8 +758,14 @@ CommandError Daemon::sweep(const std::string& dir, const std::vector<double>& fr
   if (dir.empty()) return {error_code::kMissingParameter, "SWEEP needs a directory"};
   if (freqs_hz.empty() || duties.empty())
     return {error_code::kMissingParameter, "SWEEP needs at least one frequency and one duty"};
-  if (trials < 1 || trials > 100000) return {error_code::kDataOutOfRange, "trials: allowed 1..100000"};
-  if (cycles < 1 || cycles > 100000) return {error_code::kDataOutOfRange, "cycles: allowed 1..100000"};
+  if (trials < 1 || trials > kMaxSweepTrials)
+    return {error_code::kDataOutOfRange, "SWEEP trials: " + std::to_string(trials) +
+                                             " is out of range, allowed [1, " +
+                                             std::to_string(kMaxSweepTrials) + "]"};
+  if (cycles < 1 || cycles > kMaxSweepCycles)
+    return {error_code::kDataOutOfRange, "SWEEP cycles: " + std::to_string(cycles) +
+                                             " is out of range, allowed [1, " +
+                                             std::to_string(kMaxSweepCycles) + "]"};
   const std::size_t total = freqs_hz.size() * duties.size() * static_cast<std::size_t>(trials);
   if (total > static_cast<std::size_t>(config_.recording.sweep_max_trials))
     return {error_code::kDataOutOfRange,
@@ -760,17 +804,20 @@ CommandError Daemon::sweep(const std::string& dir, const std::vector<double>& fr
       }
     }
   }
-  namespace fs = std::filesystem;
-  const fs::path path = fs::path(dir).is_absolute() ? fs::path(dir) : fs::path(config_.recording.data_dir) / dir;
+  // Confined to the data directory, a new directory every time (never a symlink followed, never
+  // a file overwritten).
+  std::string error;
+  std::error_code mkdir_error;  // the configured data directory itself may be created
+  std::filesystem::create_directories(config_.recording.data_dir, mkdir_error);
+  const std::string path = create_dataset_dir(config_.recording.data_dir, dir, error);
+  if (path.empty()) return {error_code::kDataOutOfRange, "SWEEP: " + error};
   auto job = std::make_unique<SweepJob>();
   try {
-    if (fs::exists(path / "sweep.csv"))
-      return {error_code::kDataOutOfRange, path.string() + " already holds a sweep"};
-    job->writer.emplace(path.string(), config_.stage);
+    job->writer.emplace(path, config_.stage);
   } catch (const std::exception& e) {
     return {error_code::kExecutionError, std::string("cannot create the dataset: ") + e.what()};
   }
-  job->dir = path.string();
+  job->dir = path;
   job->freqs_hz = freqs_hz;
   job->duties = duties;
   job->trials = trials;
@@ -806,7 +853,7 @@ void Daemon::recorder_main() {
     }
     if (reset_pending_.load(std::memory_order_acquire)) {
       std::string error;
-      if (!reload_control(error)) {
+      if (!reload_control(error, SoftLimits::Keep)) {
         set_housekeeping_error("*RST: " + error);
         add_note("*RST after the sweep: " + error);
       }

@@ -73,10 +73,14 @@ class Daemon final : public Instrument, private LoopBody {
   // stops the recorder (finished trials are on disk) and the loop, brings the output to zero,
   // deactivates and shuts the device down, saves the calibration. Idempotent.
   void shutdown();
-  // SIGHUP: re-reads the control: section from the config file and rebuilds the positioner (and
-  // the region map when its settings changed) while the loop is parked at rest. false + error
-  // when the file is bad (the old settings stay).
-  bool reload_control(std::string& error);
+  // SIGHUP and *RST: re-read the control: section from the config file and rebuild the
+  // positioner (and the region map when its settings changed) while the loop is parked at rest.
+  // The soft limits come from the file (SIGHUP: the administrator's reload) or stay as they are
+  // (*RST: limits a client set with LIM are never wiped by another's reset). The target, the
+  // position and the counters carry over. false + error when the file is bad (the old settings
+  // stay).
+  enum class SoftLimits : std::uint8_t { FromFile, Keep };
+  bool reload_control(std::string& error, SoftLimits limits = SoftLimits::FromFile);
 
   const DaemonConfig& config() const { return config_; }
   std::uint64_t loop_ticks() const { return loop_.ticks(); }
@@ -160,7 +164,7 @@ class Daemon final : public Instrument, private LoopBody {
 
   // Server side.
   CommandError submit(Command cmd);
-  CommandError refusal_error(control::Refusal refusal, double value);
+  CommandError refusal_error(control::Refusal refusal, double value, CommandKind kind);
   CommandError fault_error(control::MotionFault fault);
   bool wait_at_rest(double timeout_s);
 
@@ -196,6 +200,7 @@ class Daemon final : public Instrument, private LoopBody {
   std::uint64_t next_seq_ = 0;              // server thread
   std::atomic<std::uint64_t> acked_seq_{0};
   std::atomic<std::uint8_t> acked_refusal_{0};
+  std::atomic<double> acked_target_m_{0};  // the refused (or accepted) command's target, NaN: none
   std::atomic<bool> stop_all_{false};       // shutdown: stop and keep stopped
   std::atomic<bool> park_request_{false};
   std::atomic<bool> parked_{false};

@@ -24,6 +24,7 @@ inline constexpr int kNoError = 0;
 inline constexpr int kCommandError = -100;
 inline constexpr int kInvalidCharacter = -101;
 inline constexpr int kSyntaxError = -102;
+inline constexpr int kDataTypeError = -104;        // e.g. a quoted string where a number belongs
 inline constexpr int kParameterNotAllowed = -108;  // too many arguments
 inline constexpr int kMissingParameter = -109;     // too few arguments
 inline constexpr int kUndefinedHeader = -113;
@@ -34,14 +35,34 @@ inline constexpr int kDataOutOfRange = -222;       // e.g. a target past the sof
 inline constexpr int kHardwareError = -240;
 inline constexpr int kQueueOverflow = -350;
 inline constexpr int kInputBufferOverrun = -363;   // a line longer than the limit
-// Device faults (positive): the positioner's MotionFault reported as an error.
+// Device faults (positive): see kDeviceFaults.
 inline constexpr int kFaultInvalidSample = 101;
 inline constexpr int kFaultStall = 102;
 inline constexpr int kFaultRetryLimit = 103;
 inline constexpr int kFaultDriver = 104;
 inline constexpr int kFaultNoPlan = 105;
-inline constexpr int kSweepFailed = 110;
+inline constexpr int kFaultCaptureOverrun = 106;
 }  // namespace error_code
+
+// The one table of device faults: the name a status reports (control::motion_fault_name), the
+// positive code a motion that ended in it queues, and the code's standard text.
+struct DeviceFault {
+  const char* name;
+  int code;
+  const char* text;
+};
+inline constexpr DeviceFault kDeviceFaults[] = {
+    {"invalid_sample", error_code::kFaultInvalidSample, "Invalid interferometer sample"},
+    {"stall", error_code::kFaultStall, "Stall"},
+    {"retry_limit", error_code::kFaultRetryLimit, "Retry limit"},
+    {"driver", error_code::kFaultDriver, "Driver error"},
+    {"no_plan", error_code::kFaultNoPlan, "No plan"},
+    {"capture_overrun", error_code::kFaultCaptureOverrun, "Capture overrun"},
+};
+
+// SWEEP's per-cell trials and per-trial cycles: the protocol's check and the daemon's.
+inline constexpr int kMaxSweepTrials = 100000;
+inline constexpr int kMaxSweepCycles = 100000;
 
 struct CommandError {
   int code = error_code::kNoError;
@@ -93,7 +114,10 @@ class Instrument {
 
   virtual CommandError move_absolute(double target_m) = 0;
   virtual CommandError move_relative(double distance_m) = 0;
-  // STEP n[,duty,freq_hz[,stroke_m]]; duty/freq/stroke 0 = the daemon's choice.
+  // STEP n[,duty,freq_hz[,stroke_m]]: n != 0; an omitted argument is NaN (duty and freq both
+  // omitted: the daemon's cell; stroke omitted: the largest stroke). Every given argument is used
+  // or the step is refused (-222 naming it and its range); so is a burst whose predicted end lies
+  // outside the soft limits.
   virtual CommandError step(std::int64_t cycles, double duty, double freq_hz, double stroke_m) = 0;
   virtual CommandError stop() = 0;
 

@@ -1,5 +1,6 @@
 #include "daemon/protocol.h"
 
+#include <algorithm>
 #include <array>
 #include <charconv>
 #include <cmath>
@@ -72,6 +73,8 @@ const char* standard_error_text(int code) {
       return "Invalid character";
     case ec::kSyntaxError:
       return "Syntax error";
+    case ec::kDataTypeError:
+      return "Data type error";
     case ec::kParameterNotAllowed:
       return "Parameter not allowed";
     case ec::kMissingParameter:
@@ -92,19 +95,9 @@ const char* standard_error_text(int code) {
       return "Queue overflow";
     case ec::kInputBufferOverrun:
       return "Input buffer overrun";
-    case ec::kFaultInvalidSample:
-      return "Invalid interferometer sample";
-    case ec::kFaultStall:
-      return "Stall";
-    case ec::kFaultRetryLimit:
-      return "Retry limit";
-    case ec::kFaultDriver:
-      return "Driver error";
-    case ec::kFaultNoPlan:
-      return "No plan";
-    case ec::kSweepFailed:
-      return "Sweep failed";
     default:
+      for (const DeviceFault& f : kDeviceFaults)
+        if (f.code == code) return f.text;
       return "Error";
   }
 }
@@ -210,6 +203,7 @@ CommandError parse_line(std::string_view line, ParsedLine& out) {
       return make_error(ec::kSyntaxError, "text after a quoted string in argument " +
                                               std::to_string(out.args.size() + 1));
     out.args.emplace_back(arg);
+    out.quoted.push_back(was_string);
     current.clear();
     was_string = text_after_string = false;
     return {};
@@ -411,17 +405,8 @@ CommandError parse_list(std::string_view text, std::string_view what, std::vecto
 }
 
 CommandError fault_error(const std::string& fault_name) {
-  static const struct {
-    const char* name;
-    int code;
-  } kFaults[] = {{"invalid_sample", ec::kFaultInvalidSample},
-                 {"stall", ec::kFaultStall},
-                 {"retry_limit", ec::kFaultRetryLimit},
-                 {"driver", ec::kFaultDriver},
-                 {"no_plan", ec::kFaultNoPlan},
-                 {"sweep_failed", ec::kSweepFailed}};
   if (fault_name.empty() || fault_name == "none") return {};
-  for (const auto& f : kFaults)
+  for (const DeviceFault& f : kDeviceFaults)
     if (fault_name == f.name) return make_error(f.code, "motion ended in fault " + fault_name);
   return make_error(ec::kExecutionError, "motion ended in fault " + fault_name);
 }
@@ -550,15 +535,8 @@ void Session::process(std::string& replies) {
         line_too_long(std::string_view(input_).substr(pos), replies);
         discarding_ = true;
         pos = input_.size();
-      } else if (end_of_input_ && pending > 0) {
-        std::string_view line = std::string_view(input_).substr(pos);
-        pos = input_.size();
-        if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-        if (line.size() > kMaxLineBytes)
-          line_too_long(line, replies);
-        else
-          execute_line(line, replies);
-        continue;
+      } else if (end_of_input_) {
+        pos = input_.size();  // an unterminated last line never runs
       }
       break;
     }
@@ -618,6 +596,16 @@ void Session::execute_line(std::string_view line, std::string& replies) {
     if (!command)
       error = make_error(ec::kUndefinedHeader, echo(parsed.header + (parsed.query ? "?" : "")));
   }
+  if (command && stop_only_) {
+    const auto allowed = {&Session::stop, &Session::idn, &Session::cls, &Session::error_next,
+                          &Session::error_count, &Session::error_all};
+    if (std::find(allowed.begin(), allowed.end(), command->handler) == allowed.end()) {
+      error = make_error(ec::kSettingsConflict,
+                         "the client table is full (server.max_clients): this connection only "
+                         "accepts STOP and closes soon");
+      command = nullptr;
+    }
+  }
   if (command) {
     const int n = static_cast<int>(parsed.args.size());
     // Built only for an error: this is the path of every command.
@@ -633,7 +621,7 @@ void Session::execute_line(std::string_view line, std::string& replies) {
   std::string reply;
   if (error.ok()) {
     try {
-      error = (this->*command->handler)(parsed.args, reply);
+      error = (this->*command->handler)(Args{parsed.args, parsed.quoted}, reply);
     } catch (const std::exception& e) {  // an Instrument that throws must not end the server
       error = make_error(ec::kExecutionError, e.what());
     }
@@ -656,7 +644,30 @@ CommandError instrument_error(CommandError e) {
   return make_error(e.code, e.text);
 }
 
+CommandError quoted_number(std::string_view what) {
+  return make_error(ec::kDataTypeError,
+                    std::string(what) + ": a quoted string where a number belongs (send it bare)");
+}
+
 }  // namespace
+
+CommandError Session::number_arg(const Args& args, std::size_t i, std::string_view what,
+                                 double& value) {
+  if (args.quoted[i]) return quoted_number(what);
+  return parse_number(args[i], what, value);
+}
+
+CommandError Session::integer_arg(const Args& args, std::size_t i, std::string_view what,
+                                  std::int64_t lo, std::int64_t hi, std::int64_t& value) {
+  if (args.quoted[i]) return quoted_number(what);
+  return parse_integer(args[i], what, lo, hi, value);
+}
+
+CommandError Session::list_arg(const Args& args, std::size_t i, std::string_view what,
+                               std::vector<double>& values) {
+  if (args.quoted[i]) return quoted_number(what);
+  return parse_list(args[i], what, values);
+}
 
 CommandError Session::idn(const Args&, std::string& reply) {
   reply = instrument_.identity();
@@ -740,7 +751,7 @@ CommandError Session::position(const Args&, std::string& reply) {
 
 CommandError Session::move_absolute(const Args& args, std::string&) {
   double target = 0;
-  if (CommandError e = parse_number(args[0], "MOVE:ABSolute target", target); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 0, "MOVE:ABSolute target", target); !e.ok()) return e;
   CommandError e = instrument_error(instrument_.move_absolute(target));
   started_motion(e);
   return e;
@@ -753,7 +764,7 @@ CommandError Session::move_target(const Args&, std::string& reply) {
 
 CommandError Session::move_relative(const Args& args, std::string&) {
   double distance = 0;
-  if (CommandError e = parse_number(args[0], "MOVE:RELative distance", distance); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 0, "MOVE:RELative distance", distance); !e.ok()) return e;
   CommandError e = instrument_error(instrument_.move_relative(distance));
   started_motion(e);
   return e;
@@ -772,16 +783,20 @@ CommandError Session::step(const Args& args, std::string&) {
   if (args.size() == 2)
     return make_error(ec::kMissingParameter, "STEP takes <n> or <n>,<duty>,<freq_hz>[,<stroke_m>]");
   std::int64_t cycles = 0;
-  double duty = 0, freq = 0, stroke = 0;
-  if (CommandError e = parse_integer(args[0], "STEP cycles", -1000000000, 1000000000, cycles);
+  constexpr double kOmitted = std::numeric_limits<double>::quiet_NaN();
+  double duty = kOmitted, freq = kOmitted, stroke = kOmitted;
+  if (CommandError e = integer_arg(args, 0, "STEP cycles", -1000000000, 1000000000, cycles);
       !e.ok())
     return e;
+  if (cycles == 0)
+    return make_error(ec::kDataOutOfRange, "STEP cycles: 0 is out of range, allowed a non-zero "
+                                           "integer in [-1000000000, 1000000000]");
   if (args.size() >= 3) {
-    if (CommandError e = parse_number(args[1], "STEP duty", duty); !e.ok()) return e;
-    if (CommandError e = parse_number(args[2], "STEP freq_hz", freq); !e.ok()) return e;
+    if (CommandError e = number_arg(args, 1, "STEP duty", duty); !e.ok()) return e;
+    if (CommandError e = number_arg(args, 2, "STEP freq_hz", freq); !e.ok()) return e;
   }
   if (args.size() == 4)
-    if (CommandError e = parse_number(args[3], "STEP stroke_m", stroke); !e.ok()) return e;
+    if (CommandError e = number_arg(args, 3, "STEP stroke_m", stroke); !e.ok()) return e;
   CommandError e = instrument_error(instrument_.step(cycles, duty, freq, stroke));
   started_motion(e);
   return e;
@@ -789,10 +804,10 @@ CommandError Session::step(const Args& args, std::string&) {
 
 CommandError Session::region(const Args& args, std::string& reply) {
   double freq = 0, duty = 0, stroke = 0;
-  if (CommandError e = parse_number(args[0], "REGion freq_hz", freq); !e.ok()) return e;
-  if (CommandError e = parse_number(args[1], "REGion duty", duty); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 0, "REGion freq_hz", freq); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 1, "REGion duty", duty); !e.ok()) return e;
   if (args.size() == 3)
-    if (CommandError e = parse_number(args[2], "REGion stroke_m", stroke); !e.ok()) return e;
+    if (CommandError e = number_arg(args, 2, "REGion stroke_m", stroke); !e.ok()) return e;
   std::string name;
   double step_m = 0;
   if (CommandError e = instrument_.region(freq, duty, stroke, name, step_m); !e.ok())
@@ -803,13 +818,13 @@ CommandError Session::region(const Args& args, std::string& reply) {
 
 CommandError Session::limit_lower(const Args& args, std::string&) {
   double lower = 0;
-  if (CommandError e = parse_number(args[0], "LIMit:LOWer", lower); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 0, "LIMit:LOWer", lower); !e.ok()) return e;
   return instrument_error(instrument_.set_soft_limits(lower, instrument_.status().soft_upper_m));
 }
 
 CommandError Session::limit_upper(const Args& args, std::string&) {
   double upper = 0;
-  if (CommandError e = parse_number(args[0], "LIMit:UPPer", upper); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 0, "LIMit:UPPer", upper); !e.ok()) return e;
   return instrument_error(instrument_.set_soft_limits(instrument_.status().soft_lower_m, upper));
 }
 
@@ -825,8 +840,8 @@ CommandError Session::limit_upper_query(const Args&, std::string& reply) {
 
 CommandError Session::limits(const Args& args, std::string&) {
   double lower = 0, upper = 0;
-  if (CommandError e = parse_number(args[0], "LIMit lower", lower); !e.ok()) return e;
-  if (CommandError e = parse_number(args[1], "LIMit upper", upper); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 0, "LIMit lower", lower); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 1, "LIMit upper", upper); !e.ok()) return e;
   return instrument_error(instrument_.set_soft_limits(lower, upper));
 }
 
@@ -861,13 +876,13 @@ CommandError Session::sweep(const Args& args, std::string&) {
   const std::string& dir = args[0];
   if (dir.empty()) return make_error(ec::kDataOutOfRange, "SWEEP: empty directory");
   std::vector<double> freqs, duties;
-  if (CommandError e = parse_list(args[1], "SWEEP freqs", freqs); !e.ok()) return e;
-  if (CommandError e = parse_list(args[2], "SWEEP duties", duties); !e.ok()) return e;
+  if (CommandError e = list_arg(args, 1, "SWEEP freqs", freqs); !e.ok()) return e;
+  if (CommandError e = list_arg(args, 2, "SWEEP duties", duties); !e.ok()) return e;
   std::int64_t trials = 0, cycles = 12;
-  if (CommandError e = parse_integer(args[3], "SWEEP trials", 1, 1000000, trials); !e.ok())
+  if (CommandError e = integer_arg(args, 3, "SWEEP trials", 1, kMaxSweepTrials, trials); !e.ok())
     return e;
   if (args.size() == 5)
-    if (CommandError e = parse_integer(args[4], "SWEEP cycles", 1, 1000000, cycles); !e.ok())
+    if (CommandError e = integer_arg(args, 4, "SWEEP cycles", 1, kMaxSweepCycles, cycles); !e.ok())
       return e;
   CommandError e = instrument_error(
       instrument_.sweep(dir, freqs, duties, static_cast<int>(trials), static_cast<int>(cycles)));

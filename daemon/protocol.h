@@ -63,6 +63,7 @@ struct ParsedLine {
   std::string header;  // as sent, without the leading ':' and the trailing '?'
   bool query = false;
   std::vector<std::string> args;  // trimmed; quoted strings unquoted
+  std::vector<bool> quoted;       // per argument: it was a "..." string (not a number)
 };
 // Splits "[:]HEADER[?][ ARG{,ARG}]" (no line terminator). An empty or all-blank line gives an
 // empty header. Errors: -101 (a byte outside printable ASCII and tab), -102 (a malformed header,
@@ -126,7 +127,9 @@ class Session {
 
   // Bytes as they arrive (any split); replies (each ending in "\n") are appended to `replies`.
   void receive(std::string_view bytes, std::string& replies);
-  // The peer will send nothing more: a last line without its newline is executed.
+  // The peer will send nothing more. A last line without its newline is discarded, never
+  // executed: a line runs only once it is terminated (a client that dies mid-line must not move
+  // the stage with half a command).
   void end_of_input(std::string& replies);
   // While waiting() (*OPC? or *WAI): resumes once the instrument's motion is done.
   void poll(std::string& replies);
@@ -141,11 +144,26 @@ class Session {
   std::size_t unterminated_bytes() const { return unterminated_; }
 
   const ErrorQueue& errors() const { return errors_; }
+  // A stop-only session (the server's overflow slot): STOP, ABORt, *IDN?, *CLS and the error
+  // queries run; every other line is refused with -221 naming why.
+  void set_stop_only(bool stop_only) { stop_only_ = stop_only; }
 
  private:
   enum class Wait { None, OpcQuery, Wai };
   struct Command;
-  using Args = std::vector<std::string>;
+  struct Args {
+    std::vector<std::string> text;
+    std::vector<bool> quoted;
+    std::size_t size() const { return text.size(); }
+    const std::string& operator[](std::size_t i) const { return text[i]; }
+  };
+  // A numeric argument: -104 when it was sent as a quoted string, else parse_number/parse_integer.
+  static CommandError number_arg(const Args& args, std::size_t i, std::string_view what,
+                                 double& value);
+  static CommandError integer_arg(const Args& args, std::size_t i, std::string_view what,
+                                  std::int64_t lo, std::int64_t hi, std::int64_t& value);
+  static CommandError list_arg(const Args& args, std::size_t i, std::string_view what,
+                               std::vector<double>& values);
 
   void process(std::string& replies);
   void execute_line(std::string_view line, std::string& replies);
@@ -193,6 +211,7 @@ class Session {
   bool end_of_input_ = false;
   Wait wait_ = Wait::None;
   bool motion_started_ = false;  // this session started a motion whose end it has not seen
+  bool stop_only_ = false;
 };
 
 // The device fault a status reports ("stall", ...) as an error with its positive code

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <map>
 #include <sstream>
 
 #include "model/stage.h"
@@ -94,17 +95,55 @@ std::string read_string(const YAML::Node& node, const std::string& file, const s
   return node.Scalar();
 }
 
+namespace {
+
+void check_unique_keys(const YAML::Node& node, const std::string& file, const std::string& path,
+                       int depth) {
+  if (depth > 64) throw InputError(located(file, node, path.empty() ? "(top)" : path, "nested too deeply"));
+  if (node.IsSequence()) {
+    for (std::size_t i = 0; i < node.size(); ++i)
+      check_unique_keys(node[i], file, path + "[" + std::to_string(i) + "]", depth + 1);
+    return;
+  }
+  if (!node.IsMap()) return;
+  std::map<std::string, int> seen;  // key -> 1-based line of its first appearance
+  for (const auto& kv : node) {
+    const std::string key = kv.first.IsScalar() ? kv.first.Scalar() : std::string("(complex key)");
+    const std::string full = path.empty() ? key : path + "." + key;
+    const int line = kv.first.Mark().line + 1;
+    const auto [it, fresh] = seen.emplace(key, line);
+    if (!fresh)
+      throw InputError(located(file, kv.first, full,
+                               "duplicate key: also at line " + std::to_string(it->second) +
+                                   " (YAML would silently keep one of them; remove the other)"));
+    check_unique_keys(kv.second, file, full, depth + 1);
+  }
+}
+
+}  // namespace
+
+void require_unique_keys(const YAML::Node& root, const std::string& file) {
+  check_unique_keys(root, file, "", 0);
+}
+
+YAML::Node load_yaml_text(const std::string& text, const std::string& name) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw InputError(name + ":" + std::to_string(e.mark.line + 1) + ": YAML syntax error: " +
+                     e.msg);
+  }
+  require_unique_keys(root, name);
+  return root;
+}
+
 YAML::Node load_yaml_file(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw InputError(path + ": cannot open file");
   std::stringstream text;
   text << in.rdbuf();
-  try {
-    return YAML::Load(text.str());
-  } catch (const YAML::Exception& e) {
-    throw InputError(path + ":" + std::to_string(e.mark.line + 1) + ": YAML syntax error: " +
-                     e.msg);
-  }
+  return load_yaml_text(text.str(), path);
 }
 
 }  // namespace idm::model

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <new>
 #include <string>
 #include <thread>
@@ -28,7 +29,7 @@ std::atomic<long> g_loop_allocations{0};
 std::atomic<long> g_loop_frees{0};
 }  // namespace
 
-void* operator new(std::size_t n) {
+__attribute__((noinline)) void* operator new(std::size_t n) {
   if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
   if (void* p = std::malloc(n ? n : 1)) return p;
   throw std::bad_alloc();
@@ -39,7 +40,9 @@ void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
   return std::malloc(n ? n : 1);
 }
 void* operator new[](std::size_t n, const std::nothrow_t& t) noexcept { return operator new(n, t); }
-void operator delete(void* p) noexcept {
+// Not inlined: GCC would otherwise see malloc'd memory "freed" by a delete expression it inlined
+// this into, and warn (-Wmismatched-new-delete) about what is a matched replacement pair.
+__attribute__((noinline)) void operator delete(void* p) noexcept {
   if (p && t_count_allocations) g_loop_frees.fetch_add(1, std::memory_order_relaxed);
   std::free(p);
 }
@@ -69,7 +72,7 @@ void expect_config_error(const std::string& text, std::initializer_list<const ch
 
 // A small, fast configuration of the simulated stage (coarse map grid, no real-time setup).
 std::string sim_config(const std::string& clock = "wall", const std::string& extra = "") {
-  return "stage:\n  step_correction: 1.0\n"
+  return "stage:\n  step_correction: 1.0\n  travel_m: [-5e-3, 5e-3]\n"
          "interferometer:\n  max_velocity_m_s: 1\n"
          "daq:\n  driver: sim\n  sim:\n    clock: " + clock + "\n"
          "sim:\n  plant: " + std::string(std::getenv("IDM_TEST_PLANT") ? std::getenv("IDM_TEST_PLANT") : "rigid") + "\n  seed: 3\n"
@@ -78,6 +81,15 @@ std::string sim_config(const std::string& clock = "wall", const std::string& ext
          "server:\n  unix_socket: \"\"\n"
          "recording:\n  data_dir: " + (std::filesystem::temp_directory_path() / "idmd-test-data").string() + "\n" +
          extra;
+}
+
+std::filesystem::path write_config(const std::string& name, const std::string& text) {
+  const auto file = std::filesystem::temp_directory_path() /
+                    ("idmd-" + name + "-" + std::to_string(::getpid()) + ".yaml");
+  std::FILE* f = std::fopen(file.c_str(), "w");
+  std::fwrite(text.data(), 1, text.size(), f);
+  std::fclose(f);
+  return file;
 }
 
 bool wait_for(const std::function<bool()>& cond, double timeout_s) {
@@ -107,10 +119,13 @@ TEST(DaemonConfig, ShippedConfigsParse) {
 }
 
 TEST(DaemonConfig, DefaultsWhenSectionsAreMissing) {
-  const DaemonConfig c = parse_daemon_config(yaml("daq:\n  driver: sim\n"), "t.yaml");
+  const DaemonConfig c =
+      parse_daemon_config(yaml("stage:\n  travel_m: [-2e-3, 3e-3]\ndaq:\n  driver: sim\n"), "t.yaml");
   EXPECT_EQ(c.server.tcp_address, "127.0.0.1");
   EXPECT_EQ(c.realtime.priority, 80);
-  EXPECT_TRUE(std::isinf(c.control.positioner.soft_lower_m));
+  // The soft limits default to the travel.
+  EXPECT_DOUBLE_EQ(c.control.positioner.soft_lower_m, -2e-3);
+  EXPECT_DOUBLE_EQ(c.control.positioner.soft_upper_m, 3e-3);
   EXPECT_DOUBLE_EQ(c.control.planner.resolution_m, c.stage.interferometer.resolution_m);
 }
 
@@ -139,6 +154,53 @@ TEST(DaemonConfig, OutOfRangeNamesKeyLineAndRange) {
   expect_config_error("\n\nrealtime:\n  period_s: 1\n", {"t.yaml:4", "realtime.period_s"});
   expect_config_error("logging:\n  level: loud\n", {"t.yaml:2", "logging.level", "allowed"});
   expect_config_error("control:\n  min_freq_hz: 500\n  max_freq_hz: 100\n", {"control.min_freq_hz"});
+}
+
+TEST(DaemonConfig, TheTravelIsRequiredAndBoundsTheSoftLimits) {
+  expect_config_error("daq:\n  driver: sim\n", {"stage.travel_m", "missing", "travel_m: [-5e-3, 5e-3]"});
+  expect_config_error("stage:\n  travel_m: [1e-3, -1e-3]\n", {"t.yaml:2", "stage.travel_m", "lower must be below upper"});
+  expect_config_error("stage:\n  travel_m: 5e-3\n", {"t.yaml:2", "stage.travel_m", "[lower, upper]"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_upper_m: 2e-3\n",
+                      {"t.yaml:4", "control.soft_upper_m", "outside the stage's travel [-0.001, 0.001]"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: -2e-3\n",
+                      {"control.soft_lower_m", "outside"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: 5e-4\n  soft_upper_m: 5e-4\n",
+                      {"control.soft_lower_m", "must be below soft_upper_m"});
+}
+
+TEST(DaemonConfig, ADuplicateKeyIsRefusedNamingBothLines) {
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  max_retries: 3\n  settle_s: 0.01\n  max_retries: 30\n",
+                      {"t.yaml:6", "control.max_retries", "duplicate key", "line 4"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\nserver:\n  tcp_port: 1\nserver:\n  tcp_port: 2\n",
+                      {"t.yaml:5", "server", "also at line 3"});
+  // Through the file loader too (idmd --check-config, SIGHUP).
+  const auto file = std::filesystem::temp_directory_path() / ("idmd-dup-" + std::to_string(::getpid()) + ".yaml");
+  { std::ofstream(file) << "stage:\n  stroke_m: 2e-5\n  stroke_m: 3e-5\n"; }
+  try {
+    load_daemon_config(file.string());
+    ADD_FAILURE() << "a duplicate key was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(":3: stage.stroke_m: duplicate key: also at line 2"), std::string::npos) << e.what();
+  }
+  std::filesystem::remove(file);
+}
+
+TEST(DaemonConfig, AChunkThatCannotFitTheCaptureIsRefusedAtStart) {
+  // 0.1 s at the simulated device's 100 kHz stream is 10001 records; it holds 8192.
+  const std::string text = sim_config("synthetic", "") ;
+  std::string bad = text;
+  bad.replace(bad.find("    clock: synthetic\n"), 21, "    clock: synthetic\n    stream_capacity: 8192\n");
+  bad.replace(bad.find("  max_freq_hz: 2000\n"), 20, "  max_freq_hz: 2000\n  max_chunk_s: 0.1\n  min_freq_hz: 20\n");
+  Daemon daemon(parse_daemon_config(yaml(bad), "t.yaml"));
+  try {
+    daemon.start();
+    ADD_FAILURE() << "started with a chunk longer than the capture";
+  } catch (const StartError& e) {
+    EXPECT_EQ(e.exit_code(), exit_code::kBadConfig);
+    const std::string what = e.what();
+    EXPECT_NE(what.find("control.max_chunk_s"), std::string::npos) << what;
+    EXPECT_NE(what.find("8192"), std::string::npos) << what;
+  }
 }
 
 TEST(DaemonConfig, UnknownDriverListsKnownOnes) {
@@ -333,6 +395,114 @@ TEST_F(DaemonSim, RefusalsBecomeProtocolErrors) {
   d->shutdown();
 }
 
+TEST_F(DaemonSim, StepUsesEveryArgumentOrRefusesIt) {
+  auto d = make(sim_config("wall"));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  const double nan = std::nan("");
+  const auto refused = [&](std::int64_t n, double duty, double f, double s, const char* names) {
+    const CommandError e = d->step(n, duty, f, s);
+    EXPECT_EQ(e.code, error_code::kDataOutOfRange) << n << "," << duty << "," << f << "," << s << ": " << e.text;
+    EXPECT_NE(e.text.find(names), std::string::npos) << e.text;
+  };
+  refused(10, 1.5, 200, nan, "STEP duty: 1.5");
+  refused(10, -0.1, 200, 2e-5, "STEP duty: -0.1");
+  refused(10, 0.1, -200, nan, "STEP freq_hz: -200");
+  refused(10, 0.1, 200, -1e-6, "STEP stroke_m: -1e-06");
+  refused(10, 0.1, 200, 0, "STEP stroke_m: 0");
+  refused(1000000000, nan, nan, nan, "outside the soft limits");
+  EXPECT_EQ(d->status().cycles, 0u);  // nothing was played
+  // Given duty and frequency are the ones played: the slider moves the way REG? predicts.
+  std::string region;
+  double step_m = 0;
+  ASSERT_TRUE(d->region(200, 0.1, 0, region, step_m).ok());
+  ASSERT_NE(region, "CUTOFF");
+  const double start = d->status().position_m;
+  ASSERT_TRUE(d->step(10, 0.1, 200, nan).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 20));
+  const InstrumentStatus s = d->status();
+  EXPECT_EQ(s.state, "IDLE") << s.fault;
+  EXPECT_EQ(s.cycles, 10u);
+  const double moved = s.position_m - start;
+  EXPECT_GT(moved * step_m, 0) << "moved " << moved << ", REG? step " << step_m;
+  EXPECT_NEAR(moved, 10 * step_m, 0.3 * std::fabs(10 * step_m));
+  d->shutdown();
+}
+
+TEST_F(DaemonSim, TheTravelBoundsMovesLimitsAndResetKeepsLimitsSetByClients) {
+  const auto file = write_config("travel", sim_config("wall"));  // *RST re-reads it
+  auto d = std::make_unique<Daemon>(load_daemon_config(file.string()));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  const InstrumentStatus s0 = d->status();
+  EXPECT_DOUBLE_EQ(s0.soft_lower_m, -5e-3);  // the travel, by default
+  EXPECT_DOUBLE_EQ(s0.soft_upper_m, 5e-3);
+  EXPECT_NEAR(s0.target_m, s0.position_m, 1e-12);  // before any move: the target is the position
+  // A unit typo (1 km) is refused before anything moves, naming the target it would reach.
+  CommandError e = d->move_relative(1e3);
+  EXPECT_EQ(e.code, error_code::kDataOutOfRange);
+  EXPECT_NE(e.text.find("target 1000"), std::string::npos) << e.text;
+  EXPECT_EQ(d->move_absolute(-1e3).code, error_code::kDataOutOfRange);
+  e = d->move_relative(4e-3 - s0.position_m + 2e-3);  // ends at 6 mm
+  EXPECT_NE(e.text.find("target 0.006"), std::string::npos) << e.text;
+  EXPECT_EQ(d->status().bursts, 0u);
+  e = d->set_soft_limits(-1e-3, 1e3);
+  EXPECT_EQ(e.code, error_code::kDataOutOfRange);
+  EXPECT_NE(e.text.find("upper limit 1000 m lies outside the stage's travel"), std::string::npos) << e.text;
+  e = d->set_soft_limits(1e-6, 1e-6);
+  EXPECT_EQ(e.code, error_code::kDataOutOfRange);
+  EXPECT_NE(e.text.find("must be below the upper limit"), std::string::npos) << e.text;
+  // Limits set by a client survive another client's *RST, and so does the target.
+  ASSERT_TRUE(d->set_soft_limits(-1e-3, 2e-3).ok());
+  ASSERT_TRUE(d->move_relative(2e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 20));
+  const double target = d->status().target_m;
+  ASSERT_TRUE(d->reset().ok());
+  const InstrumentStatus s1 = d->status();
+  EXPECT_DOUBLE_EQ(s1.soft_lower_m, -1e-3);
+  EXPECT_DOUBLE_EQ(s1.soft_upper_m, 2e-3);
+  EXPECT_DOUBLE_EQ(s1.target_m, target);
+  EXPECT_EQ(s1.moves, 1u);
+  d->shutdown();
+  std::filesystem::remove(file);
+}
+
+TEST_F(DaemonSim, SweepsStayInsideTheDataDirectoryAndNeverOverwrite) {
+  namespace fs = std::filesystem;
+  const fs::path root = fs::temp_directory_path() / ("idmd-confine-" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  const fs::path data = root / "data", outside = root / "outside";
+  fs::create_directories(data);
+  fs::create_directories(outside);
+  { std::ofstream(outside / "precious.txt") << "keep me\n"; }
+  fs::create_symlink(outside, data / "link");
+  fs::create_directories(data / "old");
+  { std::ofstream(data / "old" / "sweep.csv") << "trial\n"; }
+  std::string text = sim_config("wall");
+  text.replace(text.find("recording:\n  data_dir: "), std::string::npos,
+               "recording:\n  data_dir: " + data.string() + "\n");
+  auto d = make(text);
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  for (const std::string& dir : {std::string("../outside/x"), outside.string() + "/x",
+                                std::string("link/x"), std::string("link"), std::string("old"),
+                                std::string("a/../../outside"), std::string("./x"), std::string("a//b")}) {
+    const CommandError e = d->sweep(dir, {500}, {0.1}, 1, 2);
+    EXPECT_EQ(e.code, error_code::kDataOutOfRange) << dir << ": " << e.text;
+  }
+  EXPECT_TRUE(d->motion_done());
+  EXPECT_EQ(std::distance(fs::directory_iterator(outside), fs::directory_iterator{}), 1);
+  EXPECT_EQ(fs::file_size(outside / "precious.txt"), 8u);
+  EXPECT_EQ(fs::file_size(data / "old" / "sweep.csv"), 6u);
+  // A new name, with new parents, is fine; the same name again is refused.
+  ASSERT_TRUE(d->sweep("2026/run1", {500}, {0.1}, 1, 2).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 30));
+  EXPECT_TRUE(fs::exists(data / "2026" / "run1" / "sweep.csv"));
+  EXPECT_EQ(d->sweep("2026/run1", {500}, {0.1}, 1, 2).code, error_code::kDataOutOfRange);
+  d->shutdown();
+  fs::remove_all(root);
+}
+
 TEST_F(DaemonSim, StopMidMoveBringsTheOutputToRest) {
   auto d = make(sim_config("wall"));
   d->start();
@@ -360,15 +530,17 @@ TEST_F(DaemonSim, ShutdownMidMoveEndsAtRestWithZeroOutput) {
 }
 
 TEST_F(DaemonSim, SweepWritesADatasetFromTheLoopsSamples) {
-  const auto dir = std::filesystem::temp_directory_path() / ("idmd-sweep-" + std::to_string(::getpid()));
+  const std::string name = "idmd-sweep-" + std::to_string(::getpid());
+  const auto dir = std::filesystem::temp_directory_path() / "idmd-test-data" / name;
+  std::filesystem::create_directories(dir.parent_path());
   std::filesystem::remove_all(dir);
   auto d = make(sim_config("wall"));
   d->start();
   ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  const CommandError e = d->sweep(dir.string(), {500, 1000}, {0.1, 0.9}, 2, 3);
+  const CommandError e = d->sweep(name, {500, 1000}, {0.1, 0.9}, 2, 3);
   ASSERT_TRUE(e.ok()) << e.text;
   EXPECT_FALSE(d->motion_done());
-  EXPECT_EQ(d->sweep(dir.string(), {500}, {0.1}, 1, 1).code, error_code::kSettingsConflict);
+  EXPECT_EQ(d->sweep(name + "-b", {500}, {0.1}, 1, 1).code, error_code::kSettingsConflict);
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
   d->shutdown();
   EXPECT_NE(d->last_sweep_report().find("8 trials written, 0 failed"), std::string::npos)
@@ -403,6 +575,7 @@ TEST_F(DaemonSim, SweepArgumentsCheckedAtOnce) {
 
 TEST_F(DaemonSim, MissingDeviceIsANoHardwareStartError) {
   const std::string text =
+      "stage:\n  travel_m: [-1e-3, 1e-3]\n"
       "daq:\n  driver: modbus\n  modbus:\n    host: 127.0.0.1\n    port: 1\n    timeout_s: 0.2\n"
       "realtime:\n  sched_fifo: false\n  lock_memory: false\n";
   Daemon daemon(parse_daemon_config(yaml(text), "t.yaml"));
@@ -454,15 +627,6 @@ std::string with_calibration_file(const std::string& path) {
   std::string text = sim_config("wall");
   text.replace(text.find("control:\n"), 9, "control:\n  calibration_file: " + path + "\n");
   return text;
-}
-
-std::filesystem::path write_config(const std::string& name, const std::string& text) {
-  const auto file = std::filesystem::temp_directory_path() /
-                    ("idmd-" + name + "-" + std::to_string(::getpid()) + ".yaml");
-  std::FILE* f = std::fopen(file.c_str(), "w");
-  std::fwrite(text.data(), 1, text.size(), f);
-  std::fclose(f);
-  return file;
 }
 
 TEST_F(DaemonSim, CalibrationIsSavedAfterTheMoveThatChangedIt) {
@@ -527,13 +691,14 @@ TEST_F(DaemonSim, StatusCarriesTheLastFailedSaveUntilReset) {
 }
 
 TEST_F(DaemonSim, ResetDuringASweepLetsTheSweepWindDownInTheBackground) {
-  const auto dir = std::filesystem::temp_directory_path() / ("idmd-rst-sweep-" + std::to_string(::getpid()));
+  const std::string name = "idmd-rst-sweep-" + std::to_string(::getpid());
+  const auto dir = std::filesystem::temp_directory_path() / "idmd-test-data" / name;
   std::filesystem::remove_all(dir);
   const auto file = write_config("rst", sim_config("wall"));
   Daemon d(load_daemon_config(file.string()));
   d.start();
   ASSERT_TRUE(wait_for([&] { return d.status().position_valid; }, 10));
-  ASSERT_TRUE(d.sweep(dir.string(), {500, 1000}, {0.1, 0.9}, 200, 3).ok());
+  ASSERT_TRUE(d.sweep(name, {500, 1000}, {0.1, 0.9}, 200, 3).ok());
   ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(dir / "sweep.csv"); }, 30));
   const CommandError e = d.reset();
   ASSERT_TRUE(e.ok()) << e.text;

@@ -311,8 +311,8 @@ INSTANTIATE_TEST_SUITE_P(
                     ""},
         CommandCase{{"MOVE:DONE?", "move:done?"}, "", "1"},
         CommandCase{{"STOP", "stop", "ABOR", "ABORT", "abort"}, "stop", ""},
-        CommandCase{{"STEP 100", "step 1e2"}, "step(100,0,0,0)", ""},
-        CommandCase{{"STEP -5,0.9,250", "step -5, 0.9, 250"}, "step(-5,0.9,250,0)", ""},
+        CommandCase{{"STEP 100", "step 1e2"}, "step(100,9.91e+37,9.91e+37,9.91e+37)", ""},
+        CommandCase{{"STEP -5,0.9,250", "step -5, 0.9, 250"}, "step(-5,0.9,250,9.91e+37)", ""},
         CommandCase{{"STEP 3,0.1,200,1.5e-5"}, "step(3,0.1,200,1.5e-05)", ""},
         CommandCase{{"REG? 200,0.1", "REGION? 200,0.1", "region? 200, 0.1"},
                     "region(200,0.1,0)",
@@ -367,13 +367,31 @@ TEST(ProtocolSession, BlankLinesAreIgnored) {
   EXPECT_EQ(h.line("SYST:ERR:COUN?"), "0\n");
 }
 
-TEST(ProtocolSession, AFinalLineWithoutNewlineRunsAtEndOfInput) {
+TEST(ProtocolSession, AFinalLineWithoutNewlineNeverRuns) {
+  // A client that dies mid-line (or a script whose last line lacks its newline) must not move
+  // the stage with what it sent: a line runs only once it is terminated.
   Harness h;
-  EXPECT_EQ(h.send("POS?"), "");
+  EXPECT_EQ(h.send("POS?\nMOVE:REL 1"), "0\n");
   std::string out;
   h.session.end_of_input(out);
-  EXPECT_EQ(out, "0\n");
+  EXPECT_EQ(out, "");
   EXPECT_TRUE(h.session.idle());
+  EXPECT_EQ(h.fake.motion_calls(), 0u);
+  EXPECT_TRUE(h.fake.calls().empty() || h.fake.calls().back().rfind("move", 0) != 0);
+}
+
+TEST(ProtocolSession, AStopOnlySessionRefusesEverythingButStop) {
+  Harness h;
+  h.session.set_stop_only(true);
+  EXPECT_EQ(h.line("MOVE:ABS 1e-6"), "");
+  EXPECT_EQ(h.next_error(), ec::kSettingsConflict);
+  EXPECT_EQ(h.line("POS?"), "\n");
+  EXPECT_EQ(h.next_error(), ec::kSettingsConflict);
+  EXPECT_EQ(h.line("STOP"), "");
+  EXPECT_EQ(h.line("*IDN?"), "idm,idmd,0,test\n");
+  EXPECT_EQ(h.line("SYST:ERR?"), "0,\"No error\"\n");
+  EXPECT_EQ(h.fake.motion_calls(), 0u);
+  EXPECT_EQ(h.fake.calls().back(), "stop");
 }
 
 TEST(ProtocolSession, PositionQueryFailsWhenThePositionIsNotValid) {
@@ -465,6 +483,16 @@ INSTANTIATE_TEST_SUITE_P(
                       MalformedCase{"STEP 1.5", ec::kDataOutOfRange},
                       MalformedCase{"STEP 1e12", ec::kDataOutOfRange},
                       MalformedCase{"STEP nan", ec::kNumericDataError},
+                      MalformedCase{"STEP 0", ec::kDataOutOfRange},
+                      MalformedCase{"STEP \"10\"", ec::kDataTypeError},
+                      MalformedCase{"STEP 10,\"0.1\",200", ec::kDataTypeError},
+                      MalformedCase{"MOVE:REL \"1e-6\"", ec::kDataTypeError},
+                      MalformedCase{"MOVE:ABS \"1e-6\"", ec::kDataTypeError},
+                      MalformedCase{"LIM:UPP \"1e-3\"", ec::kDataTypeError},
+                      MalformedCase{"LIM \"-1e-3\",1e-3", ec::kDataTypeError},
+                      MalformedCase{"REG? \"200\",0.1", ec::kDataTypeError},
+                      MalformedCase{"SWEEP d,\"100;200\",0.1,3", ec::kDataTypeError},
+                      MalformedCase{"SWEEP d,100,0.1,\"3\"", ec::kDataTypeError},
                       MalformedCase{"STEP 10,inf,200", ec::kNumericDataError},
                       MalformedCase{"REG? 200", ec::kMissingParameter},
                       MalformedCase{"REG? 200,0.1,1e-5,4", ec::kParameterNotAllowed},
@@ -623,7 +651,12 @@ TEST(ProtocolSession, FaultNamesMapToTheirCodes) {
   EXPECT_EQ(fault_error("retry_limit").code, ec::kFaultRetryLimit);
   EXPECT_EQ(fault_error("driver").code, ec::kFaultDriver);
   EXPECT_EQ(fault_error("no_plan").code, ec::kFaultNoPlan);
-  EXPECT_EQ(fault_error("sweep_failed").code, ec::kSweepFailed);
+  EXPECT_EQ(fault_error("capture_overrun").code, ec::kFaultCaptureOverrun);
+  // Every device fault's code has its own text, from the one table.
+  for (const DeviceFault& f : kDeviceFaults) {
+    EXPECT_EQ(fault_error(f.name).code, f.code);
+    EXPECT_STREQ(standard_error_text(f.code), f.text);
+  }
   EXPECT_EQ(fault_error("something_new").code, ec::kExecutionError);
 }
 
