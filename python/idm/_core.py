@@ -241,17 +241,19 @@ def p_prefix(sess: Session, key: AxisKey) -> Plan:
 
 def p_wait_axis(prefix: str, timeout: Optional[float], poll: float, command: Optional[str],
                 cancel: Optional[Callable[[], bool]] = None, stop_on_timeout: bool = True,
-                watch: Optional[Callable[[float], None]] = None) -> Plan:
+                watch: Optional[Callable[[float], None]] = None,
+                watching: Optional[Callable[[], bool]] = None) -> Plan:
     """Poll ``MOVE:DONE?`` until the axis is at rest. A fault the motion ended in is queued
     for this connection at its next line, so the error drain after the ``MOVE:DONE?`` that
     answers 1 raises it (attributed to ``command``). Returns False if ``cancel()`` became true.
-    ``watch(position)`` is called at every poll while moving (``POSition?``)."""
+    ``watch(position)`` is called at every poll while moving (``POSition?``), while
+    ``watching()`` (if given) is true."""
     deadline = None if timeout is None else time.monotonic() + timeout
     while True:
         position = None
         try:
             done = parse_bool((yield Line(prefix + "MOVE:DONE?")), "MOVE:DONE?")
-            if not done and watch is not None:
+            if not done and watch is not None and (watching is None or watching()):
                 position = yield from p_number(prefix + "POSition?")
         except ScpiError as e:
             if command is not None:

@@ -30,6 +30,9 @@ __all__ = ["Status", "MoveStatus", "AxisMovable", "StatusTimeout"]
 
 log = logging.getLogger(__name__)
 
+# The movable's in-position check where the daemon does not answer MOVE:RESult?, m.
+DEFAULT_TOLERANCE = 1e-7
+
 
 class StatusTimeout(IdmTimeout):
     """``Status.wait(timeout)`` / ``exception(timeout)``: not done within the timeout (the
@@ -183,11 +186,12 @@ class AxisMovable:
     ``wait_timeout``); a move that exceeds it is stopped and its status fails with
     :class:`~idm.IdmTimeout`. ``tolerance`` (m): where the daemon does not answer
     ``MOVE:RESult?``, a move must end with the reading within this of the daemon's target
-    (``MOVE?``) to succeed (None: no such check).
+    (``MOVE?``) to succeed: default 100 nm (ten counts of the default stage's interferometer),
+    so that a move stopped by another client is not taken for a success; None: no such check.
     """
 
     def __init__(self, axis: Any, name: Optional[str] = None, *, timeout: Optional[float] = None,
-                 tolerance: Optional[float] = None, parent: Any = None):
+                 tolerance: Optional[float] = DEFAULT_TOLERANCE, parent: Any = None):
         from .client import Client
         if not isinstance(axis.client, Client):
             raise TypeError("AxisMovable needs an axis of a synchronous idm.Client")
@@ -263,7 +267,8 @@ class AxisMovable:
         try:
             ended = self.client._run(_core.p_wait_axis(
                 prefix, timeout, self.client.poll_interval, command, cancel=lambda: status.done,
-                stop_on_timeout=True, watch=status._notify if status._watchers else None))
+                stop_on_timeout=True, watch=status._notify,
+                watching=lambda: bool(status._watchers)))
             if not ended:
                 return  # finished meanwhile (stop(), a newer set())
             if status._stop_success is None:
@@ -274,10 +279,11 @@ class AxisMovable:
             status._conclude(None)
 
     # -- Stoppable --
-    def stop(self, *, success: bool = False) -> None:
-        """Stop the axis. The pending ``set()`` status ends once the axis is at rest: failed
-        with :class:`~idm.MoveStopped` (``success=False``), or successful (``success=True``, as
-        ophyd's positioners do; errors the stop caused are kept in ``status.errors``)."""
+    def stop(self, success: bool = True) -> None:
+        """Stop the axis (``bluesky.protocols.Stoppable``). A pending ``set()`` status ends
+        once the axis is at rest: marked successful with ``success=True`` (the protocol's
+        default: the plan asked for the stop; errors it caused are kept in
+        ``status.errors``), failed with :class:`~idm.MoveStopped` with ``success=False``."""
         status = self._status
         if status is not None and not status.done:
             status._stop_success = success

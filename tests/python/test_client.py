@@ -284,7 +284,11 @@ def _raw_answer(idmd, line):
     """What the daemon itself answers (no idm code): ('ok', reply) or ('error', code)."""
     raw = idmd.raw()
     try:
-        reply = raw.ask(line)
+        if line.split()[0].endswith("?"):
+            reply = raw.ask(line)
+        else:
+            raw.f.write(line + "\n")
+            reply = None
         err = raw.ask("SYST:ERR?")
     finally:
         raw.close()
@@ -349,3 +353,82 @@ def test_axis_by_name_and_other_axes_need_the_extension(idmd):
             assert e.value.code == -114
             with pytest.raises(idm.AxisNotFound):
                 c.axis("no-such-axis").position()
+
+
+@pytest.mark.parametrize("query,setter,call", [
+    ("MOVE:WINDow?", "MOVE:WINDow", lambda x, v: x.set_window(v)),
+    ("MOVE:DWELl?", "MOVE:DWELl", lambda x, v: x.set_dwell(v)),
+    ("HOLD?", "HOLD", lambda x, v: x.set_hold(v)),
+    ("HOLD:WINDow?", "HOLD:WINDow", lambda x, v: x.set_hold_window(v)),
+    ("EOT:CYCLes?", "EOT:CYCLes", lambda x, v: x.set_eot_cycles(int(float(v)))),
+    ("EOT:STEP?", "EOT:STEP", lambda x, v: x.set_eot_step(v)),
+])
+def test_extension_settings_follow_the_daemon(idmd, query, setter, call):
+    """A setting of the extension: the value written back is the daemon's own (so nothing
+    changes); where the daemon does not know the command, the client raises its error."""
+    kind, current = _raw_answer(idmd, query)
+    value = float(current) if kind == "ok" else 0.0
+    kind_set, code = _raw_answer(idmd, "%s %r" % (setter, value))
+    with idmd.client() as c:
+        if kind_set == "error":
+            with pytest.raises(idm.ScpiError) as e:
+                call(c.axis(1), value)
+            assert e.value.code == code
+        else:
+            call(c.axis(1), value)
+            assert float(c.query(query)) == pytest.approx(value)
+
+
+def test_simulated_push_follows_the_daemon(idmd):
+    kind, code = _raw_answer(idmd, "SIMulation:PUSH 0")
+    with idmd.client() as c:
+        if kind == "error":
+            with pytest.raises(idm.ScpiError) as e:
+                c.axis(1).push(0.0)
+            assert e.value.code == code
+        else:
+            p0 = c.axis(1).position()
+            c.axis(1).push(0.0)
+            assert c.axis(1).position() == pytest.approx(p0, abs=3 * COUNT)
+
+
+def test_reference_follows_the_daemon(idmd, make_idmd):
+    kind, code = _raw_answer(idmd, "REFerence?")
+    if kind == "error":
+        with idmd.client() as c:
+            with pytest.raises(idm.ScpiError) as e:
+                c.axis(1).reference()
+            assert e.value.code == code
+            assert e.value.command == "REFerence"
+            with pytest.raises(idm.ScpiError) as e:
+                c.axis(1).reference("negative")
+            assert e.value.command == "REFerence:STARt NEGative"
+    else:
+        d = make_idmd()
+        with d.client(wait_timeout=300) as c:
+            assert c.axis(1).reference() is True
+            assert c.axis(1).referenced() is True
+    with pytest.raises(ValueError):
+        idm.Client("127.0.0.1", idmd.port).axis(1).reference("sideways")
+
+
+def test_instrument_queries(client):
+    assert client.self_test() == 0
+    assert client.version() == "1999.0"
+    loop = client.loop_stats()
+    assert loop.period == pytest.approx(1e-4) and loop.wakeups > 0 and len(loop.histogram) == 32
+    client.clear()
+    assert client.query("SYST:ERR:COUN?") == "0"
+    with pytest.raises(ValueError):
+        client.query("STOP")
+    with pytest.raises(ValueError):
+        client.write("POS?")
+
+
+def test_client_stop_stops_every_axis(client):
+    x = client.axis(1)
+    x.move(0)
+    x.move(4e-3, wait=False)
+    client.stop()
+    assert x.wait(10) is True
+    assert abs(x.position() - 4e-3) > 1e-4
