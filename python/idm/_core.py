@@ -12,9 +12,9 @@ import math
 import numbers
 import os
 import time
-from typing import Any, Callable, Dict, Generator, Optional, Union
+from typing import Any, Callable, Dict, Generator, List, Optional, Tuple, Union
 
-from .errors import (IdmError, IdmTimeout, MoveError, ScpiError, SweepError)
+from .errors import (IdmError, IdmTimeout, MoveError, ScpiError, SweepError, error_from_code)
 from .status import (AxisStatus, LoopStats, MoveResult, Operation, parse_bool, parse_int,
                      parse_number)
 
@@ -123,13 +123,26 @@ def quote(text: str) -> str:
 class Session:
     """What a client learned about its daemon: which optional commands it answers (probed
     once: -113 means not implemented), whether it has the several-axes extension, the axes'
-    names."""
+    names; and the device faults (positive codes) drained on this connection, whichever call
+    drained them, so that the wait for a motion sees its fault even when another thread's
+    call on the same connection took it from the queue."""
 
     def __init__(self) -> None:
         self.caps: Dict[str, bool] = {}
         self.multi_axis: Optional[bool] = None
         self.axis_count: Optional[int] = None
         self.names: Dict[int, str] = {}
+        self.fault_seq = 0
+        self._faults: List[Tuple[int, ScpiError]] = []
+
+    def note_errors(self, error: ScpiError) -> None:
+        """Called by the clients with every error they raise (under their lock)."""
+        if any(code > 0 for code, _ in error.errors):
+            self.fault_seq += 1
+            self._faults = self._faults[-15:] + [(self.fault_seq, error)]
+
+    def faults_since(self, mark: int) -> List[ScpiError]:
+        return [e for seq, e in self._faults if seq > mark]
 
 
 # ---- generic ---------------------------------------------------------------------------------
@@ -164,10 +177,17 @@ def p_optional(sess: Session, text: str, cap: str) -> Plan:
     except ScpiError as e:
         if e.code == UNDEFINED_HEADER:
             sess.caps[cap] = False
+            yield from p_forget_probe()
             return None
         raise
     sess.caps[cap] = True
     return reply
+
+
+def p_forget_probe() -> Plan:
+    """After a probe answered -113 (already drained): ``*CLS``, so that the probe leaves no
+    trace in ``STATus?``'s ``last_error`` (or in ``*ESR?``)."""
+    yield Line("*CLS")
 
 
 # ---- axes ------------------------------------------------------------------------------------
@@ -181,6 +201,7 @@ def p_multi_axis(sess: Session) -> Plan:
             if e.code != UNDEFINED_HEADER:
                 raise
             sess.multi_axis = False
+            yield from p_forget_probe()
         else:
             sess.axis_count = parse_int(reply, "AXIS:COUNt?")
             sess.multi_axis = True
@@ -242,12 +263,15 @@ def p_prefix(sess: Session, key: AxisKey) -> Plan:
 def p_wait_axis(prefix: str, timeout: Optional[float], poll: float, command: Optional[str],
                 cancel: Optional[Callable[[], bool]] = None, stop_on_timeout: bool = True,
                 watch: Optional[Callable[[float], None]] = None,
-                watching: Optional[Callable[[], bool]] = None) -> Plan:
+                watching: Optional[Callable[[], bool]] = None,
+                faults: Optional[Tuple[Session, int]] = None) -> Plan:
     """Poll ``MOVE:DONE?`` until the axis is at rest. A fault the motion ended in is queued
     for this connection at its next line, so the error drain after the ``MOVE:DONE?`` that
     answers 1 raises it (attributed to ``command``). Returns False if ``cancel()`` became true.
     ``watch(position)`` is called at every poll while moving (``POSition?``), while
-    ``watching()`` (if given) is true."""
+    ``watching()`` (if given) is true. ``faults`` (session, mark): at rest, a device fault that
+    another call on this connection drained since ``mark`` (taken before the motion started)
+    is raised too."""
     deadline = None if timeout is None else time.monotonic() + timeout
     while True:
         position = None
@@ -260,6 +284,13 @@ def p_wait_axis(prefix: str, timeout: Optional[float], poll: float, command: Opt
                 e.with_command(command)
             raise
         if done:
+            if faults is not None:
+                sess, mark = faults
+                seen = sess.faults_since(mark)
+                if seen:
+                    first = seen[0]
+                    raise error_from_code(first.code, first.text, command or first.command,
+                                          first.errors)
             return True
         if cancel is not None and cancel():
             return False
@@ -311,10 +342,11 @@ def p_move(sess: Session, key: AxisKey, value: Any, relative: bool, wait: bool,
            timeout: Optional[float], poll: float, tolerance: Optional[float]) -> Plan:
     prefix = yield from p_prefix(sess, key)
     command = prefix + ("MOVE:RELative " if relative else "MOVE:ABSolute ") + fmt(value, "target")
+    mark = sess.fault_seq
     yield Line(command)
     if not wait:
         return None
-    yield from p_wait_axis(prefix, timeout, poll, command)
+    yield from p_wait_axis(prefix, timeout, poll, command, faults=(sess, mark))
     yield from p_check_result(sess, prefix, command, tolerance)
     position = yield from p_number(prefix + "POSition?")
     return position
@@ -322,6 +354,8 @@ def p_move(sess: Session, key: AxisKey, value: Any, relative: bool, wait: bool,
 
 def p_step(sess: Session, key: AxisKey, cycles: Any, duty: Any, freq_hz: Any, stroke_m: Any,
            wait: bool, timeout: Optional[float], poll: float) -> Plan:
+    if isinstance(cycles, float) and cycles.is_integer():
+        cycles = int(cycles)
     args = [fmt(cycles, "cycles")]
     if duty is not None or freq_hz is not None or stroke_m is not None:
         if duty is None or freq_hz is None:
@@ -331,10 +365,11 @@ def p_step(sess: Session, key: AxisKey, cycles: Any, duty: Any, freq_hz: Any, st
             args.append(fmt(stroke_m, "stroke_m"))
     prefix = yield from p_prefix(sess, key)
     command = prefix + "STEP " + ",".join(args)
+    mark = sess.fault_seq
     yield Line(command)
     if not wait:
         return None
-    yield from p_wait_axis(prefix, timeout, poll, command)
+    yield from p_wait_axis(prefix, timeout, poll, command, faults=(sess, mark))
     position = yield from p_number(prefix + "POSition?")
     return position
 
@@ -351,10 +386,11 @@ def p_reference(sess: Session, key: AxisKey, mode: Optional[str], wait: bool,
         if word not in modes:
             raise ValueError("reference mode %r: NEGATIVE, POSITIVE or MARK" % (mode,))
         command = prefix + "REFerence:STARt " + modes[word]
+    mark = sess.fault_seq
     yield Line(command)
     if not wait:
         return None
-    yield from p_wait_axis(prefix, timeout, poll, command)
+    yield from p_wait_axis(prefix, timeout, poll, command, faults=(sess, mark))
     referenced = yield from p_bool(prefix + "REFerence?")
     if not referenced:
         raise MoveError("%s came to rest but REFerence? answers 0" % command)
@@ -413,8 +449,10 @@ class SweepInfo:
     where its dataset is (when the daemon's data directory is known here), the daemon_error
     before it started."""
 
-    def __init__(self, prefix: str, command: str, directory: str, total: Optional[int],
-                 data_dir: Optional[str], error_before: str):
+    def __init__(self, sess: Session, mark: int, prefix: str, command: str, directory: str,
+                 total: Optional[int], data_dir: Optional[str], error_before: str):
+        self.session = sess
+        self.mark = mark
         self.prefix = prefix
         self.command = command
         self.directory = directory
@@ -435,12 +473,13 @@ def p_sweep_start(sess: Session, key: AxisKey, directory: str, freqs: Any, dutie
     prefix = yield from p_prefix(sess, key)
     before = AxisStatus.parse((yield Line(prefix + "STATus?")))
     command = prefix + "SWEEP " + ",".join(args)
+    mark = sess.fault_seq
     yield Line(command)
     nf, nd = count_list(freqs), count_list(duties)
     total = None
     if nf is not None and nd is not None and isinstance(trials, numbers.Integral):
         total = nf * nd * int(trials)
-    return SweepInfo(prefix, command, directory, total, data_dir,
+    return SweepInfo(sess, mark, prefix, command, directory, total, data_dir,
                      str(before.get("daemon_error", "none")))
 
 
@@ -468,7 +507,8 @@ def p_sweep_wait(info: SweepInfo, timeout: Optional[float], poll: float) -> Plan
     """Until the sweep has ended; then it must have ended well: no new ``daemon_error`` (the
     daemon's report of failed trials), not stopped by :meth:`Sweep.stop`, and, where the
     dataset is readable here, every trial recorded."""
-    yield from p_wait_axis(info.prefix, timeout, poll, info.command, stop_on_timeout=False)
+    yield from p_wait_axis(info.prefix, timeout, poll, info.command, stop_on_timeout=False,
+                           faults=(info.session, info.mark))
     st = AxisStatus.parse((yield Line(info.prefix + "STATus?")))
     info.finished = True
     err = str(st.get("daemon_error", "none"))

@@ -157,8 +157,10 @@ class AsyncClient(_Api):
             except asyncio.CancelledError:
                 self._fail("cancelled while waiting for the reply to %r" % line.text)
                 raise
-        if errors:
-            raise error_from_code(errors[0][0], errors[0][1], line.text, errors)
+            if errors:  # noted under the lock: a waiting task must see a fault
+                error = error_from_code(errors[0][0], errors[0][1], line.text, errors)
+                self._session.note_errors(error)
+                raise error
         if line.query and reply == "":
             raise ProtocolError("%r got an empty reply with no error queued" % line.text)
         return reply

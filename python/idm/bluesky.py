@@ -24,7 +24,7 @@ from typing import Any, Callable, Dict, List, Optional
 
 from . import _core
 from ._core import Line
-from .errors import IdmError, IdmTimeout, MoveError, MoveStopped, ScpiError
+from .errors import IdmTimeout, MoveError, MoveStopped, ScpiError
 
 __all__ = ["Status", "MoveStatus", "AxisMovable", "StatusTimeout"]
 
@@ -237,38 +237,43 @@ class AxisMovable:
         sess = self.client._session
         key = self.axis.key
         with self._set_lock:
-            try:
-                start = self.axis.position()
-            except IdmError:
-                start = None
-            status = MoveStatus(self, float(value), start, timeout)
-
             def begin():
                 prefix = yield from _core.p_prefix(sess, key)
                 command = prefix + "MOVE:ABSolute " + _core.fmt(value, "target")
+                try:
+                    start = _core.parse_number((yield Line(prefix + "POSition?")), "POSition?")
+                except ScpiError as e:
+                    if e.code not in (-230, -240):  # no valid position: the move judges
+                        raise
+                    start = None
+                status.start = start
+                mark = sess.fault_seq
                 yield Line(command)
-                return prefix, command
+                return prefix, command, mark
+            _core.fmt(value, "target")  # a number (TypeError here otherwise)
+            status = MoveStatus(self, float(value), None, timeout)
             try:
-                prefix, command = self.client._run(begin())
+                prefix, command, mark = self.client._run(begin())
             except Exception as e:
                 status._finish(e)
                 return status
             previous, self._status = self._status, status
             if previous is not None and not previous.done:
                 previous._finish(MoveError("superseded by set(%.12g)" % float(value), "SUPERSEDED"))
-            thread = threading.Thread(target=self._follow, args=(status, prefix, command, timeout),
+            thread = threading.Thread(target=self._follow,
+                                      args=(status, prefix, command, timeout, mark),
                                       name="idm-%s-set" % self.name, daemon=True)
             thread.start()
         return status
 
     def _follow(self, status: MoveStatus, prefix: str, command: str,
-                timeout: Optional[float]) -> None:
+                timeout: Optional[float], mark: int) -> None:
         sess = self.client._session
         try:
             ended = self.client._run(_core.p_wait_axis(
                 prefix, timeout, self.client.poll_interval, command, cancel=lambda: status.done,
                 stop_on_timeout=True, watch=status._notify,
-                watching=lambda: bool(status._watchers)))
+                watching=lambda: bool(status._watchers), faults=(sess, mark)))
             if not ended:
                 return  # finished meanwhile (stop(), a newer set())
             if status._stop_success is None:
@@ -292,7 +297,7 @@ class AxisMovable:
             return
         try:
             prefix = self.client._run(_core.p_prefix(self.client._session, self.axis.key))
-            self.client._run(_core.p_wait_axis(prefix, self.client.wait_timeout,
+            self.client._run(_core.p_wait_axis(prefix, _core.STOP_SETTLE_S,
                                                self.client.poll_interval, "STOP",
                                                stop_on_timeout=False))
         except BaseException as e:

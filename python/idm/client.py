@@ -5,14 +5,13 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, List, Optional, Tuple
 
 from . import _core
-from ._core import AxisKey, Line, Plan, Session, Sleep, SweepInfo, SweepProgress
-from .errors import (IdmConnectionError, IdmTimeout, ProtocolError, ScpiError, error_from_code,
+from ._core import AxisKey, Line, Plan, Session, Sleep, SweepInfo
+from .errors import (IdmConnectionError, IdmTimeout, ProtocolError, error_from_code,
                      parse_error_line)
-from .status import (AxisStatus, EventStatus, LoopStats, MoveResult, Operation, StatusByte,
-                     parse_bool, parse_number)
+from .status import EventStatus, MoveResult, Operation, StatusByte, parse_bool, parse_number
 
 __all__ = ["Client", "Axis", "Sweep", "DEFAULT_PORT"]
 
@@ -513,8 +512,10 @@ class Client(_Api):
                                         % (_MAX_DRAIN, line.text))
                 self._send("SYSTem:ERRor?\n", line.text)
                 code, text = parse_error_line(self._read_line(self.timeout, line.text))
-        if errors:
-            raise error_from_code(errors[0][0], errors[0][1], line.text, errors)
+            if errors:  # noted under the lock: a waiter on another thread must see a fault
+                error = error_from_code(errors[0][0], errors[0][1], line.text, errors)
+                self._session.note_errors(error)
+                raise error
         if line.query and reply == "":
             raise ProtocolError("%r got an empty reply with no error queued" % line.text)
         return reply

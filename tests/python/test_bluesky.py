@@ -241,3 +241,31 @@ def test_async_client_is_refused(idmd):
             with pytest.raises(TypeError):
                 AxisMovable(c.axis(1))
     asyncio.run(make())
+
+
+def test_fault_drained_by_another_thread_still_fails_the_status(make_idmd):
+    """A RunEngine monitor or a GUI reading the same client while the move runs may take the
+    fault from the daemon's queue first: the status must still fail with it."""
+    d = make_idmd(stalled_config())
+    with d.client() as c:
+        m = c.axis(1).movable("x")
+        stop = threading.Event()
+        raised = []
+
+        def reader():
+            while not stop.is_set():
+                try:
+                    m.read()
+                except idm.DeviceFault as e:
+                    raised.append(e)
+                time.sleep(0.001)
+        t = threading.Thread(target=reader)
+        t.start()
+        try:
+            status = m.set(5e-6)
+            success, exc = run_plan_step(status)
+        finally:
+            stop.set()
+            t.join(30)
+        assert success is False
+        assert isinstance(exc, idm.DeviceFault) and exc.code == 102

@@ -1,7 +1,6 @@
 """idm.Client (synchronous) against a real idmd on the simulated stage."""
 import os
 import threading
-import time
 
 import pytest
 
@@ -168,6 +167,8 @@ def test_status_is_parsed_and_typed(client):
     assert st["state"] == st.state
     assert set(["state", "done", "position", "target", "fault", "lower", "upper"]) <= set(st)
     assert st.daemon_error == "none"
+    # The client's probes of optional commands (-113 on a daemon without them) leave no trace.
+    assert st.errors == 0 and st.last_error == 0
     with pytest.raises(AttributeError):
         st.no_such_key
 
@@ -432,3 +433,26 @@ def test_client_stop_stops_every_axis(client):
     client.stop()
     assert x.wait(10) is True
     assert abs(x.position() - 4e-3) > 1e-4
+
+
+def test_fault_drained_by_another_thread_still_fails_the_move(make_idmd):
+    d = make_idmd(stalled_config())
+    with d.client() as c:
+        x = c.axis(1)
+        stop = threading.Event()
+
+        def reader():
+            while not stop.is_set():
+                try:
+                    x.status()
+                except idm.DeviceFault:
+                    pass
+        t = threading.Thread(target=reader)
+        t.start()
+        try:
+            with pytest.raises(idm.DeviceFault) as e:
+                x.move_by(5e-6)
+        finally:
+            stop.set()
+            t.join(30)
+        assert e.value.code == 102 and e.value.command == "MOVE:RELative 5e-06"
