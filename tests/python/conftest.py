@@ -13,6 +13,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import time
 
 import pytest
 
@@ -32,7 +33,7 @@ class Idmd:
     """idmd on a copy of config/idmd.yaml: paths under `tmp`, sched_fifo and lock_memory off,
     `edits` (old, new) applied to the text. Listens on a free TCP port and a Unix socket."""
 
-    def __init__(self, tmp, edits=()):
+    def __init__(self, tmp, edits=(), wait_valid=True):
         if not os.path.exists(IDMD):
             pytest.fail("idmd is not built: %s (build the idmd target)" % IDMD)
         self.tmp = tmp
@@ -61,9 +62,27 @@ class Idmd:
             self.stop()
             pytest.fail("idmd did not start: %r\n%s" % (line, self.log()))
         self.port = int(m.group(1))
+        if wait_valid:
+            self.wait_position_valid()
+
+    def wait_position_valid(self, timeout=30):
+        """idmd listens before the simulated interferometer's first reading has arrived (on a
+        loaded machine POS? can still answer -240 then): wait for position_valid=1."""
+        raw = self.raw()
+        try:
+            deadline = time.monotonic() + timeout
+            while "position_valid=1" not in raw.ask("STAT?").split():
+                if time.monotonic() > deadline:
+                    self.stop()
+                    pytest.fail("idmd has no valid position %g s after it started\n%s"
+                                % (timeout, self.log()))
+                time.sleep(0.01)
+        finally:
+            raw.close()
 
     def log(self):
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         with open(self.log_path) as f:
             return f.read()
 
@@ -128,9 +147,9 @@ def make_idmd(tmp_dir):
     """A factory of idmd instances on edited configs, stopped after the test."""
     started = []
 
-    def make(edits=()):
+    def make(edits=(), wait_valid=True):
         sub = tempfile.mkdtemp(dir=tmp_dir)
-        d = Idmd(sub, edits)
+        d = Idmd(sub, edits, wait_valid)
         started.append(d)
         return d
     yield make

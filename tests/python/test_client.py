@@ -203,7 +203,7 @@ def test_fault_of_a_move_not_waited_for_is_raised_by_the_next_call(make_idmd):
 
 
 def test_invalid_position_is_an_error_never_a_number(make_idmd):
-    d = make_idmd(beam_lost_config())
+    d = make_idmd(beam_lost_config(), wait_valid=False)
     with d.client() as c:
         with pytest.raises(idm.ScpiError) as e:
             c.axis(1).position()
