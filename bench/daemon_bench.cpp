@@ -50,7 +50,7 @@ DaemonConfig bench_config(const std::string& path, double period_s) {
   c.realtime.period_s = period_s;
   // 32 bins of 4 us: 0..124 us, the last one holds the rest (a p99 there is reported as a bound).
   c.realtime.histogram_bin_s = 4e-6;
-  c.control.calibration_file.clear();
+  c.axes[0].control.calibration_file.clear();
   return c;
 }
 
@@ -62,7 +62,7 @@ int loop_bench(double seconds, double period_s, const std::string& config) {
   int sign = 1;
   while (now_s() < end) {
     if (d.motion_done()) {
-      d.move_relative(sign * 50e-6);
+      d.move_relative(0, sign * 50e-6);
       sign = -sign;
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
@@ -216,13 +216,13 @@ double rss_mb() {
 int rss_bench(int moves, const std::string& config) {
   Daemon d(bench_config(config, 1e-4));
   d.start();
-  while (!d.status().position_valid) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  while (!d.status(0).position_valid) std::this_thread::sleep_for(std::chrono::milliseconds(5));
   double after_warmup = 0;
   int failed = 0;
   for (int i = 0; i < moves; ++i) {
-    if (!d.move_relative(i % 2 ? -1e-6 : 1e-6).ok()) ++failed;
+    if (!d.move_relative(0, i % 2 ? -1e-6 : 1e-6).ok()) ++failed;
     while (!d.motion_done()) std::this_thread::sleep_for(std::chrono::microseconds(200));
-    if (d.status().state == "FAULT") {
+    if (d.status(0).state == "FAULT") {
       ++failed;
       d.reset();
     }

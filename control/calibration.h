@@ -27,6 +27,7 @@
 #include <string>
 
 #include "model/impulse_model.h"
+#include "model/param_table.h"
 #include "model/stage.h"
 
 namespace idm::control {
@@ -52,6 +53,7 @@ struct CalibrationConfig {
   double rung_initial_relative_sd = 0.5;
   double rung_forgetting = 0.9;
 };
+const model::ParamTable<CalibrationConfig>& calibration_params();
 void validate(const CalibrationConfig& config, const std::string& where = "control.calibration");
 
 // One (region, direction) estimate: theta = (alpha, alpha mu), its covariance P (symmetric).

@@ -7,21 +7,25 @@
 
 namespace idm::control {
 
-void validate(const PlannerConfig& c, const std::string& where) {
-  auto fail = [&](const std::string& key, double v, const std::string& range) {
-    std::ostringstream msg;
-    msg.precision(9);
-    msg << where << "." << key << ": " << v << " is out of range, allowed " << range;
-    throw model::InputError(msg.str());
-  };
-  if (!(c.resolution_m > 0 && c.resolution_m <= 1e-6))
-    fail("resolution_m", c.resolution_m, "(0, 1e-06]");
-  if (!(c.final_class_slack >= 1 && c.final_class_slack <= 10))
-    fail("final_class_slack", c.final_class_slack, "[1, 10]");
-  if (c.final_approach_steps < 2 || c.final_approach_steps > 1000)
-    fail("final_approach_steps", c.final_approach_steps, "[2, 1000]");
-  if (c.max_bursts < 1 || c.max_bursts > 1000000) fail("max_bursts", c.max_bursts, "[1, 1e6]");
+const model::ParamTable<PlannerConfig>& planner_params() {
+  using model::integer;
+  using model::real;
+  static const model::ParamTable<PlannerConfig> table({
+      real<PlannerConfig>("resolution_m", "m", {0, 1e-6, true}, "one interferometer count (from the interferometer)",
+                          [](auto& c) -> auto& { return c.resolution_m; }),
+      real<PlannerConfig>("final_class_slack", "1", {1, 10},
+                          "the last burst may use any cell within this factor of the finest step",
+                          [](auto& c) -> auto& { return c.final_class_slack; }),
+      integer<PlannerConfig>("final_approach_steps", "count", 2, 1000,
+                             "the last burst covers about this many of its steps",
+                             [](auto& c) -> auto& { return c.final_approach_steps; }),
+      integer<PlannerConfig>("max_bursts", "count", 1, 1000000, "most bursts in one plan",
+                             [](auto& c) -> auto& { return c.max_bursts; }),
+  });
+  return table;
 }
+
+void validate(const PlannerConfig& c, const std::string& where) { planner_params().validate(c, where); }
 
 bool Plan::within_final_step() const {
   return std::fabs(residual_m()) <= final_step_m * (1 + 1e-9);

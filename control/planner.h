@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include "model/param_table.h"
+
 #include "control/region_map.h"
 
 namespace idm::control {
@@ -25,6 +27,8 @@ struct PlannerConfig {
   int max_bursts = 10000;
 };
 
+// The keys of PlannerConfig (resolution_m comes from the interferometer, not a file).
+const model::ParamTable<PlannerConfig>& planner_params();
 void validate(const PlannerConfig& config, const std::string& where = "planner");
 
 struct Burst {

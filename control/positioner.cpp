@@ -12,46 +12,68 @@ namespace idm::control {
 
 namespace {
 
-[[noreturn]] void fail_range(const std::string& where, const std::string& key, double v,
-                             const std::string& range) {
-  throw model::InputError(where + "." + key + ": " + model::format_number(v) +
-                          " is out of range, allowed " + range);
-}
-
-constexpr std::size_t kStreamSlice = 4096;
-constexpr std::size_t kDriverErrorCapacity = 1024;
 
 int direction_index(int sign) { return sign > 0 ? 1 : 0; }
 
 }  // namespace
 
+const model::ParamTable<PositionerConfig>& positioner_params() {
+  using model::integer;
+  using model::real;
+  using model::with_default;
+  using P = PositionerConfig;
+  static const model::ParamTable<P> table({
+      real<P>("tolerance_m", "m", {0, 1e-3}, "|target - position| that counts as arrived; 0: one count (RDBD)",
+              [](auto& c) -> auto& { return c.tolerance_m; }),
+      integer<P>("max_retries", "count", 0, 1000, "correction rounds after the first plan (RTRY)",
+                 [](auto& c) -> auto& { return c.max_retries; }),
+      integer<P>("stall_bursts", "count", 1, 1000, "bursts in a row without progress: a stall fault",
+                 [](auto& c) -> auto& { return c.stall_bursts; }),
+      real<P>("stall_fraction", "1", {0, 1, false, true}, "a burst that moved less than this share of its prediction made no progress",
+              [](auto& c) -> auto& { return c.stall_fraction; }),
+      real<P>("settle_s", "s", {0, 10}, "after a burst, wait this long before the position is read",
+              [](auto& c) -> auto& { return c.settle_s; }),
+      real<P>("max_chunk_s", "s", {0, 10, true}, "the longest piece played at once: what a STOP waits for (must fit the capture)",
+              [](auto& c) -> auto& { return c.max_chunk_s; }),
+      integer<P>("latch_words", "count", 1, 1000, "readings averaged for a position at rest",
+                 [](auto& c) -> auto& { return c.latch_words; }),
+      with_default(real<P>("soft_lower_m", "m", {-10, 10}, "soft limit (LLM): a move or STEP ending below is refused",
+                           [](auto& c) -> auto& { return c.soft_lower_m; }),
+                   "stage.travel_m"),
+      with_default(real<P>("soft_upper_m", "m", {-10, 10}, "soft limit (HLM): a move or STEP ending above is refused",
+                           [](auto& c) -> auto& { return c.soft_upper_m; }),
+                   "stage.travel_m"),
+      real<P>("approach_uncertainty", "1", {0, 10}, "share by which an approach burst may exceed its prediction",
+              [](auto& c) -> auto& { return c.approach_uncertainty; }),
+      real<P>("stall_min_counts", "count", {0, 1e6}, "chunks predicted to move fewer counts are not judged for a stall",
+              [](auto& c) -> auto& { return c.stall_min_counts; }),
+      integer<P>("max_chunks_per_move", "count", 0, 100000000, "most chunks in one move (0: the planner's max_bursts)",
+                 [](auto& c) -> auto& { return c.max_chunks_per_move; }),
+      real<P>("final_step_counts", "count", {0.5, 1000}, "the last chunks use a rung of at most this step",
+              [](auto& c) -> auto& { return c.final_step_counts; }),
+      real<P>("min_step_counts", "count", {0, 1000, false, true}, "a rung stepping less per cycle is taken as not moving (< final_step_counts)",
+              [](auto& c) -> auto& { return c.min_step_counts; }),
+      integer<P>("dead_rung_moves", "count", 1, 1000000, "a rung judged not to move is left out for this many moves",
+                 [](auto& c) -> auto& { return c.dead_rung_moves; }),
+      real<P>("chunk_overhead_s", "s", {0, 10}, "time a chunk costs beyond its cycles (planning weight)",
+              [](auto& c) -> auto& { return c.chunk_overhead_s; }),
+  });
+  return table;
+}
+
 void validate(const PositionerConfig& c, const std::string& where) {
-  if (!(c.tolerance_m >= 0 && c.tolerance_m <= 1e-3)) fail_range(where, "tolerance_m", c.tolerance_m, "[0, 1e-3] (0: one count)");
-  if (c.max_retries < 0 || c.max_retries > 1000) fail_range(where, "max_retries", c.max_retries, "[0, 1000]");
-  if (c.stall_bursts < 1 || c.stall_bursts > 1000) fail_range(where, "stall_bursts", c.stall_bursts, "[1, 1000]");
-  if (!(c.stall_fraction >= 0 && c.stall_fraction < 1)) fail_range(where, "stall_fraction", c.stall_fraction, "[0, 1)");
-  if (!(c.settle_s >= 0 && c.settle_s <= 10)) fail_range(where, "settle_s", c.settle_s, "[0, 10]");
-  if (!(c.max_chunk_s > 0 && c.max_chunk_s <= 10)) fail_range(where, "max_chunk_s", c.max_chunk_s, "(0, 10]");
-  if (c.latch_words < 1 || c.latch_words > 1000) fail_range(where, "latch_words", c.latch_words, "[1, 1000]");
+  // Infinite soft limits are allowed in code (no limit); files always give finite ones.
+  PositionerConfig finite = c;
+  if (std::isinf(finite.soft_lower_m)) finite.soft_lower_m = -10;
+  if (std::isinf(finite.soft_upper_m)) finite.soft_upper_m = 10;
+  positioner_params().validate(finite, where);
   if (std::isnan(c.soft_lower_m) || std::isnan(c.soft_upper_m) || !(c.soft_lower_m < c.soft_upper_m))
     throw model::InputError(where + ".soft_lower_m/soft_upper_m: [" + model::format_number(c.soft_lower_m) +
                             ", " + model::format_number(c.soft_upper_m) +
                             "] is not an interval, allowed soft_lower_m < soft_upper_m");
-  if (!(c.idle_poll_s >= 0 && c.idle_poll_s <= 3600)) fail_range(where, "idle_poll_s", c.idle_poll_s, "[0, 3600]");
-  if (!(c.approach_uncertainty >= 0 && c.approach_uncertainty <= 10))
-    fail_range(where, "approach_uncertainty", c.approach_uncertainty, "[0, 10]");
-  if (!(c.stall_min_counts >= 0 && c.stall_min_counts <= 1e6))
-    fail_range(where, "stall_min_counts", c.stall_min_counts, "[0, 1e6]");
-  if (c.max_chunks_per_move < 0 || c.max_chunks_per_move > 100000000)
-    fail_range(where, "max_chunks_per_move", c.max_chunks_per_move, "[0, 1e8] (0: the planner's max_bursts)");
-  if (!(c.final_step_counts >= 0.5 && c.final_step_counts <= 1000))
-    fail_range(where, "final_step_counts", c.final_step_counts, "[0.5, 1000]");
-  if (!(c.min_step_counts >= 0 && c.min_step_counts < c.final_step_counts))
-    fail_range(where, "min_step_counts", c.min_step_counts, "[0, final_step_counts)");
-  if (c.dead_rung_moves < 1 || c.dead_rung_moves > 1000000)
-    fail_range(where, "dead_rung_moves", c.dead_rung_moves, "[1, 1e6]");
-  if (!(c.chunk_overhead_s >= 0 && c.chunk_overhead_s <= 10))
-    fail_range(where, "chunk_overhead_s", c.chunk_overhead_s, "[0, 10]");
+  if (!(c.min_step_counts < c.final_step_counts))
+    throw model::InputError(where + ".min_step_counts: " + model::format_number(c.min_step_counts) +
+                            " must be below final_step_counts (" + model::format_number(c.final_step_counts) + ")");
 }
 
 const char* motion_state_name(MotionState s) {
@@ -73,6 +95,7 @@ const char* motion_fault_name(MotionFault f) {
     case MotionFault::Driver: return "driver";
     case MotionFault::NoPlan: return "no_plan";
     case MotionFault::CaptureOverrun: return "capture_overrun";
+    case MotionFault::DeviceLost: return "device_lost";
   }
   return "?";
 }
@@ -86,66 +109,58 @@ const char* refusal_name(Refusal r) {
     case Refusal::Busy: return "busy";
     case Refusal::OutOfRange: return "out_of_range";
     case Refusal::NoPosition: return "no_position";
+    case Refusal::NotReferenced: return "not_referenced";
   }
   return "?";
 }
 
 Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
-                       const PositionerConfig& config, drivers::WaveformOutput& output,
-                       drivers::Interferometer& interferometer, Calibration* calibration)
+                       const PositionerConfig& config, const AxisDeviceInfo& device,
+                       Calibration* calibration)
     : map_(map),
       planner_(map, planner),
       config_(config),
-      output_(output),
-      interferometer_(interferometer),
-      calibration_(calibration),
-      latch_decoder_(interferometer.capabilities().word),
-      stream_decoder_(interferometer.capabilities().word) {
+      device_(device),
+      calibration_(calibration) {
   validate(config_);
-  count_m_ = latch_decoder_.count_m();
+  if (!(device_.count_m > 0))
+    throw model::InputError("control: the interferometer's count must be > 0");
+  count_m_ = device_.count_m;
   const DeviceLimits& limits = map_.config().limits;
-  const drivers::OutputCapabilities& caps = output_.capabilities();
-  buffered_ = caps.mode == drivers::OutputMode::BufferedSamples;
+  buffered_ = device_.buffered;
   if (buffered_) {
     sample_rate_hz_ = limits.output_sample_rate_hz;
     if (!(sample_rate_hz_ > 0))
       throw model::InputError(
           "control: the output takes samples but the map has no output clock "
           "(limits.output_sample_rate_hz = 0); set it to the output's sample rate");
-    if (sample_rate_hz_ > caps.max_sample_rate_hz)
-      throw model::InputError("control: limits.output_sample_rate_hz " + model::format_number(sample_rate_hz_) +
-                              " is above the output's max_sample_rate_hz " +
-                              model::format_number(caps.max_sample_rate_hz));
     // The largest chunk: whole cycles within max_chunk_s, or one cycle of the lowest frequency.
     const double longest_cycle = std::ceil(sample_rate_hz_ / limits.min_freq_hz) + 1;
     const double chunk = std::floor(config_.max_chunk_s * sample_rate_hz_) + 1;
     double n = std::max(longest_cycle, chunk) + 1;
-    n = std::min(n, static_cast<double>(caps.max_burst_samples));
-    samples_.assign(static_cast<std::size_t>(n), 0.0);
+    n = std::min(n, static_cast<double>(device_.max_burst_samples));
+    max_chunk_samples_ = static_cast<std::size_t>(n);
   }
   // A chunk's samples must fit the interferometer's capture: some devices keep a whole burst's
   // records until its end (a Modbus capture), so a longer chunk would overrun it mid-move.
   {
-    const drivers::InterferometerCapabilities& ic = interferometer_.capabilities();
     const double longest_s = std::max(config_.max_chunk_s, 1.0 / limits.min_freq_hz);
-    const double records = std::ceil(longest_s * ic.stream_rate_hz) + 1;
-    if (records > static_cast<double>(ic.stream_capacity)) {
-      const double fit_s = (static_cast<double>(ic.stream_capacity) - 1) / ic.stream_rate_hz;
+    const double records = std::ceil(longest_s * device_.stream_rate_hz) + 1;
+    if (records > static_cast<double>(device_.stream_capacity)) {
+      const double fit_s = (static_cast<double>(device_.stream_capacity) - 1) / device_.stream_rate_hz;
       throw model::InputError(
           "control.max_chunk_s / control.min_freq_hz: the longest chunk (" +
           model::format_number(longest_s) + " s: max_chunk_s, or one cycle at min_freq_hz) is " +
           model::format_number(records) + " records of the interferometer's " +
-          model::format_number(ic.stream_rate_hz) + " Hz capture, more than the " +
-          std::to_string(ic.stream_capacity) +
+          model::format_number(device_.stream_rate_hz) + " Hz capture, more than the " +
+          std::to_string(device_.stream_capacity) +
           " it holds for one burst; set max_chunk_s <= " + model::format_number(fit_s) +
           " and min_freq_hz >= " + model::format_number(1.0 / fit_s) +
           " (or a larger capture: the device's stream/capture capacity)");
     }
   }
-  stream_.resize(kStreamSlice);
   max_chunks_ = config_.max_chunks_per_move > 0 ? config_.max_chunks_per_move : planner_.config().max_bursts;
   plan_.bursts.reserve(static_cast<std::size_t>(planner_.config().max_bursts));
-  last_driver_error_.reserve(kDriverErrorCapacity);
   // The largest-step usable cell per direction (open-loop steps without a waveform), and the
   // fastest slider the map's cells can make: the velocity jump m/(M+m) times the fast phase's
   // rate. The interferometer's decoder must accept it, or real motion reads as glitches.
@@ -164,7 +179,7 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
       has_largest_cell_[d] = true;
     }
   }
-  const double max_velocity = interferometer_.capabilities().word.max_velocity_m_s;
+  const double max_velocity = device_.max_velocity_m_s;
   if (fastest_m_s > max_velocity)
     throw model::InputError(
         "interferometer.max_velocity_m_s: " + model::format_number(max_velocity) +
@@ -269,7 +284,7 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
     }
   }
   if (n > lim.max_burst_cycles * 1000000ull) return Refusal::OutOfRange;
-  if (buffered_ && c.period_samples + 1 > samples_.size()) return Refusal::OutOfRange;
+  if (buffered_ && c.period_samples + 1 > max_chunk_samples_) return Refusal::OutOfRange;
   // Soft limits: the nominal steady step times the cycles, grown by the step model's uncertainty,
   // must stay inside.
   const double step = nominal_open_loop_step_m(c.freq_hz, c.duty, c.stroke_m);
@@ -304,14 +319,12 @@ void Positioner::stop() {
 }
 
 void Positioner::reset_fault() {
-  if (phase_ != Phase::Fault) return;
+  if (phase_ != Phase::Fault || device_lost_) return;  // a device still away stays a fault
   phase_ = Phase::Idle;
   status_.state = MotionState::Idle;
   status_.fault = MotionFault::None;
   invalid_sample_status_ = 0;
-  last_driver_error_.clear();
   stop_requested_ = false;
-  poll_due_ = true;  // the next tick re-reads the position
 }
 
 Refusal Positioner::set_soft_limits(double lower_m, double upper_m) {
@@ -341,75 +354,96 @@ void Positioner::continue_from(const MotionStatus& previous) {
 // ---- faults ----
 
 void Positioner::enter_fault(MotionFault fault) {
-  // Output to zero at once; its own failure is kept for the message but changes nothing.
-  const drivers::DriverStatus s = output_.stop();
-  if (!s.ok() && last_driver_error_.empty())
-    last_driver_error_.assign(s.message, 0, std::min(s.message.size(), kDriverErrorCapacity));
+  // Output to zero at once: the request replaces anything not yet handed out.
+  request_ = model::OutputRequest{};
+  request_.kind = model::OutputRequest::Kind::Stop;
+  request_.seq = seq_;
+  request_due_ = true;
   phase_ = Phase::Fault;
   status_.state = MotionState::Fault;
   status_.fault = fault;
   stop_requested_ = false;
 }
 
-void Positioner::driver_fault(const drivers::DriverStatus& status) {
-  last_driver_error_.assign(status.message, 0, std::min(status.message.size(), kDriverErrorCapacity));
-  enter_fault(MotionFault::Driver);
+// ---- readings ----
+
+void Positioner::on_event(const model::AxisEvent& e) {
+  using Kind = model::AxisEvent::Kind;
+  switch (e.kind) {
+    case Kind::Reading:
+      on_reading(e);
+      return;
+    case Kind::SegmentStarted:
+      return;
+    case Kind::SegmentDone:
+      if (phase_ != Phase::Playing || e.seq != seq_) return;
+      phase_ = Phase::Settling;
+      status_.state = MotionState::Settling;
+      settle_until_s_ = e.t_s + config_.settle_s;
+      want_fresh(settle_until_s_);
+      return;
+    case Kind::OutputFailed:
+      if (phase_ == Phase::Playing && e.seq == seq_) enter_fault(MotionFault::Driver);
+      return;
+    case Kind::DeviceLost:
+      lost_at_rest_ = at_rest() && phase_ != Phase::Fault;
+      device_lost_ = true;
+      status_.position_valid = false;
+      if (phase_ != Phase::Fault) enter_fault(MotionFault::DeviceLost);
+      return;
+    case Kind::DeviceBack:
+      device_lost_ = false;
+      // Back at rest with its count: nothing was lost, the axis carries on. Otherwise the fault
+      // stays until a reset (a motion was cut short, or the position may have jumped).
+      if (lost_at_rest_ && e.count_kept && status_.fault == MotionFault::DeviceLost) reset_fault();
+      return;
+  }
 }
 
-// ---- reading the interferometer ----
-
-bool Positioner::latch_position(double& position_m) {
-  latch_decoder_.reset();
-  double sum = 0;
-  for (int i = 0; i < config_.latch_words; ++i) {
-    std::uint64_t word = 0;
-    const drivers::DriverStatus s = interferometer_.latch(word);
-    if (!s.ok()) {
-      driver_fault(s);
-      return false;
-    }
-    const drivers::PositionSample p = latch_decoder_.decode(word);
-    if (!p.valid()) {
-      status_.position_valid = false;
-      invalid_sample_status_ = p.status;
-      enter_fault(MotionFault::InvalidSample);
-      return false;
-    }
-    sum += p.position_m;
+void Positioner::on_reading(const model::AxisEvent& e) {
+  if (device_lost_) return;
+  if (!e.valid()) {
+    status_.position_valid = false;
+    invalid_sample_status_ = e.status;
+    // An overrun is the capture being too small for the chunk, not the beam: say so.
+    if (phase_ != Phase::Fault)
+      enter_fault(e.overrun ? MotionFault::CaptureOverrun : MotionFault::InvalidSample);
+    return;
   }
-  position_m = sum / config_.latch_words;
-  status_.position_m = position_m;
+  status_.position_m = e.position_m;
   status_.position_valid = true;
   if (!target_known_) {  // before the first motion the target is where the slider is (VAL = RBV)
-    status_.target_m = position_m;
+    status_.target_m = e.position_m;
     target_known_ = true;
   }
-  return true;
+  if ((phase_ == Phase::Pending || phase_ == Phase::Settling) && !e.in_segment &&
+      e.t_s >= fresh_.after_s && fresh_.count < config_.latch_words) {
+    fresh_.sum_m += e.position_m;
+    ++fresh_.count;
+  }
 }
 
-bool Positioner::drain_stream() {
-  for (;;) {
-    std::size_t n = 0;
-    const drivers::DriverStatus s = interferometer_.read_stream(stream_.data(), stream_.size(), n);
-    for (std::size_t i = 0; i < n; ++i) {
-      const drivers::PositionSample p = stream_decoder_.decode(stream_[i].word);
-      if (!p.valid()) {
-        status_.position_valid = false;
-        invalid_sample_status_ = p.status;
-        // An overrun is the capture being too small for the chunk, not the beam: say so.
-        enter_fault((p.status & drivers::sample_status::kSampleOverrun) != 0
-                        ? MotionFault::CaptureOverrun
-                        : MotionFault::InvalidSample);
-        return false;
-      }
-      status_.position_m = p.position_m;
-    }
-    if (!s.ok()) {
-      driver_fault(s);
-      return false;
-    }
-    if (n < stream_.size()) return true;
+void Positioner::want_fresh(double after_s) {
+  fresh_ = Fresh{};
+  fresh_.after_s = after_s;
+}
+
+bool Positioner::fresh_position(double& position_m) {
+  if (fresh_.count >= config_.latch_words) {
+    position_m = fresh_.sum_m / fresh_.count;
+    status_.position_m = position_m;
+    return true;
   }
+  if (!fresh_.requested && now_s_ >= fresh_.after_s && !request_due_) {
+    // Ask for them now rather than wait for the link's rest polling.
+    request_ = model::OutputRequest{};
+    request_.kind = model::OutputRequest::Kind::Read;
+    request_.readings = static_cast<std::uint32_t>(config_.latch_words);
+    request_.seq = seq_;
+    request_due_ = true;
+    fresh_.requested = true;
+  }
+  return false;
 }
 
 // ---- playing ----
@@ -418,57 +452,43 @@ std::uint64_t Positioner::chunk_cycle_limit(double freq_hz, std::uint32_t period
                                             std::uint64_t max_cycles) const {
   double n = std::floor(config_.max_chunk_s * freq_hz * (1 + 1e-12));
   if (buffered_ && period_samples > 0)
-    n = std::min(n, std::floor(static_cast<double>(samples_.size() - 1) / period_samples));
+    n = std::min(n, std::floor(static_cast<double>(max_chunk_samples_ - 1) / period_samples));
   if (max_cycles > 0) n = std::min(n, static_cast<double>(max_cycles));
   const DeviceLimits& lim = map_.config().limits;
   n = std::min(n, static_cast<double>(lim.max_burst_cycles));
-  if (!buffered_) n = std::min(n, static_cast<double>(output_.capabilities().max_cycles));
+  if (!buffered_) n = std::min(n, static_cast<double>(device_.max_cycles));
   return n < 1 ? 1 : static_cast<std::uint64_t>(n);
 }
 
-bool Positioner::start_chunk() {
+void Positioner::start_chunk() {
   const Chunk& c = chunk_;
-  drivers::DriverStatus s;
+  model::Segment seg;
+  seg.freq_hz = c.freq_hz;
+  seg.duty = c.duty;
+  seg.stroke_m = c.stroke_m;
+  seg.cycles = c.cycles;
   if (buffered_) {
-    const std::uint32_t P = c.period_samples, k = c.extension_samples;
-    const std::size_t n = static_cast<std::size_t>(c.cycles) * P + 1;
-    if (P < 2 || k < 1 || k >= P || n > samples_.size()) {
-      s = drivers::DriverStatus::failure(drivers::DriverError::InvalidArgument,
-                                         "control: a chunk does not fit the sample buffer");
-      driver_fault(s);
-      return false;
+    seg.sample_rate_hz = sample_rate_hz_;
+    seg.period_samples = c.period_samples;
+    seg.extension_samples = c.extension_samples;
+    if (c.period_samples < 2 || c.extension_samples < 1 ||
+        c.extension_samples >= c.period_samples || seg.sample_count() > max_chunk_samples_) {
+      enter_fault(MotionFault::Driver);  // a chunk the output cannot take: never played
+      return;
     }
-    double* xi = samples_.data();
-    const double rise = c.stroke_m / k, fall = c.stroke_m / (P - k);
-    std::size_t i = 0;
-    for (std::uint64_t cycle = 0; cycle < c.cycles; ++cycle) {
-      for (std::uint32_t j = 0; j < k; ++j) xi[i++] = rise * j;
-      for (std::uint32_t j = k; j < P; ++j) xi[i++] = fall * (P - j);
-    }
-    xi[i] = 0.0;
-    s = output_.write_burst(xi, n, sample_rate_hz_);
-  } else {
-    model::TriangleWave wave{c.freq_hz, c.duty, c.stroke_m, static_cast<int>(c.cycles)};
-    s = output_.write_burst_parameters(wave);
   }
-  if (!s.ok()) {
-    driver_fault(s);
-    return false;
-  }
-  stream_decoder_.reset();
+  request_ = model::OutputRequest{};
+  request_.kind = model::OutputRequest::Kind::Play;
+  request_.seq = ++seq_;
+  request_.segment = seg;
+  request_due_ = true;
   chunk_start_position_m_ = status_.position_m;
-  s = output_.start();
-  if (!s.ok()) {
-    driver_fault(s);
-    return false;
-  }
   ++status_.bursts;
   ++move_chunks_;
   status_.cycles += c.cycles;
   move_cycles_ += c.cycles;
   phase_ = Phase::Playing;
   status_.state = MotionState::Moving;
-  return true;
 }
 
 void Positioner::finish(double now_s) {
@@ -476,7 +496,6 @@ void Positioner::finish(double now_s) {
   status_.state = MotionState::Idle;
   status_.last_move_time_s = now_s - move_start_s_;
   stop_requested_ = false;
-  last_poll_s_ = now_s;
 }
 
 // ---- the step ladder ----
@@ -881,9 +900,7 @@ void Positioner::next_open_loop_chunk(double now_s) {
   start_chunk();
 }
 
-void Positioner::after_chunk(double now_s) {
-  double position = 0;
-  if (!latch_position(position)) return;
+void Positioner::after_chunk(double now_s, double position) {
   const double moved = position - chunk_start_position_m_;
   if (status_.closed_loop && chunk_.rung >= 0) {
     if (!judge_and_learn(moved)) return;
@@ -916,55 +933,42 @@ void Positioner::after_chunk(double now_s) {
   }
 }
 
-void Positioner::tick(double now_s) {
+bool Positioner::tick(double now_s, model::OutputRequest& request) {
+  now_s_ = now_s;
   switch (phase_) {
     case Phase::Fault:
-      return;
-    case Phase::Idle: {
-      if (poll_due_ || now_s - last_poll_s_ >= config_.idle_poll_s) {
-        poll_due_ = false;
-        last_poll_s_ = now_s;
-        double p = 0;
-        latch_position(p);
-      }
-      return;
-    }
+    case Phase::Idle:
+    case Phase::Playing:  // the link's events move it on
+      break;
     case Phase::Pending: {
       if (!move_started_) {
         move_started_ = true;
         move_start_s_ = now_s;
+        want_fresh(now_s);  // the position the move starts from: read after the command
       }
       if (stop_requested_) {
         finish(now_s);
-        return;
+        break;
       }
       double p = 0;
-      if (!latch_position(p)) return;
-      if (status_.closed_loop) plan_next_chunk(now_s);
-      else next_open_loop_chunk(now_s);
-      return;
+      if (!fresh_position(p)) break;
+      if (status_.closed_loop)
+        plan_next_chunk(now_s);
+      else
+        next_open_loop_chunk(now_s);
+      break;
     }
-    case Phase::Playing: {
-      if (!drain_stream()) return;
-      bool done = false;
-      const drivers::DriverStatus s = output_.is_done(done);
-      if (!s.ok()) {
-        driver_fault(s);
-        return;
-      }
-      if (!done) return;
-      if (!drain_stream()) return;
-      phase_ = Phase::Settling;
-      status_.state = MotionState::Settling;
-      settle_until_s_ = now_s + config_.settle_s;
-      if (config_.settle_s > 0) return;
-      [[fallthrough]];
+    case Phase::Settling: {
+      if (now_s < settle_until_s_) break;
+      double p = 0;
+      if (fresh_position(p)) after_chunk(now_s, p);
+      break;
     }
-    case Phase::Settling:
-      if (now_s < settle_until_s_) return;
-      after_chunk(now_s);
-      return;
   }
+  if (!request_due_) return false;
+  request = request_;
+  request_due_ = false;
+  return true;
 }
 
 }  // namespace idm::control

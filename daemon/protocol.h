@@ -46,6 +46,11 @@ const char* standard_error_text(int code);
 // kMaxErrorTextBytes.
 CommandError make_error(int code, std::string_view detail = {});
 
+// User text echoed in an error: 'text', printable ASCII only, at most 40 characters.
+std::string echo(std::string_view text);
+// Every byte outside printable ASCII replaced by a blank.
+std::string replace_controls(std::string_view text);
+
 // SCPI string: quoted, every " doubled.
 std::string quote(std::string_view text);
 // "<code>,\"<text>\"" as SYSTem:ERRor? replies.
@@ -108,6 +113,10 @@ class ErrorQueue {
   int last_code_ = error_code::kNoError;
 };
 
+// Where a command applies: to the whole instrument (an AXIS<n>: prefix is -113), to one axis
+// (unprefixed: axis 1), or either (STOP: every axis unprefixed, one with AXIS<n>:).
+enum class CommandScope : std::uint8_t { Instrument, Axis, Either };
+
 // The commands a Session knows, as (pattern, query); for tests and documentation.
 struct CommandInfo {
   const char* pattern;  // "MOVE:ABSolute", "SYSTem:ERRor[:NEXT]"
@@ -115,8 +124,13 @@ struct CommandInfo {
   int min_args;
   int max_args;
   const char* arguments;  // "<m>", "<n>[,<duty>,<freq_hz>[,<stroke_m>]]", "" for none
+  CommandScope scope;
 };
 const std::vector<CommandInfo>& command_table();
+
+// "AXIS<n>:REST" -> n (1-based) and REST; false when the header has no such prefix. AXIS:COUNt has
+// none (it is an instrument command). n = 0 or a number past int's range gives n = 0.
+bool split_axis_prefix(std::string_view header, int& axis, std::string_view& rest);
 
 // ---------------------------------------------------------------------------------------------
 // One client's session: line framing, the error queue, the command table. Not thread-safe; the
@@ -157,6 +171,7 @@ class Session {
     std::size_t size() const { return text.size(); }
     const std::string& operator[](std::size_t i) const { return text[i]; }
   };
+  using Handler = CommandError (Session::*)(const Args&, std::string&);
   // A numeric argument: -104 when it was sent as a quoted string, else parse_number/parse_integer.
   static CommandError number_arg(const Args& args, std::size_t i, std::string_view what,
                                  double& value);
@@ -167,11 +182,14 @@ class Session {
 
   void process(std::string& replies);
   void execute_line(std::string_view line, std::string& replies);
+  // Finds the command and the axis of a parsed line; an error when there is none.
+  CommandError resolve(const ParsedLine& parsed, const Command*& command);
   void line_too_long(std::string_view start, std::string& replies);
   void push(CommandError error);
   void notice_motion_end();
   void started_motion(const CommandError& result);
 
+  // Instrument commands.
   CommandError idn(const Args&, std::string& reply);
   CommandError rst(const Args&, std::string& reply);
   CommandError cls(const Args&, std::string& reply);
@@ -183,12 +201,18 @@ class Session {
   CommandError error_all(const Args&, std::string& reply);
   CommandError version(const Args&, std::string& reply);
   CommandError loop(const Args&, std::string& reply);
+  CommandError axis_count(const Args&, std::string& reply);
+  CommandError positions(const Args&, std::string& reply);
+  CommandError sweep_query(const Args&, std::string& reply);
+  CommandError stop(const Args&, std::string& reply);
+  // Axis commands (axis_: the line's axis).
+  CommandError axis_name(const Args&, std::string& reply);
+  CommandError resolution(const Args&, std::string& reply);
   CommandError position(const Args&, std::string& reply);
   CommandError move_absolute(const Args&, std::string& reply);
   CommandError move_target(const Args&, std::string& reply);
   CommandError move_relative(const Args&, std::string& reply);
   CommandError move_done(const Args&, std::string& reply);
-  CommandError stop(const Args&, std::string& reply);
   CommandError step(const Args&, std::string& reply);
   CommandError region(const Args&, std::string& reply);
   CommandError limit_lower(const Args&, std::string& reply);
@@ -210,7 +234,9 @@ class Session {
   bool discarding_ = false;  // inside a too-long line: drop up to the next newline
   bool end_of_input_ = false;
   Wait wait_ = Wait::None;
-  bool motion_started_ = false;  // this session started a motion whose end it has not seen
+  int axis_ = 0;                 // the axis of the line being executed (0-based)
+  bool axis_given_ = false;      // it came with an AXIS<n>: prefix
+  std::uint64_t started_axes_ = 0;  // axes (bits) whose motion this session started, not yet seen end
   bool stop_only_ = false;
 };
 

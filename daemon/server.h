@@ -18,9 +18,15 @@
 #include <thread>
 
 #include "daemon/instrument.h"
-#include "daemon/thread.h"
+#include "drivers/thread.h"
 
 namespace idm::daemon {
+
+using drivers::kLoopStackBytes;
+using drivers::kRecorderStackBytes;
+using drivers::kServerStackBytes;
+using drivers::kSmallStackBytes;
+using drivers::StackThread;
 
 struct ServerConfig {
   // TCP listener; an empty host: none. Port 0 picks a free port (tcp_port() says which).

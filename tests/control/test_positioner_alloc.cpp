@@ -37,24 +37,19 @@ TEST(PositionerAlloc, LoopDoesNotAllocate) {
   Calibration calibration(map.config().stage);
   test_rig::Rig rig(map, test_rig::ideal_device(), {}, &calibration);
   Positioner& p = *rig.positioner;
-  auto now = [&] { return rig.sim->now_s(); };
-  auto advance = [&](double dt) { rig.sim->advance_s(dt); };
   ASSERT_EQ(p.set_soft_limits(-0.1, 0.1), Refusal::None);
   g_allocations = 0;
   g_counting = true;
   Refusal r1 = p.move_relative(1.2e-3);
-  MotionState s1 = run_until_rest(p, now, advance, 60);
+  MotionState s1 = rig.run();
   Refusal r2 = p.move_relative(-3.3e-7);
-  MotionState s2 = run_until_rest(p, now, advance, 60);
+  MotionState s2 = rig.run();
   Refusal r3 = p.move_relative(-5e-4);
-  for (int i = 0; i < 200 && p.status().bursts < 20; ++i) {
-    advance(1e-4);
-    p.tick(now());
-  }
+  rig.run_until([&] { return p.status().bursts >= 20; }, 0.02);
   p.stop();
-  MotionState s3 = run_until_rest(p, now, advance, 60);
+  MotionState s3 = rig.run();
   Refusal r4 = p.step_open_loop(-30);
-  MotionState s4 = run_until_rest(p, now, advance, 60);
+  MotionState s4 = rig.run();
   Refusal r5 = p.move_absolute(0.2);  // refused: outside the soft limits
   g_counting = false;
   EXPECT_EQ(g_allocations.load(), 0u);

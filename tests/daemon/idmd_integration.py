@@ -200,7 +200,7 @@ def case_notify_sigterm():
         time.sleep(0.3)
         check(any("STOPPING=1" in m for _, m in got), "STOPPING=1 on the way out")
         log = d.log()
-        check("output at zero (commanded elongation 0 m)" in log, "output at zero after SIGTERM")
+        check("every output at zero (commanded elongation x 0 m)" in log, "output at zero after SIGTERM")
     finally:
         stop.set()
         th.join()

@@ -17,7 +17,7 @@
 #include "control/calibration.h"
 #include "daemon/config.h"
 #include "daemon/daemon.h"
-#include "daemon/lockfree.h"
+#include "drivers/lockfree.h"
 #include "daemon/rt_loop.h"
 #include "model/yaml_util.h"
 #include "recording/dataset.h"
@@ -108,12 +108,12 @@ TEST(DaemonConfig, ShippedConfigsParse) {
     const std::string path = std::string(IDM_SOURCE_DIR) + "/config/" + name;
     SCOPED_TRACE(path);
     const DaemonConfig c = load_daemon_config(path);
-    EXPECT_FALSE(c.driver.empty());
+    EXPECT_FALSE(c.devices[0].driver.empty());
   }
   const DaemonConfig c = load_daemon_config(std::string(IDM_SOURCE_DIR) + "/config/idmd.yaml");
-  EXPECT_EQ(c.driver, "sim");
-  EXPECT_DOUBLE_EQ(c.stage.stage.slider_mass_kg, 0.16557);  // Table 1
-  EXPECT_DOUBLE_EQ(c.stage.stage.stroke_m, 20.35e-6);
+  EXPECT_EQ(c.devices[0].driver, "sim");
+  EXPECT_DOUBLE_EQ(c.axes[0].stage.stage.slider_mass_kg, 0.16557);  // Table 1
+  EXPECT_DOUBLE_EQ(c.axes[0].stage.stage.stroke_m, 20.35e-6);
   EXPECT_EQ(c.server.tcp_port, 5025);
   EXPECT_DOUBLE_EQ(c.realtime.period_s, 1e-4);
 }
@@ -124,9 +124,9 @@ TEST(DaemonConfig, DefaultsWhenSectionsAreMissing) {
   EXPECT_EQ(c.server.tcp_address, "127.0.0.1");
   EXPECT_EQ(c.realtime.priority, 80);
   // The soft limits default to the travel.
-  EXPECT_DOUBLE_EQ(c.control.positioner.soft_lower_m, -2e-3);
-  EXPECT_DOUBLE_EQ(c.control.positioner.soft_upper_m, 3e-3);
-  EXPECT_DOUBLE_EQ(c.control.planner.resolution_m, c.stage.interferometer.resolution_m);
+  EXPECT_DOUBLE_EQ(c.axes[0].control.positioner.soft_lower_m, -2e-3);
+  EXPECT_DOUBLE_EQ(c.axes[0].control.positioner.soft_upper_m, 3e-3);
+  EXPECT_DOUBLE_EQ(c.axes[0].control.planner.resolution_m, c.axes[0].stage.interferometer.resolution_m);
 }
 
 TEST(DaemonConfig, UnknownSectionNamesKeyAndLine) {
@@ -216,7 +216,7 @@ TEST(DaemonConfig, DeviceLimitsNarrowToTheOutput) {
   idm::drivers::OutputCapabilities caps;
   caps.max_sample_rate_hz = 2e4;
   caps.max_voltage_v = 2.0;  // 2 V / 2.5e5 V/m = 8 um
-  const auto lim = device_limits(c.control, c.stage.stage, caps);
+  const auto lim = device_limits(c.axes[0].control, c.axes[0].stage.stage, caps);
   EXPECT_DOUBLE_EQ(lim.output_sample_rate_hz, 2e4);
   EXPECT_LE(lim.max_freq_hz, 2e4 / 4);
   EXPECT_DOUBLE_EQ(lim.max_stroke_m, 8e-6);
@@ -357,11 +357,11 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
   d->set_loop_thread_hook(&count_on_this_thread);
   g_loop_allocations = 0;
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  const double start = d->status().position_m;
-  ASSERT_TRUE(d->move_relative(3e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  const double start = d->status(0).position_m;
+  ASSERT_TRUE(d->move_relative(0, 3e-6).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
-  const InstrumentStatus s = d->status();
+  const InstrumentStatus s = d->status(0);
   EXPECT_EQ(s.state, "IDLE") << s.fault;
   EXPECT_EQ(s.moves, 1u);
   EXPECT_GT(s.bursts, 0u);
@@ -378,18 +378,18 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
 TEST_F(DaemonSim, RefusalsBecomeProtocolErrors) {
   auto d = make(sim_config("wall", ""));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  EXPECT_EQ(d->move_absolute(std::nan("")).code, error_code::kNumericDataError);
-  ASSERT_TRUE(d->set_soft_limits(-1e-3, 1e-3).ok());
-  const CommandError e = d->move_absolute(2e-3);
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  EXPECT_EQ(d->move_absolute(0, std::nan("")).code, error_code::kNumericDataError);
+  ASSERT_TRUE(d->set_soft_limits(0, -1e-3, 1e-3).ok());
+  const CommandError e = d->move_absolute(0, 2e-3);
   EXPECT_EQ(e.code, error_code::kDataOutOfRange) << e.text;
   EXPECT_NE(e.text.find("soft limits"), std::string::npos);
-  EXPECT_DOUBLE_EQ(d->status().soft_upper_m, 1e-3);
-  EXPECT_EQ(d->set_soft_limits(1, -1).code, error_code::kDataOutOfRange);
-  EXPECT_EQ(d->step(0, 0, 0, 0).code, error_code::kDataOutOfRange);
+  EXPECT_DOUBLE_EQ(d->status(0).soft_upper_m, 1e-3);
+  EXPECT_EQ(d->set_soft_limits(0, 1, -1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->step(0, 0, 0, 0, 0).code, error_code::kDataOutOfRange);
   std::string region;
   double step = 0;
-  ASSERT_TRUE(d->region(200, 0.1, 0, region, step).ok());
+  ASSERT_TRUE(d->region(0, 200, 0.1, std::nan(""), region, step).ok());
   EXPECT_FALSE(region.empty());
   EXPECT_EQ(d->identity().rfind("idm,idmd,", 0), 0u);
   d->shutdown();
@@ -398,10 +398,10 @@ TEST_F(DaemonSim, RefusalsBecomeProtocolErrors) {
 TEST_F(DaemonSim, StepUsesEveryArgumentOrRefusesIt) {
   auto d = make(sim_config("wall"));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
   const double nan = std::nan("");
   const auto refused = [&](std::int64_t n, double duty, double f, double s, const char* names) {
-    const CommandError e = d->step(n, duty, f, s);
+    const CommandError e = d->step(0, n, duty, f, s);
     EXPECT_EQ(e.code, error_code::kDataOutOfRange) << n << "," << duty << "," << f << "," << s << ": " << e.text;
     EXPECT_NE(e.text.find(names), std::string::npos) << e.text;
   };
@@ -411,16 +411,16 @@ TEST_F(DaemonSim, StepUsesEveryArgumentOrRefusesIt) {
   refused(10, 0.1, 200, -1e-6, "STEP stroke_m: -1e-06");
   refused(10, 0.1, 200, 0, "STEP stroke_m: 0");
   refused(1000000000, nan, nan, nan, "outside the soft limits");
-  EXPECT_EQ(d->status().cycles, 0u);  // nothing was played
+  EXPECT_EQ(d->status(0).cycles, 0u);  // nothing was played
   // Given duty and frequency are the ones played: the slider moves the way REG? predicts.
   std::string region;
   double step_m = 0;
-  ASSERT_TRUE(d->region(200, 0.1, 0, region, step_m).ok());
+  ASSERT_TRUE(d->region(0, 200, 0.1, std::nan(""), region, step_m).ok());
   ASSERT_NE(region, "CUTOFF");
-  const double start = d->status().position_m;
-  ASSERT_TRUE(d->step(10, 0.1, 200, nan).ok());
+  const double start = d->status(0).position_m;
+  ASSERT_TRUE(d->step(0, 10, 0.1, 200, nan).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 20));
-  const InstrumentStatus s = d->status();
+  const InstrumentStatus s = d->status(0);
   EXPECT_EQ(s.state, "IDLE") << s.fault;
   EXPECT_EQ(s.cycles, 10u);
   const double moved = s.position_m - start;
@@ -433,32 +433,32 @@ TEST_F(DaemonSim, TheTravelBoundsMovesLimitsAndResetKeepsLimitsSetByClients) {
   const auto file = write_config("travel", sim_config("wall"));  // *RST re-reads it
   auto d = std::make_unique<Daemon>(load_daemon_config(file.string()));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  const InstrumentStatus s0 = d->status();
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  const InstrumentStatus s0 = d->status(0);
   EXPECT_DOUBLE_EQ(s0.soft_lower_m, -5e-3);  // the travel, by default
   EXPECT_DOUBLE_EQ(s0.soft_upper_m, 5e-3);
   EXPECT_NEAR(s0.target_m, s0.position_m, 1e-12);  // before any move: the target is the position
   // A unit typo (1 km) is refused before anything moves, naming the target it would reach.
-  CommandError e = d->move_relative(1e3);
+  CommandError e = d->move_relative(0, 1e3);
   EXPECT_EQ(e.code, error_code::kDataOutOfRange);
   EXPECT_NE(e.text.find("target 1000"), std::string::npos) << e.text;
-  EXPECT_EQ(d->move_absolute(-1e3).code, error_code::kDataOutOfRange);
-  e = d->move_relative(4e-3 - s0.position_m + 2e-3);  // ends at 6 mm
+  EXPECT_EQ(d->move_absolute(0, -1e3).code, error_code::kDataOutOfRange);
+  e = d->move_relative(0, 4e-3 - s0.position_m + 2e-3);  // ends at 6 mm
   EXPECT_NE(e.text.find("target 0.006"), std::string::npos) << e.text;
-  EXPECT_EQ(d->status().bursts, 0u);
-  e = d->set_soft_limits(-1e-3, 1e3);
+  EXPECT_EQ(d->status(0).bursts, 0u);
+  e = d->set_soft_limits(0, -1e-3, 1e3);
   EXPECT_EQ(e.code, error_code::kDataOutOfRange);
   EXPECT_NE(e.text.find("upper limit 1000 m lies outside the stage's travel"), std::string::npos) << e.text;
-  e = d->set_soft_limits(1e-6, 1e-6);
+  e = d->set_soft_limits(0, 1e-6, 1e-6);
   EXPECT_EQ(e.code, error_code::kDataOutOfRange);
   EXPECT_NE(e.text.find("must be below the upper limit"), std::string::npos) << e.text;
   // Limits set by a client survive another client's *RST, and so does the target.
-  ASSERT_TRUE(d->set_soft_limits(-1e-3, 2e-3).ok());
-  ASSERT_TRUE(d->move_relative(2e-6).ok());
+  ASSERT_TRUE(d->set_soft_limits(0, -1e-3, 2e-3).ok());
+  ASSERT_TRUE(d->move_relative(0, 2e-6).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 20));
-  const double target = d->status().target_m;
+  const double target = d->status(0).target_m;
   ASSERT_TRUE(d->reset().ok());
-  const InstrumentStatus s1 = d->status();
+  const InstrumentStatus s1 = d->status(0);
   EXPECT_DOUBLE_EQ(s1.soft_lower_m, -1e-3);
   EXPECT_DOUBLE_EQ(s1.soft_upper_m, 2e-3);
   EXPECT_DOUBLE_EQ(s1.target_m, target);
@@ -483,11 +483,11 @@ TEST_F(DaemonSim, SweepsStayInsideTheDataDirectoryAndNeverOverwrite) {
                "recording:\n  data_dir: " + data.string() + "\n");
   auto d = make(text);
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
   for (const std::string& dir : {std::string("../outside/x"), outside.string() + "/x",
                                 std::string("link/x"), std::string("link"), std::string("old"),
                                 std::string("a/../../outside"), std::string("./x"), std::string("a//b")}) {
-    const CommandError e = d->sweep(dir, {500}, {0.1}, 1, 2);
+    const CommandError e = d->sweep(0, dir, {500}, {0.1}, 1, 2);
     EXPECT_EQ(e.code, error_code::kDataOutOfRange) << dir << ": " << e.text;
   }
   EXPECT_TRUE(d->motion_done());
@@ -495,10 +495,10 @@ TEST_F(DaemonSim, SweepsStayInsideTheDataDirectoryAndNeverOverwrite) {
   EXPECT_EQ(fs::file_size(outside / "precious.txt"), 8u);
   EXPECT_EQ(fs::file_size(data / "old" / "sweep.csv"), 6u);
   // A new name, with new parents, is fine; the same name again is refused.
-  ASSERT_TRUE(d->sweep("2026/run1", {500}, {0.1}, 1, 2).ok());
+  ASSERT_TRUE(d->sweep(0, "2026/run1", {500}, {0.1}, 1, 2).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 30));
   EXPECT_TRUE(fs::exists(data / "2026" / "run1" / "sweep.csv"));
-  EXPECT_EQ(d->sweep("2026/run1", {500}, {0.1}, 1, 2).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep(0, "2026/run1", {500}, {0.1}, 1, 2).code, error_code::kDataOutOfRange);
   d->shutdown();
   fs::remove_all(root);
 }
@@ -506,13 +506,13 @@ TEST_F(DaemonSim, SweepsStayInsideTheDataDirectoryAndNeverOverwrite) {
 TEST_F(DaemonSim, StopMidMoveBringsTheOutputToRest) {
   auto d = make(sim_config("wall"));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  ASSERT_TRUE(d->move_relative(-200e-6).ok());
-  ASSERT_TRUE(wait_for([&] { return d->status().bursts > 0; }, 10));
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(0, -200e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status(0).bursts > 0; }, 10));
   EXPECT_FALSE(d->motion_done());
   ASSERT_TRUE(d->stop().ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 5));
-  EXPECT_EQ(d->status().state, "IDLE");
+  EXPECT_EQ(d->status(0).state, "IDLE");
   d->shutdown();
   EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
 }
@@ -520,13 +520,13 @@ TEST_F(DaemonSim, StopMidMoveBringsTheOutputToRest) {
 TEST_F(DaemonSim, ShutdownMidMoveEndsAtRestWithZeroOutput) {
   auto d = make(sim_config("wall"));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  ASSERT_TRUE(d->move_relative(200e-6).ok());
-  ASSERT_TRUE(wait_for([&] { return d->status().bursts > 0; }, 10));
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(0, 200e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status(0).bursts > 0; }, 10));
   d->shutdown();
   EXPECT_FALSE(d->loop_running());
   EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
-  EXPECT_EQ(d->device().output->state(), idm::drivers::LifecycleState::Finalized);
+  EXPECT_EQ(d->link_of(0).device(0).output->state(), idm::drivers::LifecycleState::Finalized);
 }
 
 TEST_F(DaemonSim, SweepWritesADatasetFromTheLoopsSamples) {
@@ -536,11 +536,11 @@ TEST_F(DaemonSim, SweepWritesADatasetFromTheLoopsSamples) {
   std::filesystem::remove_all(dir);
   auto d = make(sim_config("wall"));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  const CommandError e = d->sweep(name, {500, 1000}, {0.1, 0.9}, 2, 3);
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  const CommandError e = d->sweep(0, name, {500, 1000}, {0.1, 0.9}, 2, 3);
   ASSERT_TRUE(e.ok()) << e.text;
   EXPECT_FALSE(d->motion_done());
-  EXPECT_EQ(d->sweep(name + "-b", {500}, {0.1}, 1, 1).code, error_code::kSettingsConflict);
+  EXPECT_EQ(d->sweep(0, name + "-b", {500}, {0.1}, 1, 1).code, error_code::kSettingsConflict);
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
   d->shutdown();
   EXPECT_NE(d->last_sweep_report().find("8 trials written, 0 failed"), std::string::npos)
@@ -566,10 +566,10 @@ TEST_F(DaemonSim, SweepWritesADatasetFromTheLoopsSamples) {
 TEST_F(DaemonSim, SweepArgumentsCheckedAtOnce) {
   auto d = make(sim_config("wall"));
   d->start();
-  EXPECT_EQ(d->sweep("", {100}, {0.1}, 1, 1).code, error_code::kMissingParameter);
-  EXPECT_EQ(d->sweep("x", {1e6}, {0.1}, 1, 1).code, error_code::kDataOutOfRange);
-  EXPECT_EQ(d->sweep("x", {100}, {1.5}, 1, 1).code, error_code::kDataOutOfRange);
-  EXPECT_EQ(d->sweep("x", {100}, {0.1}, 0, 1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep(0, "", {100}, {0.1}, 1, 1).code, error_code::kMissingParameter);
+  EXPECT_EQ(d->sweep(0, "x", {1e6}, {0.1}, 1, 1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep(0, "x", {100}, {1.5}, 1, 1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep(0, "x", {100}, {0.1}, 0, 1).code, error_code::kDataOutOfRange);
   d->shutdown();
 }
 
@@ -607,8 +607,8 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   std::string error;
   ASSERT_TRUE(d.reload_control(error)) << error;
-  EXPECT_DOUBLE_EQ(d.status().soft_upper_m, 5e-4);
-  EXPECT_EQ(d.move_absolute(1e-3).code, error_code::kDataOutOfRange);
+  EXPECT_DOUBLE_EQ(d.status(0).soft_upper_m, 5e-4);
+  EXPECT_EQ(d.move_absolute(0, 1e-3).code, error_code::kDataOutOfRange);
   {
     std::FILE* f = std::fopen(file.c_str(), "w");
     const std::string bad = "control:\n  max_retries: oops\n";
@@ -617,7 +617,7 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   EXPECT_FALSE(d.reload_control(error));
   EXPECT_NE(error.find("control.max_retries"), std::string::npos) << error;
-  EXPECT_DOUBLE_EQ(d.status().soft_upper_m, 5e-4);  // the old settings stay
+  EXPECT_DOUBLE_EQ(d.status(0).soft_upper_m, 5e-4);  // the old settings stay
   d.shutdown();
   std::filesystem::remove(file);
 }
@@ -635,18 +635,18 @@ TEST_F(DaemonSim, CalibrationIsSavedAfterTheMoveThatChangedIt) {
   std::filesystem::remove(cal);
   auto d = make(with_calibration_file(cal.string()));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  ASSERT_TRUE(d->move_relative(5e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(0, 5e-6).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
   // Saved by the housekeeping thread while the daemon runs, not only at shutdown.
   ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(cal); }, 10))
       << "no calibration file after a move";
-  idm::control::Calibration loaded(d->config().stage.stage, d->config().control.calibration);
+  idm::control::Calibration loaded(d->config().axes[0].stage.stage, d->config().axes[0].control.calibration);
   std::string error;
   ASSERT_TRUE(loaded.load(cal.string(), error)) << error;
   EXPECT_GT(loaded.total_updates(), 0u);
   EXPECT_TRUE(d->take_notes().empty());
-  EXPECT_EQ(d->status().last_error, "");
+  EXPECT_EQ(d->status(0).last_error, "");
   d->shutdown();
   std::filesystem::remove(cal);
 }
@@ -655,18 +655,18 @@ TEST_F(DaemonSim, AFailedCalibrationSaveIsLoggedOnceWithTheFileAndReason) {
   const std::string cal = "/nonexistent-idmd-dir/cal.txt";
   auto d = make(with_calibration_file(cal));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
   std::vector<std::string> notes;
   for (double step : {5e-6, -5e-6}) {
-    ASSERT_TRUE(d->move_relative(step).ok());
+    ASSERT_TRUE(d->move_relative(0, step).ok());
     ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
     ASSERT_TRUE(wait_for([&] {
-      for (auto& n : d->take_notes()) notes.push_back(n);
+      for (auto& n : d->take_notes()) notes.push_back(n.text);
       return !notes.empty();
     }, 10));
   }
   d->shutdown();
-  for (auto& n : d->take_notes()) notes.push_back(n);
+  for (auto& n : d->take_notes()) notes.push_back(n.text);
   ASSERT_EQ(notes.size(), 1u) << "the same failure is logged once";
   EXPECT_NE(notes[0].find(cal), std::string::npos) << notes[0];
   EXPECT_NE(notes[0].find("cannot save the calibration"), std::string::npos) << notes[0];
@@ -677,15 +677,15 @@ TEST_F(DaemonSim, StatusCarriesTheLastFailedSaveUntilReset) {
       "lasterr", with_calibration_file("/nonexistent-idmd-dir/cal.txt"));
   Daemon d(load_daemon_config(file.string()));
   d.start();
-  ASSERT_TRUE(wait_for([&] { return d.status().position_valid; }, 10));
-  EXPECT_EQ(d.status().last_error, "");
-  ASSERT_TRUE(d.move_relative(5e-6).ok());
-  ASSERT_TRUE(wait_for([&] { return !d.status().last_error.empty(); }, 60));
-  EXPECT_NE(d.status().last_error.find("/nonexistent-idmd-dir/cal.txt"), std::string::npos)
-      << d.status().last_error;
+  ASSERT_TRUE(wait_for([&] { return d.status(0).position_valid; }, 10));
+  EXPECT_EQ(d.status(0).last_error, "");
+  ASSERT_TRUE(d.move_relative(0, 5e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return !d.status(0).last_error.empty(); }, 60));
+  EXPECT_NE(d.status(0).last_error.find("/nonexistent-idmd-dir/cal.txt"), std::string::npos)
+      << d.status(0).last_error;
   const CommandError e = d.reset();
   ASSERT_TRUE(e.ok()) << e.text;
-  EXPECT_EQ(d.status().last_error, "");
+  EXPECT_EQ(d.status(0).last_error, "");
   d.shutdown();
   std::filesystem::remove(file);
 }
@@ -697,21 +697,21 @@ TEST_F(DaemonSim, ResetDuringASweepLetsTheSweepWindDownInTheBackground) {
   const auto file = write_config("rst", sim_config("wall"));
   Daemon d(load_daemon_config(file.string()));
   d.start();
-  ASSERT_TRUE(wait_for([&] { return d.status().position_valid; }, 10));
-  ASSERT_TRUE(d.sweep(name, {500, 1000}, {0.1, 0.9}, 200, 3).ok());
+  ASSERT_TRUE(wait_for([&] { return d.status(0).position_valid; }, 10));
+  ASSERT_TRUE(d.sweep(0, name, {500, 1000}, {0.1, 0.9}, 200, 3).ok());
   ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(dir / "sweep.csv"); }, 30));
   const CommandError e = d.reset();
   ASSERT_TRUE(e.ok()) << e.text;
   // *OPC? semantics: not done until the sweep has ended and the settings are reloaded.
   ASSERT_TRUE(wait_for([&] { return d.motion_done(); }, 60));
   EXPECT_NE(d.last_sweep_report().find("stopped"), std::string::npos) << d.last_sweep_report();
-  EXPECT_EQ(d.status().last_error, "");
+  EXPECT_EQ(d.status(0).last_error, "");
   EXPECT_TRUE(d.take_notes().empty());
   // The daemon moves again after the reset.
-  const CommandError m = d.move_relative(2e-6);
+  const CommandError m = d.move_relative(0, 2e-6);
   EXPECT_TRUE(m.ok()) << m.text;
   ASSERT_TRUE(wait_for([&] { return d.motion_done(); }, 60));
-  EXPECT_EQ(d.status().state, "IDLE");
+  EXPECT_EQ(d.status(0).state, "IDLE");
   d.shutdown();
   std::filesystem::remove(file);
   std::filesystem::remove_all(dir);

@@ -315,7 +315,7 @@ INSTANTIATE_TEST_SUITE_P(
         CommandCase{{"STEP -5,0.9,250", "step -5, 0.9, 250"}, "step(-5,0.9,250,9.91e+37)", ""},
         CommandCase{{"STEP 3,0.1,200,1.5e-5"}, "step(3,0.1,200,1.5e-05)", ""},
         CommandCase{{"REG? 200,0.1", "REGION? 200,0.1", "region? 200, 0.1"},
-                    "region(200,0.1,0)",
+                    "region(200,0.1,9.91e+37)",
                     "ONESTEP,-2e-07"},
         CommandCase{{"REG? 2000,0.1,2e-5"}, "region(2000,0.1,2e-05)", "CUTOFF,-2e-06"},
         CommandCase{{"LIM:LOW -5e-4", "LIMIT:LOWER -5e-4", "limit:low -0.0005"},
@@ -330,7 +330,7 @@ INSTANTIATE_TEST_SUITE_P(
             {"STAT?", "STATUS?", "status?"},
             "",
             "state=IDLE done=1 position=0 position_valid=1 target=0 fault=none lower=-0.001 "
-            "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none"},
+            "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none axis=x referenced=0 device=up"},
         CommandCase{
             {"SWEEP /tmp/s,100:300:100,0.1;0.2,3", "sweep \"/tmp/s\", 100:300:100, 0.1;0.2, 3"},
             "sweep(/tmp/s,100;200;300,0.1;0.2,3,12)",
@@ -394,11 +394,13 @@ TEST(ProtocolSession, AStopOnlySessionRefusesEverythingButStop) {
   EXPECT_EQ(h.fake.calls().back(), "stop");
 }
 
-TEST(ProtocolSession, PositionQueryFailsWhenThePositionIsNotValid) {
+TEST(ProtocolSession, AnUntrustedPositionIsNotANumberWithMinus230) {
   Harness h;
   h.fake.set_position(1e-6, false);
-  EXPECT_EQ(h.line("POS?"), "\n");  // one line, empty: the error is in the queue
-  EXPECT_EQ(h.next_error(), ec::kHardwareError);
+  // SCPI's not-a-number, never the last good value, never an empty line; -230 says why.
+  EXPECT_EQ(h.line("POS?"), "9.91E37\n");
+  EXPECT_EQ(h.next_error(), ec::kDataCorruptOrStale);
+  EXPECT_NE(h.line("STAT?").find(" position=9.91E37 position_valid=0 "), std::string::npos);
   h.fake.set_position(1.25e-6, true);
   EXPECT_EQ(h.line("POS?"), "1.25e-06\n");
 }
@@ -620,9 +622,9 @@ TEST(ProtocolSession, StatusShowsTheDaemonsLastErrorAsOneWord) {
   Harness h;
   h.fake.set_last_error("fault driver: read\ttimed out\n");
   const std::string stat = h.line("STAT?");
-  EXPECT_NE(stat.find(" daemon_error=fault_driver:_read_timed_out_\n"), std::string::npos) << stat;
+  EXPECT_NE(stat.find(" daemon_error=fault_driver:_read_timed_out_ "), std::string::npos) << stat;
   h.fake.set_last_error("");
-  EXPECT_NE(h.line("STAT?").find(" daemon_error=none\n"), std::string::npos);
+  EXPECT_NE(h.line("STAT?").find(" daemon_error=none "), std::string::npos);
 }
 
 TEST(ProtocolSession, AMotionThatEndsInAFaultLeavesItsPositiveCode) {

@@ -10,7 +10,7 @@
 #include <cstring>
 #include <type_traits>
 
-namespace idm::daemon {
+namespace idm::drivers {
 
 // Lamport ring for one producer thread and one consumer thread. Capacity is a power of two;
 // one slot is never wasted (head and tail count without wrapping).
@@ -100,4 +100,4 @@ class Seqlock {
   std::array<std::atomic<std::uint64_t>, kWords> data_{};
 };
 
-}  // namespace idm::daemon
+}  // namespace idm::drivers
