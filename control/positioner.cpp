@@ -192,7 +192,7 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
 }
 
 double Positioner::tolerance_m() const {
-  return config_.tolerance_m > 0 ? config_.tolerance_m : count_m_;
+  return config_.tolerance_m > 0 ? config_.tolerance_m : 0.5 * count_m_;
 }
 
 bool Positioner::at_rest() const {

@@ -62,7 +62,7 @@ struct PositionerConfig {
   int max_chunks_per_move = 0;
   // ---- the step ladder (control/README.md, "Positioner") ----
   // The last chunks of a move use a rung whose learned step is at most this many counts (a step
-  // under two counts always lands in the +/- one count window when played one cycle at a time).
+  // under two counts, played one cycle at a time, reaches the half-count window within a few tries).
   double final_step_counts = 2.0;
   // A rung whose learned step falls below this many counts per cycle is treated as not moving.
   double min_step_counts = 0.3;

@@ -68,7 +68,8 @@ void Housekeeping::cycle() {
   if (const std::string r = sweeps_.report(); r != seen_report_) {
     seen_report_ = r;
     const SweepStatus s = sweeps_.status();
-    if (s.failed > 0 || s.state == "STOPPED") {
+    // A stopped sweep is news (SWEEP? says STOPPED); failed trials are an error of the axis.
+    if (s.failed > 0 && s.state != "STOPPED") {
       if (s.axis >= 0 && static_cast<std::size_t>(s.axis) < axes_.size())
         set_error(static_cast<std::size_t>(s.axis), r);
       add_note(true, r);

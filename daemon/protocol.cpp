@@ -81,6 +81,8 @@ const char* standard_error_text(int code) {
       return "Missing parameter";
     case ec::kUndefinedHeader:
       return "Undefined header";
+    case ec::kHeaderSuffixOutOfRange:
+      return "Header suffix out of range";
     case ec::kNumericDataError:
       return "Numeric data error";
     case ec::kExecutionError:
@@ -89,6 +91,8 @@ const char* standard_error_text(int code) {
       return "Settings conflict";
     case ec::kDataOutOfRange:
       return "Data out of range";
+    case ec::kDataCorruptOrStale:
+      return "Data corrupt or stale";
     case ec::kHardwareError:
       return "Hardware error";
     case ec::kQueueOverflow:

@@ -45,7 +45,7 @@ struct Span {
 };
 
 std::vector<Span> spans(const RegisterMap& m, WordWidth width) {
-  return {{"command", m.command, 1},
+  std::vector<Span> out = {{"command", m.command, 1},
           {"status", m.status, 1},
           {"burst_id", m.burst_id, 1},
           {"freq_hz", m.freq_hz.address, register_count(m.freq_hz.format)},
@@ -57,6 +57,8 @@ std::vector<Span> spans(const RegisterMap& m, WordWidth width) {
           {"capture_rate_hz", m.capture_rate_hz.address, register_count(m.capture_rate_hz.format)},
           {"capture_base", m.capture_base,
            std::size_t{m.capture_capacity} * RegisterMap::position_registers(width)}};
+  if (m.boot_id >= 0) out.push_back({"boot_id", static_cast<std::size_t>(m.boot_id), 1});
+  return out;
 }
 
 void put32(std::uint32_t v, WordOrder order, std::uint16_t* regs) {
@@ -104,7 +106,7 @@ RegisterMap parse_register_map(const YAML::Node& node, const std::string& file, 
     return m;
   }
   detail::check_keys(node, file, w,
-                     {"word_order", "command", "status", "burst_id", "freq_hz", "duty",
+                     {"word_order", "command", "status", "burst_id", "boot_id", "freq_hz", "duty",
                       "stroke_m", "cycles", "position", "capture_count", "capture_rate_hz",
                       "capture_base", "capture_capacity"});
   auto address = [&](const char* key, std::uint16_t& out) {
@@ -139,6 +141,12 @@ RegisterMap parse_register_map(const YAML::Node& node, const std::string& file, 
   address("command", m.command);
   address("status", m.status);
   address("burst_id", m.burst_id);
+  if (const YAML::Node v = node["boot_id"]) {
+    if (v.IsScalar() && v.Scalar() == "none")
+      m.boot_id = -1;
+    else
+      m.boot_id = static_cast<int>(model::read_integer(v, file, w + ".boot_id", 0, 65535));
+  }
   field("freq_hz", m.freq_hz);
   field("duty", m.duty);
   field("stroke_m", m.stroke_m);

@@ -2,6 +2,8 @@
 // invalid samples), stop, soft limits, open-loop steps, and no allocation in the loop.
 #include <gtest/gtest.h>
 
+#include <cstdio>
+
 #include <cmath>
 #include <random>
 
@@ -24,7 +26,8 @@ TEST(Positioner, ConvergesOnTheIdealPlantBothDirections) {
   Positioner& p = *rig.positioner;
   ASSERT_TRUE(p.status().position_valid);
   const double count = p.count_m();
-  EXPECT_NEAR(p.tolerance_m(), count, 1e-18);
+  // Arrived: the reading nearest the target (half a count), so the slider is within one count.
+  EXPECT_NEAR(p.tolerance_m(), 0.5 * count, 1e-18);
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> log_distance(std::log(20e-9), std::log(1e-3));
   for (int i = 0; i < 12; ++i) {
@@ -35,10 +38,11 @@ TEST(Positioner, ConvergesOnTheIdealPlantBothDirections) {
     ASSERT_EQ(rig.run(), MotionState::Idle) << "move " << i << " fault "
                                             << motion_fault_name(p.status().fault) << " "
                                             << drivers::describe_sample_status(p.invalid_sample_status());
-    EXPECT_LE(std::fabs(p.status().position_m - target), count) << "move " << i;
+    EXPECT_LE(std::fabs(p.status().position_m - target), 0.5 * count) << "move " << i;
     // The reading is the true position quantized to one count (no noise here).
-    EXPECT_LE(std::fabs(rig.sim->true_position_m() - target), 1.5 * count) << "move " << i;
-    EXPECT_LE(p.status().corrections, 3u) << "move " << i << " of " << distance;
+    EXPECT_LE(std::fabs(rig.sim->true_position_m() - target), count) << "move " << i;
+    std::printf("move %d of %.3g m: %u corrections\n", i, distance, p.status().corrections);
+    EXPECT_LE(p.status().corrections, 6u) << "move " << i << " of " << distance;
     EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
   }
   EXPECT_EQ(p.status().moves, 12u);

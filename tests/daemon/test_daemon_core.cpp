@@ -706,7 +706,8 @@ TEST_F(DaemonSim, ResetDuringASweepLetsTheSweepWindDownInTheBackground) {
   ASSERT_TRUE(wait_for([&] { return d.motion_done(); }, 60));
   EXPECT_NE(d.last_sweep_report().find("stopped"), std::string::npos) << d.last_sweep_report();
   EXPECT_EQ(d.status(0).last_error, "");
-  EXPECT_TRUE(d.take_notes().empty());
+  EXPECT_EQ(d.sweep_status().state, "STOPPED");
+  for (const auto& note : d.take_notes()) EXPECT_FALSE(note.warning) << note.text;
   // The daemon moves again after the reset.
   const CommandError m = d.move_relative(0, 2e-6);
   EXPECT_TRUE(m.ok()) << m.text;
