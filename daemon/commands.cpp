@@ -258,6 +258,57 @@ LoopStats Daemon::loop_stats() { return loop_->stats(); }
 
 SweepStatus Daemon::sweep_status() { return sweeps_->status(); }
 
+// ---- the simulated stage ----
+
+namespace {
+
+CommandError inject(Axis& a, drivers::SimAction action) {
+  action.channel = static_cast<std::uint32_t>(a.channel());
+  if (!a.link().simulated(a.channel()))
+    return {error_code::kHardwareMissing, "axis " + a.config().name + " is on a " +
+                                              a.config().document["daq"]["driver"].as<std::string>() +
+                                              " device, not a simulated one"};
+  if (!a.link().inject(action))
+    return {error_code::kExecutionError, "the simulated device's queue is full: try again"};
+  return {};
+}
+
+}  // namespace
+
+CommandError Daemon::sim_push(int axis, double distance_m) {
+  if (!std::isfinite(distance_m) || std::fabs(distance_m) > 0.1)
+    return {error_code::kDataOutOfRange, "SIMulation:PUSH: " + num(distance_m) + " is out of range, allowed [-0.1, 0.1] m"};
+  drivers::SimAction a;
+  a.kind = drivers::SimAction::Kind::Push;
+  a.value = distance_m;
+  return inject(*axes_.at(static_cast<std::size_t>(axis)), a);
+}
+
+CommandError Daemon::sim_fault(int axis, const std::string& fault, double value) {
+  using K = drivers::SimAction::Kind;
+  static const struct {
+    const char* name;
+    K kind;
+  } kFaults[] = {{"beam_lost", K::BeamLost}, {"stalled", K::Stalled}, {"glitches", K::Glitches},
+                 {"disconnect", K::Disconnect}, {"power_cycle", K::PowerCycle}, {"timeouts", K::Timeouts}};
+  drivers::SimAction a;
+  bool known = false;
+  for (const auto& f : kFaults)
+    if (fault == f.name) {
+      a.kind = f.kind;
+      known = true;
+    }
+  if (!known)
+    return {error_code::kDataOutOfRange, "SIMulation:FAULt: unknown fault '" + fault +
+                                             "', allowed beam_lost, stalled, glitches, disconnect, power_cycle, timeouts"};
+  if (!std::isfinite(value) || value < 0 || value > 1)
+    return {error_code::kDataOutOfRange, "SIMulation:FAULt " + fault + ": " + num(value) + " is out of range, allowed [0, 1]"};
+  if (a.kind == K::Disconnect && value == 0) a.kind = K::Reconnect;
+  if (a.kind == K::PowerCycle && value == 0) a.kind = K::Reconnect;  // switched back on
+  a.value = value;
+  return inject(*axes_.at(static_cast<std::size_t>(axis)), a);
+}
+
 // ---- SWEEP ----
 
 CommandError Daemon::check_sweep(int axis, const std::vector<double>& freqs_hz,

@@ -35,6 +35,7 @@ inline constexpr int kSettingsConflict = -221;     // e.g. a move while in FAULT
 inline constexpr int kDataOutOfRange = -222;       // e.g. a target past the soft limits
 inline constexpr int kDataCorruptOrStale = -230;  // a position that cannot be trusted
 inline constexpr int kHardwareError = -240;
+inline constexpr int kHardwareMissing = -241;  // e.g. a simulation command on a real backend
 inline constexpr int kQueueOverflow = -350;
 inline constexpr int kInputBufferOverrun = -363;   // a line longer than the limit
 // Device faults (positive): see kDeviceFaults.
@@ -163,6 +164,12 @@ class Instrument {
   virtual CommandError sweep(int axis, const std::string& dir, const std::vector<double>& freqs_hz,
                              const std::vector<double>& duties, int trials, int cycles) = 0;
   virtual SweepStatus sweep_status() = 0;
+
+  // Simulated axes only (-241 on a real backend): SIMulation:PUSH displaces the slider by
+  // distance_m at once; SIMulation:FAULt sets an injected fault: beam_lost, stalled, glitches
+  // (value: probability per word), disconnect (1: pulled, 0: back), power_cycle, timeouts.
+  virtual CommandError sim_push(int axis, double distance_m) = 0;
+  virtual CommandError sim_fault(int axis, const std::string& fault, double value) = 0;
 
   virtual LoopStats loop_stats() = 0;
 };

@@ -95,6 +95,8 @@ const char* standard_error_text(int code) {
       return "Data corrupt or stale";
     case ec::kHardwareError:
       return "Hardware error";
+    case ec::kHardwareMissing:
+      return "Hardware missing";
     case ec::kQueueOverflow:
       return "Queue overflow";
     case ec::kInputBufferOverrun:

@@ -223,6 +223,8 @@ class Session {
   CommandError limits_query(const Args&, std::string& reply);
   CommandError status(const Args&, std::string& reply);
   CommandError sweep(const Args&, std::string& reply);
+  CommandError sim_push(const Args&, std::string& reply);
+  CommandError sim_fault(const Args&, std::string& reply);
 
   static const std::vector<Command>& commands();
   friend const std::vector<CommandInfo>& command_table();

@@ -94,6 +94,8 @@ const std::vector<Session::Command>& Session::commands() {
       {{"LIMit", true, 0, 0, "", S::Axis}, &Session::limits_query},
       {{"STATus", true, 0, 0, "", S::Axis}, &Session::status},
       {{"SWEEP", false, 4, 5, "<dir>,<freqs>,<duties>,<trials>[,<cycles>]", S::Axis}, &Session::sweep},
+      {{"SIMulation:PUSH", false, 1, 1, "<m>", S::Axis}, &Session::sim_push},
+      {{"SIMulation:FAULt", false, 2, 2, "<name>,<value>", S::Axis}, &Session::sim_fault},
   };
   return kCommands;
 }
@@ -555,6 +557,20 @@ CommandError Session::sweep(const Args& args, std::string&) {
                                                       static_cast<int>(cycles)));
   started_motion(e);
   return e;
+}
+
+CommandError Session::sim_push(const Args& args, std::string&) {
+  double distance = 0;
+  if (CommandError e = number_arg(args, 0, "SIMulation:PUSH distance", distance); !e.ok()) return e;
+  return instrument_error(instrument_.sim_push(axis_, distance));
+}
+
+CommandError Session::sim_fault(const Args& args, std::string&) {
+  double value = 0;
+  if (CommandError e = number_arg(args, 1, "SIMulation:FAULt value", value); !e.ok()) return e;
+  std::string name = args[0];
+  for (char& c : name) c = static_cast<char>(c >= 'A' && c <= 'Z' ? c - 'A' + 'a' : c);
+  return instrument_error(instrument_.sim_fault(axis_, name, value));
 }
 
 }  // namespace idm::daemon

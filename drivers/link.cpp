@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "drivers/clock.h"
+#include "drivers/sim/sim_backend.h"
 #include "drivers/thread.h"
 #include "model/stage.h"
 #include "model/yaml_util.h"
@@ -171,8 +172,36 @@ void DeviceLink::stop_thread() {
 
 // ---- the I/O cycle ----
 
+bool DeviceLink::simulated(std::size_t ch) const {
+  return ch < channels_.size() && channels_[ch].device.sim != nullptr;
+}
+
+bool DeviceLink::inject(const SimAction& a) {
+  if (!simulated(a.channel)) return false;
+  return sim_actions_.push(a);
+}
+
+void DeviceLink::apply_sim_actions() {
+  SimAction a;
+  while (sim_actions_.pop(a)) {
+    sim::SimBackend& sim = *channels_[a.channel].device.sim;
+    using K = SimAction::Kind;
+    switch (a.kind) {
+      case K::Push: sim.push(a.value); break;
+      case K::BeamLost: sim.set_beam_lost(a.value != 0); break;
+      case K::Stalled: sim.set_slider_stalled(a.value != 0); break;
+      case K::Glitches: sim.set_glitch_probability(std::clamp(a.value, 0.0, 1.0), true); break;
+      case K::Disconnect: sim.disconnect(); break;
+      case K::Reconnect: sim.reconnect(); break;
+      case K::PowerCycle: sim.power_cycle(); break;
+      case K::Timeouts: sim.set_timeouts(a.value != 0); break;
+    }
+  }
+}
+
 void DeviceLink::service(double now_s) {
   if (!opened_) return;
+  apply_sim_actions();
   if (state_.state == LinkState::Lost) {
     // Requests that arrive while the device is away fail at once (nothing is queued up to play
     // later, when nobody expects it).
@@ -390,12 +419,12 @@ void DeviceLink::lose(double now_s) {
   backoff_s_ = config_.reconnect_min_s;
   next_retry_s_ = now_s + backoff_s_;
   for (Channel& c : channels_) {
-    c.device.output->stop();  // output to zero where the device still answers
-    if (c.playing) end_segment(c, now_s, Kind::OutputFailed, false);
-    model::AxisEvent e;
+    model::AxisEvent e;  // first: the segment's end below is a consequence, not the cause
     e.kind = Kind::DeviceLost;
     e.t_s = now_s;
     push_event(c, e, false);
+    c.device.output->stop();  // output to zero where the device still answers
+    if (c.playing) end_segment(c, now_s, Kind::OutputFailed, false);
   }
   publish();
 }

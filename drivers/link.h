@@ -66,6 +66,25 @@ struct CaptureRecord {
   bool complete = false;    // end: it played in full and every sample was delivered
 };
 
+// A fault or a push for a simulated channel (the protocol's SIMulation: commands, for tests and
+// hardware-in-the-loop work), applied by the link's own thread: the simulated device is driven
+// from one thread only.
+struct SimAction {
+  enum class Kind : std::uint8_t {
+    Push,        // value: metres the slider is displaced by at once
+    BeamLost,    // value != 0: on
+    Stalled,     // value != 0: the slider is held
+    Glitches,    // value: probability per word (flagged glitches)
+    Disconnect,  // a pulled cable: every call fails until Reconnect; the device keeps its count
+    Reconnect,
+    PowerCycle,  // disconnected, and back with a new count epoch (position from the start)
+    Timeouts,    // value != 0: every read times out
+  };
+  Kind kind = Kind::Push;
+  std::uint32_t channel = 0;
+  double value = 0;
+};
+
 // One channel's queues: each has one producer and one consumer thread.
 struct ChannelPort {
   SpscRing<model::OutputRequest, 16> requests;  // controller -> link
@@ -103,11 +122,16 @@ class DeviceLink {
   const OutputCapabilities& output_capabilities(std::size_t channel) const;
   const InterferometerCapabilities& interferometer_capabilities(std::size_t channel) const;
   LinkHealth health() const { return health_.load(); }
+  // Queues a simulated fault or push (any one thread); false when the channel is not simulated or
+  // the queue is full. The link's thread applies it at its next cycle.
+  bool inject(const SimAction& action);
+  bool simulated(std::size_t channel) const;
   bool thread_running() const { return thread_.joinable(); }
 
  private:
   struct Channel;
   void service_channel(Channel& c, double now_s);
+  void apply_sim_actions();
   void start_segment(Channel& c, const model::OutputRequest& r, double now_s);
   void drain_stream(Channel& c, double now_s, bool final);
   void end_segment(Channel& c, double now_s, model::AxisEvent::Kind kind, bool complete);
@@ -123,6 +147,7 @@ class DeviceLink {
   std::string name_;
   LinkConfig config_;
   std::vector<Channel> channels_;
+  SpscRing<SimAction, 16> sim_actions_;
   LinkHealth state_;  // the I/O side's copy
   Seqlock<LinkHealth> health_;
   double next_retry_s_ = 0;

@@ -191,6 +191,16 @@ class FakeInstrument : public Instrument {
                                    "," + std::to_string(cycles) + ")",
                          at(axis).position_m);
   }
+  CommandError sim_push(int axis, double distance_m) override {
+    std::lock_guard l(m_);
+    calls_.push_back(prefix(axis) + "sim_push(" + format_value(distance_m) + ")");
+    return {};
+  }
+  CommandError sim_fault(int axis, const std::string& fault, double value) override {
+    std::lock_guard l(m_);
+    calls_.push_back(prefix(axis) + "sim_fault(" + fault + "," + format_value(value) + ")");
+    return {};
+  }
   SweepStatus sweep_status() override {
     SweepStatus s;
     s.state = "DONE";
