@@ -209,7 +209,7 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
   pc.soft_upper_m = kSoftLimitM;
   daemon::SimAxis rig(map, realistic_device(seed), pc, &cal);
   Positioner& p = *rig.positioner;
-  final_step_bound_m = std::max(p.planner().final_step_bound_m(1), p.planner().final_step_bound_m(-1));
+  final_step_bound_m = std::max(p.finest_live_step_m(1), p.finest_live_step_m(-1));
   const auto w0 = std::chrono::steady_clock::now();
   for (double target : targets) {
     if (p.status().state == MotionState::Fault) {

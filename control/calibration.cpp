@@ -261,23 +261,6 @@ bool Calibration::rls_update(RungEstimate& e, std::uint64_t cycles, double measu
   return true;
 }
 
-bool Calibration::predict(const RegionCell& cell, double& single_along_m,
-                          double& step_along_m) const {
-  if (!config_.enabled) return false;
-  const CalibrationEstimate& e = estimate(cell.region, cell.direction());
-  if (e.updates == 0) return false;
-  const Regressors r = regressors(nominal_, cell, 1);
-  const double step = e.alpha * r.step_a - e.alpha_mu * r.step_m;
-  const double single = e.alpha * r.phi_a - e.alpha_mu * r.phi_m;
-  const double nominal_step = cell.direction() * cell.step_m;
-  if (!(nominal_step > 0) || !(step > 0)) return false;
-  const double ratio = step / nominal_step;
-  if (!(ratio >= 1.0 / config_.max_ratio && ratio <= config_.max_ratio)) return false;
-  single_along_m = single;
-  step_along_m = step;
-  return true;
-}
-
 bool Calibration::update(const RegionCell& cell, std::uint64_t cycles, double measured_m,
                          double count_m) {
   if (!config_.enabled || cycles == 0 || !std::isfinite(measured_m)) return false;

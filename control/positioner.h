@@ -178,7 +178,6 @@ class Positioner {
   double tolerance_m() const;
 
   // ---- for tests, tools and benchmarks ----
-  const Planner& planner() const { return planner_; }
   const RegionMap& map() const { return map_; }
   // The plan made for the last chunk (its first burst is what was played, cut to a chunk).
   const Plan& last_plan() const { return plan_; }
@@ -269,6 +268,13 @@ class Positioner {
   void start_chunk();                       // the request for chunk_
   void after_chunk(double now_s, double position_m);
   void plan_next_chunk(double now_s);
+  int final_rung(std::vector<Rung>& ladder);
+  int approach_rung(const std::vector<Rung>& ladder, double distance, double keep,
+                    std::uint64_t& cycles) const;
+  int final_try(const std::vector<Rung>& ladder, int fin, double distance, std::uint64_t& cycles,
+                bool& capped) const;
+  void play_rung(const std::vector<Rung>& ladder, int chosen, int sign, std::uint64_t cycles,
+                 bool final_chunk, bool capped, double b_final, double error);
   void next_open_loop_chunk(double now_s);
   void finish(double now_s);
   std::uint64_t chunk_cycle_limit(double freq_hz, std::uint32_t period_samples,
@@ -276,7 +282,7 @@ class Positioner {
   double nominal_open_loop_step_m(double freq_hz, double duty, double stroke_m) const;
 
   const RegionMap& map_;
-  Planner planner_;
+  PlannerConfig planner_;
   PositionerConfig config_;
   AxisDeviceInfo device_;
   Calibration* calibration_;

@@ -13,8 +13,6 @@ namespace idm::daemon {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-// Trial segments are numbered apart from the positioner's chunks.
-constexpr std::uint32_t kTrialSeqBit = 0x80000000u;
 
 bool grid_changed(const ControlConfig& a, const ControlConfig& b) {
   return a.freq_step_hz != b.freq_step_hz || a.duty_step != b.duty_step ||
@@ -180,15 +178,17 @@ void Axis::observe(const model::AxisEvent& e, TrialNotices& notices) {
 }
 
 bool Axis::start_trial(const TrialRequest& t, TrialNotices& notices) {
-  trial_ = t;
   if (trial_phase_ != TrialPhase::Idle || !positioner_->at_rest()) {
-    TrialNotice n;
+    TrialNotice n;  // the trial in progress stays as it is
     n.kind = TrialNotice::Kind::Failed;
     n.index = t.index;
+    n.seq = t.seq;
     n.why = TrialFailure::Busy;
     notices.push(n);
     return false;
   }
+  trial_ = t;
+  trial_seq_ = t.seq;
   if (std::isfinite(t.return_to_m)) {
     if (positioner_->move_absolute(t.return_to_m) != control::Refusal::None) {
       trial_phase_ = TrialPhase::Positioning;
@@ -215,10 +215,9 @@ void Axis::trial_tick(TrialNotices& notices) {
     model::OutputRequest r;
     r.kind = model::OutputRequest::Kind::Play;
     r.record = true;
-    r.seq = kTrialSeqBit | (trial_.index & ~kTrialSeqBit);
+    r.seq = trial_.seq;
     r.segment = trial_.segment;
     if (pending_.due || !port_.requests.push(r)) return;  // next tick
-    trial_seq_ = r.seq;
     trial_phase_ = TrialPhase::Playing;
     TrialNotice n;
     n.kind = TrialNotice::Kind::Started;

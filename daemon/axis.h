@@ -53,6 +53,8 @@ void set_note(ErrorNote& note, double t_s, const char* a, const char* b = "", co
 // A sweep trial: recorder -> loop.
 struct TrialRequest {
   std::uint32_t index = 0;
+  std::uint32_t seq = 0;   // unique across sweeps (the recorder's running number, top bit set):
+                           // the notices and the capture records of this trial carry it
   std::int32_t axis = 0;
   model::Segment segment;
   double return_to_m = 0;  // NaN: play where the slider is
@@ -92,6 +94,8 @@ class Axis {
   void stop(TrialNotices& notices);
   bool start_trial(const TrialRequest& trial, TrialNotices& notices);
   bool trial_active() const { return trial_phase_ != TrialPhase::Idle; }
+  // A trial's segment has been handed to the link and its end not yet seen: the next trial waits.
+  bool trial_finishing() const { return trial_phase_ == TrialPhase::Playing; }
   bool at_rest() const { return positioner_->at_rest() && trial_phase_ == TrialPhase::Idle; }
   void publish(bool parked);
   // The target of the last command (refused or accepted), NaN when none.

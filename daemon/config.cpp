@@ -299,7 +299,7 @@ const model::ParamTable<ControlConfig>& control_params() {
                            control::calibration_params(), [](auto& c) -> auto& { return c.calibration; }),
       },
       model::lifted<C>(control::planner_params(), [](auto& c) -> auto& { return c.planner; },
-                       {"final_class_slack", "final_approach_steps", "max_bursts"}),
+                       {"max_bursts"}),
       model::lifted<C>(control::positioner_params(), [](auto& c) -> auto& { return c.positioner; }),
   }));
   return table;

@@ -102,7 +102,7 @@ struct InstrumentStatus {
 // The last (or running) sweep: SWEEP?.
 struct SweepStatus {
   std::string state = "NONE";  // NONE, RUNNING, DONE, STOPPED, FAILED
-  int axis = 0;
+  int axis = -1;               // 0-based; -1 before the first sweep
   std::uint64_t planned = 0, written = 0, failed = 0;
   std::string directory;
 };

@@ -31,7 +31,7 @@ MotionSupervisor::Ack MotionSupervisor::submit(AxisCommand command, const RtLoop
 }
 
 bool MotionSupervisor::at_rest() const {
-  if (!trials_.empty()) return false;
+  if (!trials_.empty() || trial_held_) return false;
   for (const Axis* a : axes_) {
     const AxisPublished p = a->published();
     const bool rest = p.motion.state == control::MotionState::Idle ||
@@ -64,17 +64,23 @@ void MotionSupervisor::tick(double now_s) {
   }
   if (stopping || park)
     for (Axis* a : axes_) a->stop(notices_);
-  // A sweep's next trial.
-  TrialRequest trial;
-  if (!stopping && !park && trials_.pop(trial)) {
-    if (trial.axis >= 0 && static_cast<std::size_t>(trial.axis) < axes_.size())
-      axes_[static_cast<std::size_t>(trial.axis)]->start_trial(trial, notices_);
-  } else if ((stopping || park) && trials_.pop(trial)) {
-    TrialNotice n;
-    n.kind = TrialNotice::Kind::Failed;
-    n.index = trial.index;
-    n.why = TrialFailure::Stopped;
-    notices_.push(n);
+  // A sweep's next trial (the recorder sends it when it has the last one's samples; the loop may
+  // not have seen that segment's end yet: then it waits here).
+  if (!trial_held_ && trials_.pop(held_trial_)) trial_held_ = true;
+  if (trial_held_) {
+    const bool axis_ok = held_trial_.axis >= 0 && static_cast<std::size_t>(held_trial_.axis) < axes_.size();
+    if (stopping || park || !axis_ok) {
+      TrialNotice n;
+      n.kind = TrialNotice::Kind::Failed;
+      n.index = held_trial_.index;
+      n.seq = held_trial_.seq;
+      n.why = axis_ok ? TrialFailure::Stopped : TrialFailure::Busy;
+      notices_.push(n);
+      trial_held_ = false;
+    } else if (!axes_[static_cast<std::size_t>(held_trial_.axis)]->trial_finishing()) {
+      axes_[static_cast<std::size_t>(held_trial_.axis)]->start_trial(held_trial_, notices_);
+      trial_held_ = false;
+    }
   }
   for (Axis* a : axes_) a->tick(now_s, notices_);
   bool rest = true;

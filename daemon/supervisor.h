@@ -59,6 +59,10 @@ class MotionSupervisor final : public LoopBody {
   std::atomic<std::uint8_t> acked_refusal_{0};
   std::atomic<double> acked_target_m_{0};
   SpscRing<TrialRequest, 8> trials_;
+  // A trial taken from the ring whose axis is still finishing the trial before (its segment's end
+  // not yet seen by the loop): started once it has.
+  std::atomic<bool> trial_held_{false};  // read by at_rest() on other threads
+  TrialRequest held_trial_{};
   TrialNotices notices_;
   std::atomic<bool> stop_all_{false};
   std::atomic<bool> park_request_{false};

@@ -89,6 +89,7 @@ void SweepRunner::run(SweepJob& job) {
         }
         TrialRequest req;
         req.index = index;
+        req.seq = 0x80000000u | (++next_seq_ & 0x7FFFFFFFu);  // apart from the positioners' chunks
         req.axis = job.axis;
         const double period_s = 1.0 / f;
         req.segment = model::make_segment(f, d, job.stroke_m, static_cast<std::uint64_t>(job.cycles),
@@ -134,13 +135,14 @@ bool SweepRunner::run_trial(SweepJob& job, const TrialRequest& req, std::string&
   std::uint32_t seq = 0;
   for (;;) {
     if (supervisor_.next_notice(notice)) {
-      if (notice.index != req.index) continue;  // a late notice of an earlier trial
+      if (notice.seq != req.seq) continue;  // a late notice of an earlier trial (or sweep)
       if (notice.kind == TrialNotice::Kind::Started) {
         seq = notice.seq;
         break;
       }
+      if (notice.why == TrialFailure::Stopped) return false;  // interrupted, not failed
       failed(trial_failure_text(notice.why));
-      return notice.why != TrialFailure::Stopped;
+      return true;
     }
     if (drivers::monotonic_s() > deadline_start) {
       failed("the loop did not start it within 60 s");
@@ -190,8 +192,9 @@ bool SweepRunner::run_trial(SweepJob& job, const TrialRequest& req, std::string&
   }
   if (!complete || !valid || series.size() < 2 || std::isnan(info.guide_pos_m)) {
     const bool stopped = abort_.load(std::memory_order_acquire) || supervisor_.stopping();
-    failed(stopped ? "stopped" : (!valid ? "invalid interferometer samples" : "the trial did not play in full"));
-    return !stopped;
+    if (stopped) return false;  // interrupted, not failed
+    failed(!valid ? "invalid interferometer samples" : "the trial did not play in full");
+    return true;
   }
   try {
     job.writer->add_trial(info, series);

@@ -68,6 +68,7 @@ class SweepRunner {
   std::string report_;      // mutex_
   std::atomic<bool> active_{false};
   std::atomic<bool> abort_{false};
+  std::uint32_t next_seq_ = 0;  // trial numbers across sweeps (runner thread)
   drivers::StackThread thread_;
 };
 
