@@ -12,13 +12,15 @@ from ._core import AxisNotFound, SweepProgress
 from .errors import (CommandError, DeviceFault, DeviceSpecificError, ExecutionError,
                      IdmConnectionError, IdmError, IdmTimeout, MoveError, MoveStopped,
                      ProtocolError, QueryError, ScpiError, SweepError)
-from .status import AxisStatus, EventStatus, LoopStats, MoveResult, Operation, StatusByte
+from .status import (AxisStatus, EventStatus, LoopStats, MoveResult, Operation, StatusByte,
+                     SweepState)
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Client", "Axis", "Sweep", "SweepProgress", "DEFAULT_PORT",
-    "AxisStatus", "Operation", "StatusByte", "EventStatus", "MoveResult", "LoopStats",
+    "AxisStatus", "Operation", "StatusByte", "EventStatus", "MoveResult", "SweepState",
+    "LoopStats",
     "IdmError", "ScpiError", "CommandError", "ExecutionError", "DeviceSpecificError",
     "QueryError", "DeviceFault", "IdmTimeout", "IdmConnectionError", "ProtocolError",
     "MoveError", "MoveStopped", "SweepError", "AxisNotFound",

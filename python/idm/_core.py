@@ -15,10 +15,11 @@ import time
 from typing import Any, Callable, Dict, Generator, List, Optional, Tuple, Union
 
 from .errors import (IdmError, IdmTimeout, MoveError, ScpiError, SweepError, error_from_code)
-from .status import (AxisStatus, LoopStats, MoveResult, Operation, parse_bool, parse_int,
-                     parse_number)
+from .status import (AxisStatus, LoopStats, MoveResult, Operation, SweepState, parse_bool,
+                     parse_int, parse_number)
 
 UNDEFINED_HEADER = -113
+UNTRUSTED = -230  # data corrupt or stale: a position that cannot be trusted (9.91E37)
 # After a STOP (a wait that timed out), how long the axis may take to come to rest.
 STOP_SETTLE_S = 10.0
 
@@ -175,7 +176,7 @@ def p_optional(sess: Session, text: str, cap: str) -> Plan:
     try:
         reply = yield Line(text)
     except ScpiError as e:
-        if e.code == UNDEFINED_HEADER:
+        if _not_implemented(e):
             sess.caps[cap] = False
             yield from p_forget_probe()
             return None
@@ -192,19 +193,49 @@ def p_forget_probe() -> Plan:
 
 # ---- axes ------------------------------------------------------------------------------------
 
+# Optional queries probed once per connection together with AXIS:COUNt?, at its first axis
+# operation: (capability, query, with {p} axis 1's prefix).
+OPTIONAL_QUERIES = (("MOVE:RESult", "{p}MOVE:RESult?"),
+                    ("STATus:OPERation", "{p}STATus:OPERation?"),
+                    ("SWEEP?", "SWEEP?"))
+
+
+def _not_implemented(e: ScpiError) -> bool:
+    return all(code == UNDEFINED_HEADER for code, _ in e.errors)
+
+
 def p_multi_axis(sess: Session) -> Plan:
-    """Whether the daemon has the several-axes extension (it answers AXIS:COUNt?)."""
+    """Whether the daemon has the several-axes extension (it answers AXIS:COUNt?). Asked at
+    the first axis operation of a connection, before it can have started a motion; the
+    optional queries are probed then too, and one ``*CLS`` follows if any was refused (-113),
+    so that a later ``*CLS`` can never clear a fault queued for a motion of this connection."""
     if sess.multi_axis is None:
+        refused = False
         try:
             reply = yield Line("AXIS:COUNt?")
         except ScpiError as e:
-            if e.code != UNDEFINED_HEADER:
+            if not _not_implemented(e):
                 raise
             sess.multi_axis = False
-            yield from p_forget_probe()
+            refused = True
         else:
             sess.axis_count = parse_int(reply, "AXIS:COUNt?")
             sess.multi_axis = True
+        prefix = "AXIS1:" if sess.multi_axis else ""
+        for cap, query in OPTIONAL_QUERIES:
+            if cap in sess.caps:
+                continue
+            try:
+                yield Line(query.format(p=prefix))
+            except ScpiError as e:
+                if not _not_implemented(e):
+                    raise
+                sess.caps[cap] = False
+                refused = True
+            else:
+                sess.caps[cap] = True
+        if refused:
+            yield from p_forget_probe()
     return sess.multi_axis
 
 
@@ -236,6 +267,12 @@ def p_axis_number(sess: Session, key: AxisKey) -> Plan:
     for k, name in sess.names.items():
         if name == key:
             return k
+    n = sess.axis_count
+    if n is not None and all(k in sess.names for k in range(1, n + 1)):
+        # every name is known (this connection): a case-insensitive match needs no round trip
+        for k in range(1, n + 1):
+            if sess.names[k].lower() == key.lower():
+                return k
     names = yield from p_axis_names(sess)
     for k, name in names.items():
         if name == key:
@@ -446,11 +483,12 @@ def p_region(sess: Session, key: AxisKey, freq_hz: Any, duty: Any, stroke_m: Any
 
 class SweepInfo:
     """What a started sweep is: its axis prefix, the command line, the trials it will record,
-    where its dataset is (when the daemon's data directory is known here), the daemon_error
-    before it started."""
+    where its dataset is (the daemon's directory from ``SWEEP?``; the data directory when it is
+    known here), the daemon_error before it started."""
 
     def __init__(self, sess: Session, mark: int, prefix: str, command: str, directory: str,
-                 total: Optional[int], data_dir: Optional[str], error_before: str):
+                 total: Optional[int], data_dir: Optional[str], error_before: str,
+                 daemon_dir: Optional[str] = None):
         self.session = sess
         self.mark = mark
         self.prefix = prefix
@@ -459,9 +497,24 @@ class SweepInfo:
         self.total = total
         self.data_dir = data_dir
         self.error_before = error_before
+        # SWEEP?'s directory of this sweep (None: the daemon does not answer SWEEP?, or another
+        # sweep showed there already): while SWEEP? names it, SWEEP? is this sweep's state.
+        self.daemon_dir = daemon_dir
         self.started = time.monotonic()
         self.finished = False
         self.stopped = False
+
+
+def p_sweep_query() -> Plan:
+    """``SWEEP?`` parsed (the daemon's last or running sweep)."""
+    reply = yield Line("SWEEP?")
+    return SweepState.parse(reply)
+
+
+def _same_dataset(daemon_dir: str, directory: str) -> bool:
+    """SWEEP? names the dataset below the daemon's data directory: ``<data_dir>/<directory>``."""
+    rel = directory.strip("/")
+    return daemon_dir == directory or daemon_dir.endswith("/" + rel)
 
 
 def p_sweep_start(sess: Session, key: AxisKey, directory: str, freqs: Any, duties: Any,
@@ -472,6 +525,11 @@ def p_sweep_start(sess: Session, key: AxisKey, directory: str, freqs: Any, dutie
         args.append(fmt(cycles, "cycles"))
     prefix = yield from p_prefix(sess, key)
     before = AxisStatus.parse((yield Line(prefix + "STATus?")))
+    # Known before the sweep starts (p_multi_axis probed it; a probe answered -113 is followed
+    # by *CLS, which must not clear a fault the sweep could queue).
+    has_query = sess.caps.get("SWEEP?")
+    if has_query is None:
+        has_query = (yield from p_optional(sess, "SWEEP?", "SWEEP?")) is not None
     command = prefix + "SWEEP " + ",".join(args)
     mark = sess.fault_seq
     yield Line(command)
@@ -479,8 +537,24 @@ def p_sweep_start(sess: Session, key: AxisKey, directory: str, freqs: Any, dutie
     total = None
     if nf is not None and nd is not None and isinstance(trials, numbers.Integral):
         total = nf * nd * int(trials)
+    daemon_dir = None
+    if has_query:
+        state = yield from p_sweep_query()
+        if _same_dataset(state.directory, directory):
+            daemon_dir = state.directory
+            total = state.planned
     return SweepInfo(sess, mark, prefix, command, directory, total, data_dir,
-                     str(before.get("daemon_error", "none")))
+                     str(before.get("daemon_error", "none")), daemon_dir)
+
+
+def p_sweep_state(info: SweepInfo) -> Plan:
+    """SWEEP? when it still shows this sweep, else None."""
+    if info.daemon_dir is None:
+        return None
+    state = yield from p_sweep_query()
+    if state.directory != info.daemon_dir:
+        return None  # another sweep has started since
+    return state
 
 
 def recorded_trials(info: SweepInfo) -> Optional[int]:
@@ -498,43 +572,76 @@ def recorded_trials(info: SweepInfo) -> Optional[int]:
 
 
 def p_sweep_progress(info: SweepInfo) -> Plan:
+    state = yield from p_sweep_state(info)
     done = yield from p_bool(info.prefix + "MOVE:DONE?")
+    if state is not None:
+        return SweepProgress(done, state.written, state.planned,
+                             time.monotonic() - info.started, state.failed, state.state)
     return SweepProgress(done, recorded_trials(info), info.total,
                          time.monotonic() - info.started)
 
 
 def p_sweep_wait(info: SweepInfo, timeout: Optional[float], poll: float) -> Plan:
-    """Until the sweep has ended; then it must have ended well: no new ``daemon_error`` (the
-    daemon's report of failed trials), not stopped by :meth:`Sweep.stop`, and, where the
-    dataset is readable here, every trial recorded."""
+    """Until the sweep has ended; then it must have ended well. Where the daemon answers
+    ``SWEEP?``: state ``DONE``, no trial failed, every planned trial written. Elsewhere: no new
+    ``daemon_error`` (the daemon's report of failed trials), not stopped by :meth:`Sweep.stop`,
+    and, where the dataset is readable here, every trial recorded."""
     yield from p_wait_axis(info.prefix, timeout, poll, info.command, stop_on_timeout=False,
                            faults=(info.session, info.mark))
-    st = AxisStatus.parse((yield Line(info.prefix + "STATus?")))
     info.finished = True
+    state = yield from p_sweep_state(info)
+    elapsed = time.monotonic() - info.started
+    if state is not None:
+        progress = SweepProgress(True, state.written, state.planned, elapsed, state.failed,
+                                 state.state)
+        counts = "%d of %d trials written, %d failed" % (state.written, state.planned,
+                                                        state.failed)
+        if state.state == "STOPPED":
+            why = "by Sweep.stop()" if info.stopped else "by a STOP or *RST"
+            raise SweepError("%s was stopped (%s): %s" % (info.command, why, counts), progress)
+        if not state.ok:
+            st = AxisStatus.parse((yield Line(info.prefix + "STATus?")))
+            err = str(st.get("daemon_error", "none"))
+            said = "" if err in ("none", info.error_before) else "; the daemon reports: " + \
+                err.replace("_", " ")
+            raise SweepError("%s ended %s: %s%s" % (info.command, state.state, counts, said),
+                             progress)
+        return progress
+    # A daemon without SWEEP? (or another sweep has started since this one ended).
+    st = AxisStatus.parse((yield Line(info.prefix + "STATus?")))
     err = str(st.get("daemon_error", "none"))
     recorded = recorded_trials(info)
+    progress = SweepProgress(True, recorded, info.total, elapsed)
     if err != "none" and err != info.error_before:
         raise SweepError("%s ended with the daemon reporting: %s" % (info.command,
-                                                                      err.replace("_", " ")))
+                                                                      err.replace("_", " ")),
+                         progress)
     if info.stopped:
         raise SweepError("%s was stopped (Sweep.stop()) after %s trials" % (
-            info.command, "?" if recorded is None else recorded))
+            info.command, "?" if recorded is None else recorded), progress)
     if recorded is not None and info.total is not None and recorded < info.total:
         raise SweepError("%s ended with %d of %d trials recorded in %s" % (
-            info.command, recorded, info.total, os.path.join(info.data_dir or "", info.directory)))
-    return SweepProgress(True, recorded, info.total, time.monotonic() - info.started)
+            info.command, recorded, info.total, os.path.join(info.data_dir or "", info.directory)),
+            progress)
+    return progress
 
 
 class SweepProgress:
-    """A sweep's progress: ``done`` (the daemon's MOVE:DONE?), ``recorded`` trials in the
-    dataset (None when the daemon's data directory is not readable here), ``total`` trials the
-    sweep will record (None when a list could not be counted here), ``elapsed`` seconds."""
+    """A sweep's progress: ``done`` (the daemon's MOVE:DONE? of the axis), ``recorded`` trials
+    written to the dataset (``SWEEP?``; on a daemon without it, counted in the dataset when
+    the daemon's data directory is readable here, else None), ``total`` trials the sweep
+    holds (None when it could not be known), ``elapsed`` seconds since it started; with
+    ``SWEEP?`` also ``failed`` trials and ``state`` (``RUNNING``, ``DONE``, ``STOPPED``,
+    ``FAILED``), None otherwise."""
 
-    def __init__(self, done: bool, recorded: Optional[int], total: Optional[int], elapsed: float):
+    def __init__(self, done: bool, recorded: Optional[int], total: Optional[int], elapsed: float,
+                 failed: Optional[int] = None, state: Optional[str] = None):
         self.done = done
         self.recorded = recorded
         self.total = total
         self.elapsed = elapsed
+        self.failed = failed
+        self.state = state
 
     @property
     def fraction(self) -> Optional[float]:
@@ -543,14 +650,24 @@ class SweepProgress:
         return min(1.0, self.recorded / self.total)
 
     def __repr__(self) -> str:
-        return "SweepProgress(done=%r, recorded=%r, total=%r, elapsed=%.3f)" % (
-            self.done, self.recorded, self.total, self.elapsed)
+        return ("SweepProgress(done=%r, recorded=%r, total=%r, elapsed=%.3f, failed=%r, "
+                "state=%r)" % (self.done, self.recorded, self.total, self.elapsed, self.failed,
+                               self.state))
 
 
 # ---- the whole instrument --------------------------------------------------------------------
 
-def p_positions(sess: Session) -> Plan:
-    reply = yield Line("POSition:ALL?")
+def p_positions(sess: Session, allow_untrusted: bool = False) -> Plan:
+    """``POSition:ALL?``. A position the daemon cannot trust comes as ``9.91E37`` with -230
+    queued: that error is raised (the reply is in its ``.reply``), or, with
+    ``allow_untrusted``, that position is NaN in the list (only when -230 is all that was
+    queued)."""
+    try:
+        reply = yield Line("POSition:ALL?")
+    except ScpiError as e:
+        if not (allow_untrusted and e.reply and all(code == UNTRUSTED for code, _ in e.errors)):
+            raise
+        reply = e.reply
     return [parse_number(x, "POSition:ALL?") for x in reply.split(",")]
 
 

@@ -158,7 +158,7 @@ class AsyncClient(_Api):
                 self._fail("cancelled while waiting for the reply to %r" % line.text)
                 raise
             if errors:  # noted under the lock: a waiting task must see a fault
-                error = error_from_code(errors[0][0], errors[0][1], line.text, errors)
+                error = error_from_code(errors[0][0], errors[0][1], line.text, errors, reply)
                 self._session.note_errors(error)
                 raise error
         if line.query and reply == "":

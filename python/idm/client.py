@@ -45,9 +45,18 @@ class _Api:
         """``{number: name}`` of every axis (``AXIS:COUNt?``, ``AXIS<n>:NAME?``)."""
         return self._run(_core.p_axis_names(self._session))
 
-    def positions(self):
-        """``POSition:ALL?``: every axis's position (m), read at one instant."""
-        return self._run(_core.p_positions(self._session))
+    def positions(self, *, allow_untrusted: bool = False):
+        """``POSition:ALL?``: every axis's position (m), read at one instant, in axis order.
+        A position the daemon cannot trust (no valid reading, beam or device lost) comes as
+        ``9.91E37`` with -230 queued: that is raised as :class:`~idm.ExecutionError` (code
+        -230, the whole reply in ``.reply``); with ``allow_untrusted`` the list is returned
+        with NaN for each untrusted position instead."""
+        return self._run(_core.p_positions(self._session, allow_untrusted))
+
+    def sweep_state(self):
+        """``SWEEP?``: the daemon's last or running sweep (:class:`~idm.SweepState`: state,
+        axis, trials written / failed / planned, directory)."""
+        return self._run(_core.p_sweep_query())
 
     # -- the instrument --
     def idn(self):
@@ -64,7 +73,8 @@ class _Api:
         return self._run(_core.p_line("*CLS"))
 
     def stop(self):
-        """``STOP``: every axis brought to rest, output to zero."""
+        """``STOP``: every axis brought to rest, output to zero (and a running sweep
+        stopped)."""
         return self._run(_core.p_line("STOP"))
 
     def wait(self, timeout: Optional[float] = None):
@@ -173,7 +183,8 @@ class Axis:
                                       self._timeout(timeout), self.client.poll_interval))
 
     def stop(self):
-        """Stop this axis: ``AXIS<n>:STOP`` (plain ``STOP`` on a single-axis daemon)."""
+        """Stop this axis (and a sweep running on it): ``AXIS<n>:STOP``; plain ``STOP`` on a
+        daemon without the several-axes extension. Other axes go on."""
         return self._run(_core.p_axis_command(self._s, self.key, "STOP"))
 
     def done(self):
@@ -202,8 +213,9 @@ class Axis:
 
     # -- readings --
     def position(self):
-        """``POSition?``, m. A position that cannot be trusted raises the daemon's error
-        (-240 no valid position, or -230 with the extension's 9.91E37)."""
+        """``POSition?``, m. A position that cannot be trusted raises the daemon's error: -230
+        (the daemon answers ``9.91E37``, kept in the error's ``.reply``; never returned as a
+        number), or -240 from a daemon before the several-axes extension."""
         return self._run(_core.p_axis_query(self._s, self.key, "POSition?", parse_number))
 
     def target(self):
@@ -342,12 +354,24 @@ class Sweep:
 
     @property
     def total(self) -> Optional[int]:
-        """The number of trials the sweep records (frequencies x duties x trials)."""
+        """The number of trials the sweep records (frequencies x duties x trials; the
+        daemon's ``SWEEP?`` count where it answers it)."""
         return self.info.total
 
+    @property
+    def directory(self) -> Optional[str]:
+        """The dataset's directory as the daemon names it (``SWEEP?``), else None."""
+        return self.info.daemon_dir
+
     def progress(self):
-        """:class:`~idm.SweepProgress`: done, trials recorded / total, elapsed."""
+        """:class:`~idm.SweepProgress`: done, trials recorded / total (and failed, state
+        where the daemon answers ``SWEEP?``), elapsed."""
         return self.client._run(_core.p_sweep_progress(self.info))
+
+    def state(self):
+        """This sweep's :class:`~idm.SweepState` (``SWEEP?``); None when the daemon does not
+        answer ``SWEEP?`` or when a later sweep has replaced it there."""
+        return self.client._run(_core.p_sweep_state(self.info))
 
     def done(self):
         return self.client._run(_core.p_bool(self.info.prefix + "MOVE:DONE?"))
@@ -355,13 +379,15 @@ class Sweep:
     def wait(self, timeout: Optional[float] = None):
         """Until the sweep has ended (``timeout`` None: no bound, a sweep may take hours; every
         poll still has the reply timeout). Returns the final progress; raises
-        :class:`~idm.SweepError` when it did not end well: a failure the daemon reported
-        (``STATus?`` ``daemon_error``), stopped by :meth:`stop`, or (with ``data_dir``) fewer
-        trials recorded than the sweep holds."""
+        :class:`~idm.SweepError` when it did not end well: stopped (by :meth:`stop`, another
+        client's STOP or ``*RST``), a trial failed, or fewer trials written than the sweep
+        holds (``SWEEP?``; on a daemon without it: a ``STATus?`` ``daemon_error``, :meth:`stop`,
+        or with ``data_dir`` the dataset's trial count)."""
         return self.client._run(_core.p_sweep_wait(self.info, timeout, self.client.poll_interval))
 
     def stop(self):
-        """Stop the sweep (the axis's STOP); ``wait()`` then raises :class:`~idm.SweepError`."""
+        """Stop the sweep (its axis's STOP); ``wait()`` then raises :class:`~idm.SweepError`
+        unless the sweep had already ended well."""
         self.info.stopped = True
         return self.client._run(_core.p_line(self.info.prefix + "STOP"))
 
@@ -513,7 +539,7 @@ class Client(_Api):
                 self._send("SYSTem:ERRor?\n", line.text)
                 code, text = parse_error_line(self._read_line(self.timeout, line.text))
             if errors:  # noted under the lock: a waiter on another thread must see a fault
-                error = error_from_code(errors[0][0], errors[0][1], line.text, errors)
+                error = error_from_code(errors[0][0], errors[0][1], line.text, errors, reply)
                 self._session.note_errors(error)
                 raise error
         if line.query and reply == "":

@@ -38,15 +38,19 @@ class ScpiError(IdmError):
 
     ``code`` and ``text`` are the daemon's (``-222``, ``"Data out of range; target 1000 ..."``);
     ``command`` is the line that was sent when the error was found; ``errors`` every
-    ``(code, text)`` drained from the queue at that point (this one first).
+    ``(code, text)`` drained from the queue at that point (this one first). ``reply`` is what
+    the daemon answered to that line when it was a query (``""`` for the usual empty reply of a
+    failed query; ``"9.91E37"`` for an untrusted position, -230; ``POSition:ALL?``'s every
+    position with the untrusted ones as ``9.91E37``), ``None`` for a command.
     """
 
     def __init__(self, code: int, text: str, command: Optional[str] = None,
-                 errors: Optional[List[Tuple[int, str]]] = None):
+                 errors: Optional[List[Tuple[int, str]]] = None, reply: Optional[str] = None):
         self.code = int(code)
         self.text = text
         self.command = command
         self.errors = list(errors) if errors else [(self.code, text)]
+        self.reply = reply
         super().__init__(self._message())
 
     def _message(self) -> str:
@@ -64,17 +68,19 @@ class ScpiError(IdmError):
         return self
 
     def __reduce__(self):
-        return (type(self), (self.code, self.text, self.command, self.errors))
+        return (type(self), (self.code, self.text, self.command, self.errors, self.reply))
 
 
 class CommandError(ScpiError):
     """SCPI command errors, -100..-199: the line could not be parsed (-113 undefined header,
-    -120 numeric data error, ...). A command the daemon does not implement is -113."""
+    -114 header suffix out of range: ``AXIS<n>:`` with no axis n, -120 numeric data error,
+    ...). A command the daemon does not implement is -113."""
 
 
 class ExecutionError(ScpiError):
     """SCPI execution errors, -200..-299: the line parsed but could not be carried out
-    (-221 settings conflict, -222 data out of range, -230 data stale, -240 hardware error)."""
+    (-221 settings conflict, -222 data out of range, -230 data corrupt or stale: a position
+    that cannot be trusted, -240 hardware error)."""
 
 
 class DeviceSpecificError(ScpiError):
@@ -88,11 +94,12 @@ class QueryError(ScpiError):
 class DeviceFault(ScpiError):
     """A positive code: a motion this connection started ended in a device fault
     (101 invalid_sample, 102 stall, 103 retry_limit, 104 driver, 105 no_plan,
-    106 capture_overrun, ...)."""
+    106 capture_overrun, 107 device_lost, ...)."""
 
 
 def error_from_code(code: int, text: str, command: Optional[str] = None,
-                    errors: Optional[List[Tuple[int, str]]] = None) -> ScpiError:
+                    errors: Optional[List[Tuple[int, str]]] = None,
+                    reply: Optional[str] = None) -> ScpiError:
     """The ScpiError subclass for a code."""
     if code > 0:
         cls = DeviceFault
@@ -106,7 +113,7 @@ def error_from_code(code: int, text: str, command: Optional[str] = None,
         cls = QueryError
     else:
         cls = ScpiError
-    return cls(code, text, command, errors)
+    return cls(code, text, command, errors, reply)
 
 
 class IdmTimeout(IdmError, TimeoutError):
@@ -139,7 +146,13 @@ class MoveStopped(IdmError):
 
 
 class SweepError(IdmError):
-    """A sweep that ended with a failure the daemon reported (``STATus?`` ``daemon_error``)."""
+    """A sweep that did not end well: stopped, trials failed or missing (``SWEEP?``; on a
+    daemon without it ``STATus?`` ``daemon_error`` and the dataset). ``progress`` is the
+    final :class:`~idm.SweepProgress` (None when it could not be read)."""
+
+    def __init__(self, message: str, progress: Optional[object] = None):
+        super().__init__(message)
+        self.progress = progress
 
 
 def parse_error_line(line: str) -> Tuple[int, str]:

@@ -1,4 +1,5 @@
-"""Parsed replies: STATus?, the IEEE 488.2 / SCPI status registers, MOVE:RESult?, SYSTem:LOOP?.
+"""Parsed replies: STATus?, the IEEE 488.2 / SCPI status registers, MOVE:RESult?, SWEEP?,
+SYSTem:LOOP?.
 
 The bit names are the protocol's (shared/specs/command-protocol.md, "Status").
 """
@@ -17,6 +18,7 @@ __all__ = [
     "EventStatus",
     "AxisStatus",
     "MoveResult",
+    "SweepState",
     "LoopStats",
     "parse_number",
     "parse_bool",
@@ -93,10 +95,12 @@ def parse_bool(reply: str, what: str = "reply") -> bool:
     return r == "1"
 
 
-# STATus? keys and their types (daemon/README.md, "Command protocol"); other keys stay text.
+# STATus? keys and their types (daemon/session.cpp's STATus?); other keys stay text (state,
+# fault, daemon_error, axis (the axis's name), device (up, lost), and keys a later daemon adds).
 _STATUS_TYPES = {
     "done": parse_bool,
     "position_valid": parse_bool,
+    "referenced": parse_bool,
     "position": parse_number,
     "target": parse_number,
     "lower": parse_number,
@@ -115,6 +119,7 @@ class AxisStatus:
     Every ``key=value`` of the line is an attribute and an item (``st.state``, ``st["state"]``),
     typed where the key is known (numbers in m, counters as int, flags as bool), text otherwise
     (keys a later daemon adds, e.g. ``eot``, stay available as text). ``raw`` is the line.
+    A position that cannot be trusted (``position=9.91E37``, ``position_valid=0``) is NaN.
     ``operation`` is the axis's ``STATus:OPERation?`` as :class:`Operation` when the daemon
     answers it, else ``None`` (then :meth:`idm.Axis.operation` raises the daemon's error).
     """
@@ -189,6 +194,44 @@ class MoveResult(NamedTuple):
         if not sep:
             raise ProtocolError("MOVE:RESult?: %r is not <word>,<m>" % reply)
         return cls(word.strip().upper(), parse_number(dist, "MOVE:RESult? distance"))
+
+
+class SweepState(NamedTuple):
+    """``SWEEP?``: the last (or running) sweep of the daemon. ``state`` one of ``NONE``,
+    ``RUNNING``, ``DONE``, ``STOPPED``, ``FAILED``; ``axis`` its axis (from 1); ``written``
+    trials recorded in the dataset, ``failed`` trials that failed (a trial a STOP interrupts
+    counts), ``planned`` trials the sweep holds; ``directory`` the dataset's directory as the
+    daemon names it (below its ``recording.data_dir``)."""
+
+    state: str
+    axis: int
+    written: int
+    failed: int
+    planned: int
+    directory: str
+
+    @property
+    def running(self) -> bool:
+        return self.state == "RUNNING"
+
+    @property
+    def ok(self) -> bool:
+        """Ended with every planned trial written and none failed."""
+        return (self.state == "DONE" and self.failed == 0 and self.written == self.planned)
+
+    @classmethod
+    def parse(cls, reply: str) -> "SweepState":
+        parts = reply.split(",", 5)
+        if len(parts) != 6:
+            raise ProtocolError("SWEEP?: %r is not <state>,<axis>,<written>,<failed>,<planned>,"
+                                "\"<dir>\"" % reply)
+        state = parts[0].strip().upper()
+        axis, written, failed, planned = (parse_int(x, "SWEEP?") for x in parts[1:5])
+        directory = parts[5].strip()
+        if len(directory) < 2 or directory[0] != '"' or directory[-1] != '"':
+            raise ProtocolError("SWEEP?: the directory %r is not quoted (in %r)" % (directory,
+                                                                                    reply))
+        return cls(state, axis, written, failed, planned, directory[1:-1].replace('""', '"'))
 
 
 class LoopStats(NamedTuple):

@@ -109,3 +109,30 @@ def test_reply_timeout_and_cancellation_close_the_connection(silent_server):
             await task
         assert c.closed
     run(main())
+
+
+def test_two_axes_move_together_and_a_missing_axis_is_114(idmd_xy):
+    """The two-axis idmd (conftest.axes_config): moves on x and y awaited together, by name,
+    POSition:ALL?, AXIS2:STOP leaving x alone, -114 for axis 3."""
+    async def main():
+        async with idm.aio.AsyncClient(unix=idmd_xy.unix) as c:
+            assert await c.axis_names() == {1: "x", 2: "y"}
+            x, y = c.axis("x"), c.axis("y")
+            await asyncio.gather(x.move(0), y.move(0))
+            px, py = await asyncio.gather(x.move(-2e-5), y.move(3e-5))
+            assert px == pytest.approx(-2e-5, abs=2 * COUNT)
+            assert py == pytest.approx(3e-5, abs=2 * COUNT)
+            assert await c.positions() == pytest.approx([-2e-5, 3e-5], abs=2 * COUNT)
+            with pytest.raises(idm.CommandError) as e:
+                await c.axis(3).move(1e-6)
+            assert e.value.code == -114 and e.value.command == "AXIS3:MOVE:ABSolute 1e-06"
+            # y stopped short of a far target, x goes on to its own
+            far_x = asyncio.ensure_future(x.move(2e-3))
+            far_y = asyncio.ensure_future(y.move(-3e-3))
+            while await y.done():  # until y's move shows
+                await asyncio.sleep(0.005)
+            await y.stop()
+            assert abs(await far_y + 3e-3) > 1e-4
+            assert await far_x == pytest.approx(2e-3, abs=2 * COUNT)
+            await asyncio.gather(x.move(0), y.move(0))
+    run(main())

@@ -10,7 +10,7 @@ import pytest
 import idm
 import idm.aio
 from idm.bluesky import AxisMovable, MoveStatus, StatusTimeout
-from conftest import TRAVEL, stalled_config
+from conftest import TRAVEL, axes_config, stalled_config
 
 COUNT = 632.991e-9 / 64
 
@@ -70,13 +70,54 @@ def test_set_wait_read_describe_locate(client):
 
 
 def test_default_name_is_the_axis(client):
-    m = client.axis(1).movable()
-    try:
-        expected = client.axis(1).name()
-    except idm.ScpiError as e:
-        assert e.code == -113  # a daemon without AXIS<n>:NAME?
-        expected = "axis1"
-    assert m.name == expected
+    assert client.axis(1).movable().name == "x"  # AXIS1:NAME? (config/idmd.yaml's axis x)
+    assert client.axis("x").movable().name == "x"
+
+
+def test_movable_on_axis_two(client_xy):
+    """The movable of axis 2 of the two-axis idmd: set()/wait(), read, locate and stop act on
+    y (AXIS2:...), and x is left alone."""
+    x = client_xy.axis(1)
+    m = client_xy.axis(2).movable()
+    assert m.name == "y" and m.hints == {"fields": ["y"]}
+    px = x.move(1e-5)
+    success, exc = run_plan_step(m.set(-7e-6))
+    assert success is True and exc is None
+    reading = m.read()
+    check_data_keys(reading, m.describe())
+    assert reading["y"]["value"] == pytest.approx(-7e-6, abs=2 * COUNT)
+    assert reading["y_setpoint"]["value"] == pytest.approx(-7e-6, rel=1e-11)
+    assert m.locate()["readback"] == pytest.approx(-7e-6, abs=2 * COUNT)
+    assert x.position() == pytest.approx(px, abs=3 * COUNT)
+    # stop() stops y (AXIS2:STOP) while x's own move goes on to its target.
+    x.move(-3e-3, wait=False)
+    status = m.set(-4e-3)
+    m.stop(success=False)
+    success, exc = run_plan_step(status)
+    assert success is False and isinstance(exc, idm.MoveStopped)
+    assert abs(m.position + 4e-3) > 1e-4
+    assert x.wait(60) and x.position() == pytest.approx(-3e-3, abs=2 * COUNT)
+    # A refusal by y's own soft limits, not x's.
+    client_xy.axis(2).set_limits(-1e-3, 1e-3)
+    conf = m.read_configuration()
+    assert (conf["y_lower_limit"]["value"], conf["y_upper_limit"]["value"]) == (-1e-3, 1e-3)
+    refused = m.set(2e-3)
+    assert refused.done and not refused.success and refused.exception().code == -222
+    assert refused.exception().command == "AXIS2:MOVE:ABSolute 0.002"
+    assert x.movable().set(2e-3).wait(60) is None  # x's limits are the travel still
+
+
+def test_movable_on_a_faulty_second_axis(make_idmd):
+    d = make_idmd(config=lambda tmp: axes_config(tmp, stalled=("y",)))
+    with d.client() as c:
+        m = c.axis("y").movable()
+        success, exc = run_plan_step(m.set(5e-6))
+        assert success is False
+        assert isinstance(exc, idm.DeviceFault) and exc.code == 102
+        assert exc.command == "AXIS2:MOVE:ABSolute 5e-06"
+        # x is unaffected: its movable moves
+        success, exc = run_plan_step(c.axis("x").movable().set(5e-6))
+        assert success is True, exc
 
 
 def test_refused_move_fails_the_status_with_the_daemons_error(client):
