@@ -165,8 +165,8 @@ CommandError Daemon::set_soft_limits(int axis, double lower_m, double upper_m) {
 }
 
 CommandError Daemon::reset() {
-  errors_cleared_s_ = drivers::monotonic_s();
   if (CommandError e = stop(); !e.ok()) return e;
+  errors_cleared_s_ = drivers::monotonic_s();  // after the stop: what it stopped is cleared too
   if (housekeeping_->reset_pending()) return {};  // already on its way
   if (sweeps_->active()) {
     // The sweep winds down on the recorder thread; rather than hold the server thread (and every

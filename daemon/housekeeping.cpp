@@ -68,11 +68,13 @@ void Housekeeping::cycle() {
   if (const std::string r = sweeps_.report(); r != seen_report_) {
     seen_report_ = r;
     const SweepStatus s = sweeps_.status();
-    // A stopped sweep is news (SWEEP? says STOPPED); failed trials are an error of the axis.
-    if (s.failed > 0 && s.state != "STOPPED") {
+    // Failed trials, or a sweep stopped before its end, are the axis's error (SWEEP? says which);
+    // a stopped sweep's error is dated when the stop came, so the *RST that stopped it clears it.
+    if (s.failed > 0 || s.state == "STOPPED") {
       if (s.axis >= 0 && static_cast<std::size_t>(s.axis) < axes_.size())
-        set_error(static_cast<std::size_t>(s.axis), r);
-      add_note(true, r);
+        set_error(static_cast<std::size_t>(s.axis), r,
+                  s.state == "STOPPED" ? sweeps_.abort_time_s() : drivers::monotonic_s());
+      add_note(s.failed > 0, r);
     } else {
       add_note(false, r);
     }
@@ -156,9 +158,9 @@ void Housekeeping::add_note(bool warning, std::string text) {
   if (notes_.size() < 200) notes_.push_back({warning, std::move(text)});
 }
 
-void Housekeeping::set_error(std::size_t axis, const std::string& text) {
+void Housekeeping::set_error(std::size_t axis, const std::string& text, double t_s) {
   ErrorNote note;
-  set_note(note, drivers::monotonic_s(), text.c_str());
+  set_note(note, t_s < 0 ? drivers::monotonic_s() : t_s, text.c_str());
   std::lock_guard<std::mutex> lock(mutex_);
   if (axis < errors_.size()) errors_[axis] = note;
 }

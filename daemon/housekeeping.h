@@ -52,7 +52,7 @@ class Housekeeping {
   void save_calibration(std::size_t axis, bool force);
   void watch_links();
   void add_note(bool warning, std::string text);
-  void set_error(std::size_t axis, const std::string& text);
+  void set_error(std::size_t axis, const std::string& text, double t_s = -1);
 
   std::vector<Axis*> axes_;
   std::vector<drivers::DeviceLink*> links_;

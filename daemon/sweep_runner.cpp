@@ -26,6 +26,12 @@ SweepRunner::SweepRunner(MotionSupervisor& supervisor, std::vector<Axis*> axes)
 
 SweepRunner::~SweepRunner() { quit(); }
 
+void SweepRunner::abort() {
+  if (active_.load(std::memory_order_acquire) && !abort_.load(std::memory_order_acquire))
+    abort_time_s_.store(drivers::monotonic_s(), std::memory_order_release);
+  abort_.store(true, std::memory_order_release);
+}
+
 void SweepRunner::quit() {
   abort();
   {

@@ -45,7 +45,10 @@ class SweepRunner {
   bool submit(std::unique_ptr<SweepJob> job);
   // Stops the running sweep (the playing trial is stopped by the loop; a trial being written
   // finishes first). Any thread.
-  void abort() { abort_.store(true, std::memory_order_release); }
+  void abort();
+  // When the last abort() came (CLOCK_MONOTONIC), -1 never: a stopped sweep's error is dated
+  // then, so that the *RST that stopped it also clears it.
+  double abort_time_s() const { return abort_time_s_.load(std::memory_order_acquire); }
   bool active() const { return active_.load(std::memory_order_acquire); }
   SweepStatus status() const;
   // One line on the last finished sweep ("" before any), for the log.
@@ -68,6 +71,7 @@ class SweepRunner {
   std::string report_;      // mutex_
   std::atomic<bool> active_{false};
   std::atomic<bool> abort_{false};
+  std::atomic<double> abort_time_s_{-1};
   std::uint32_t next_seq_ = 0;  // trial numbers across sweeps (runner thread)
   drivers::StackThread thread_;
 };
