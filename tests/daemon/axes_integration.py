@@ -138,7 +138,8 @@ def case_protocol():
         # idmctl --axis by name and by number.
         r = subprocess.run([IDMCTL, "--port", str(d.port), "--axis", "y", "rel", "2e-6"],
                            capture_output=True, text=True, timeout=60)
-        check(r.returncode == 0 and abs(float(r.stdout) - 2e-6) <= COUNT_M,
+        # One reading (quantized, noisy) of a slider within one count of the target.
+        check(r.returncode == 0 and abs(float(r.stdout) - 2e-6) <= 1.5 * COUNT_M,
               "idmctl --axis y rel 2e-6 -> %s %s" % (r.stdout.strip(), r.stderr.strip()))
         r = subprocess.run([IDMCTL, "--port", str(d.port), "--axis", "3", "pos"],
                            capture_output=True, text=True, timeout=60)
