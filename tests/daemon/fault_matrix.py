@@ -408,6 +408,40 @@ def case_modbus_server_killed():
         sim.wait(10)
 
 
+def case_modbus_server_stalled():
+    """A Modbus server that stops answering (SIGSTOP): the device's I/O thread waits on it, the
+    real-time loop does not: it keeps ticking, the command link keeps answering, the device is
+    reported lost after its timeout, and all is well again once the server answers."""
+    port = free_port()
+    cfg = config_file("idmd-modbus.yaml", [("port: 1502", "port: %d" % port)])
+    sim = subprocess.Popen([os.path.join(BUILD, "tools", "idm-simdev"), "--port", str(port),
+                            "--config", cfg], stdout=subprocess.PIPE, text=True)
+    sim.stdout.readline()
+    try:
+        with Daemon(cfg) as d:
+            c = Client(d)
+            loop = lambda: int(re.search(r"wakeups=(\d+)", c.ask("SYST:LOOP?")).group(1))
+            os.kill(sim.pid, signal.SIGSTOP)
+            w0, t0 = loop(), time.time()
+            wait_state(c, {"state": "FAULT", "fault": "device_lost"}, timeout=5)
+            time.sleep(1.0)
+            w1, t1 = loop(), time.time()
+            expected = (t1 - t0) / 1e-3  # the Modbus config's loop runs at 1 kHz
+            check(w1 - w0 > 0.5 * expected, "the loop kept ticking while the server was stalled: "
+                  "%d wake-ups in %.2f s (%d expected)" % (w1 - w0, t1 - t0, expected))
+            check(c.ask("*IDN?").startswith("idm,idmd"), "the command link answers")
+            os.kill(sim.pid, signal.SIGCONT)
+            # The same device (its boot_id unchanged): it kept its count, the axis was at rest.
+            st = wait_state(c, {"device": "up", "position_valid": "1", "state": "IDLE"}, timeout=10)
+            check(st["fault"] == "none", "back by itself, at rest with its count")
+            c.send("MOVE:REL 20e-6\n")
+            check(c.ask("*OPC?") == "1" and c.status()["state"] == "IDLE", "it moves again")
+    finally:
+        os.kill(sim.pid, signal.SIGCONT)
+        sim.kill()
+        sim.wait(10)
+
+
 def case_sigkill_mid_sweep():
     """SIGKILL mid-sweep: every trial written is whole (sweep.csv lists only finished trials and
     each of their files reads back)."""
@@ -468,6 +502,7 @@ CASES = {
     "sim_commands_on_a_real_backend": case_sim_commands_on_a_real_backend,
     "modbus_server_killed": case_modbus_server_killed,
     "sigkill_mid_sweep": case_sigkill_mid_sweep,
+    "modbus_server_stalled": case_modbus_server_stalled,
 }
 
 if __name__ == "__main__":

@@ -2,6 +2,9 @@
 // and the Daemon (Instrument) on the simulated stage, with an allocation-counting hook showing
 // that the loop thread allocates nothing during a full move.
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <chrono>
@@ -373,6 +376,53 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
   EXPECT_EQ(g_loop_allocations.load(), 0) << "the real-time loop allocated";
   EXPECT_EQ(g_loop_frees.load(), 0);
   EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
+}
+
+// The same on a Modbus device (idm-simdev on loopback), with a device lost and back on the way:
+// the loop never calls a driver, whatever the backend, so it never allocates either.
+TEST_F(DaemonSim, LoopThreadAllocatesNothingOnModbusEvenThroughALossAndReconnect) {
+  int out[2];
+  ASSERT_EQ(pipe(out), 0);
+  const std::string simdev = std::string(IDM_BUILD_DIR) + "/tools/idm-simdev";
+  const pid_t pid = fork();
+  if (pid == 0) {
+    dup2(out[1], 1);
+    execl(simdev.c_str(), simdev.c_str(), "--port", "0", static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  close(out[1]);
+  char buf[256] = {};
+  ASSERT_GT(read(out[0], buf, sizeof buf - 1), 0);
+  const std::string line = buf;
+  const int port = std::atoi(line.substr(line.rfind(':') + 1).c_str());
+  ASSERT_GT(port, 0) << line;
+  const std::string text =
+      "stage:\n  step_correction: 1.0\n  travel_m: [-5e-3, 5e-3]\n"
+      "interferometer:\n  max_velocity_m_s: 1\n"
+      "daq:\n  driver: modbus\n  modbus:\n    port: " + std::to_string(port) + "\n    timeout_s: 0.2\n"
+      "control:\n  freq_step_hz: 50\n  stroke_count: 3\n  min_freq_hz: 20\n  max_chunk_s: 0.05\n"
+      "realtime:\n  period_s: 1e-3\n  sched_fifo: false\n  lock_memory: false\n"
+      "server:\n  unix_socket: \"\"\n";
+  auto d = make(text);
+  d->set_loop_thread_hook(&count_on_this_thread);
+  g_loop_allocations = 0;
+  g_loop_frees = 0;
+  d->start();
+  ASSERT_TRUE(d->move_relative(0, 20e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
+  // The server stalls: the device is lost (the loop sees the events), then back.
+  kill(pid, SIGSTOP);
+  ASSERT_TRUE(wait_for([&] { return d->status(0).fault == "device_lost"; }, 10));
+  kill(pid, SIGCONT);
+  ASSERT_TRUE(wait_for([&] { return d->status(0).state == "IDLE" && d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(0, -10e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
+  d->shutdown();
+  kill(pid, SIGTERM);
+  waitpid(pid, nullptr, 0);
+  EXPECT_GT(d->loop_stats().wakeups, 10u);
+  EXPECT_EQ(g_loop_allocations.load(), 0) << "the real-time loop allocated";
+  EXPECT_EQ(g_loop_frees.load(), 0);
 }
 
 TEST_F(DaemonSim, RefusalsBecomeProtocolErrors) {
