@@ -26,13 +26,7 @@ int direction_index(int direction) { return direction > 0 ? 1 : 0; }
 
 const char* direction_name(int index) { return index == 1 ? "positive" : "negative"; }
 
-const char* region_key(int region) {
-  switch (region) {
-    case 0: return "cutoff";
-    case 1: return "one-step";
-    default: return "multi-step";
-  }
-}
+const char* region_key(int region) { return model::region_name(static_cast<model::Region>(region)); }
 
 // The regressors of a burst of `cycles` cycles of the cell along its direction, for
 // theta = (alpha, alpha mu): D(N) = alpha phi_a - alpha mu phi_m.

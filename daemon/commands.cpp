@@ -242,11 +242,7 @@ CommandError Daemon::region(int axis, double freq_hz, double duty, double stroke
   const double stroke = std::isnan(stroke_m) ? a.limits().max_stroke_m : stroke_m;
   try {
     const control::RegionCell cell = a.map().at(freq_hz, duty, stroke);
-    switch (cell.region) {
-      case model::Region::Cutoff: region = "CUTOFF"; break;
-      case model::Region::OneStep: region = "ONESTEP"; break;
-      default: region = "MULTISTEP"; break;
-    }
+    region = model::region_protocol_name(cell.region);
     step_m = cell.step_m;
   } catch (const model::InputError& e) {
     return {error_code::kDataOutOfRange, e.what()};
