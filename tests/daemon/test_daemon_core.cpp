@@ -20,39 +20,14 @@
 #include "daemon/rt_loop.h"
 #include "model/yaml_util.h"
 #include "recording/dataset.h"
-
-// ---- allocation counter: global operator new/delete, counting only on a flagged thread ----------
-namespace {
-thread_local bool t_count_allocations = false;
-std::atomic<long> g_loop_allocations{0};
-std::atomic<long> g_loop_frees{0};
-}  // namespace
-
-void* operator new(std::size_t n) {
-  if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t n) { return operator new(n); }
-void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
-  if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
-  return std::malloc(n ? n : 1);
-}
-void* operator new[](std::size_t n, const std::nothrow_t& t) noexcept { return operator new(n, t); }
-void operator delete(void* p) noexcept {
-  if (p && t_count_allocations) g_loop_frees.fetch_add(1, std::memory_order_relaxed);
-  std::free(p);
-}
-void operator delete[](void* p) noexcept { operator delete(p); }
-void operator delete(void* p, std::size_t) noexcept { operator delete(p); }
-void operator delete[](void* p, std::size_t) noexcept { operator delete(p); }
+#include "tests/counting_new.h"  // counts allocations on the loop thread
 
 namespace {
 
 using namespace idm::daemon;
 using idm::model::InputError;
 
-void count_on_this_thread(bool entering) { t_count_allocations = entering; }
+void count_on_this_thread(bool entering) { idm::test_alloc::t_counting = entering; }
 
 YAML::Node yaml(const std::string& text) { return YAML::Load(text); }
 
@@ -272,13 +247,13 @@ TEST(RtLoop, RealtimeRefusalIsOneWarningThatSaysWhy) {
 }
 
 TEST(AllocationHook, CountsOnTheFlaggedThreadOnly) {
-  g_loop_allocations = 0;
+  idm::test_alloc::allocations = 0;
   count_on_this_thread(true);
   auto* v = new std::vector<int>(100);
   count_on_this_thread(false);
   delete v;
   std::thread([] { std::vector<int> w(100); }).join();
-  EXPECT_EQ(g_loop_allocations.load(), 2);  // the vector object and its buffer
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 2);  // the vector object and its buffer
 }
 
 // ---- the daemon on the simulated stage ---------------------------------------------------------
@@ -293,7 +268,7 @@ class DaemonSim : public ::testing::Test {
 TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
   auto d = make(sim_config(std::getenv("IDM_TEST_CLOCK") ? std::getenv("IDM_TEST_CLOCK") : "wall"));
   d->set_loop_thread_hook(&count_on_this_thread);
-  g_loop_allocations = 0;
+  idm::test_alloc::allocations = 0;
   d->start();
   ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
   const double start = d->status().position_m;
@@ -308,8 +283,8 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
   d->shutdown();
   EXPECT_GT(d->loop_stats().wakeups, 10u);
   // The hook counted on the loop thread only, from its first tick to its last.
-  EXPECT_EQ(g_loop_allocations.load(), 0) << "the real-time loop allocated";
-  EXPECT_EQ(g_loop_frees.load(), 0);
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 0) << "the real-time loop allocated";
+  EXPECT_EQ(idm::test_alloc::frees.load(), 0);
   EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
 }
 

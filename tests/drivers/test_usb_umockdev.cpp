@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 
 #include <dlfcn.h>
+#include <link.h>
 #include <linux/usbdevice_fs.h>
 #include <sys/ioctl.h>
 #include <sys/wait.h>
@@ -47,6 +48,25 @@ constexpr int kNoUmockdev = 77;
 
 bool preload_active() { return dlopen(kPreload, RTLD_LAZY | RTLD_NOLOAD) != nullptr; }
 
+// The sanitizer runtime this binary loaded as a shared library (GCC's AddressSanitizer and
+// ThreadSanitizer), or "". It must stay first in LD_PRELOAD, ahead of the umockdev preload, or it
+// refuses to start (its interceptors must come first).
+std::string sanitizer_runtime() {
+  std::string found;
+  dl_iterate_phdr(
+      [](dl_phdr_info* info, std::size_t, void* out) {
+        const std::string name = info->dlpi_name ? info->dlpi_name : "";
+        const std::string base = name.substr(name.rfind('/') + 1);
+        if (base.rfind("libasan.so", 0) == 0 || base.rfind("libtsan.so", 0) == 0) {
+          *static_cast<std::string*>(out) = name;
+          return 1;
+        }
+        return 0;
+      },
+      &found);
+  return found;
+}
+
 enum class Run { Here, Done, NoUmockdev };
 
 // In the parent: re-runs the current test in a child with the preload and reports its outcome
@@ -68,6 +88,8 @@ Run run_under_umockdev() {
   const pid_t pid = fork();
   if (pid == 0) {
     std::string preload = kPreload;
+    if (const std::string runtime = sanitizer_runtime(); !runtime.empty())
+      preload = runtime + ":" + preload;
     if (const char* old = std::getenv("LD_PRELOAD"); old && *old) preload += std::string(":") + old;
     setenv("LD_PRELOAD", preload.c_str(), 1);
     setenv(kChildEnv, "1", 1);
