@@ -400,6 +400,8 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   Daemon d(load_daemon_config(file.string()));
   d.start();
+  // A move is judged against the limits only once there is a position to move from.
+  ASSERT_TRUE(wait_for([&] { return d.status().position_valid; }, 10));
   {
     std::FILE* f = std::fopen(file.c_str(), "w");
     std::string changed = sim_config("wall");
@@ -409,8 +411,11 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   std::string error;
   ASSERT_TRUE(d.reload_control(error)) << error;
-  EXPECT_DOUBLE_EQ(d.status().soft_upper_m, 5e-4);
+  // The positioner has the new limits when reload_control returns; the status shows them from
+  // the loop's next publication on.
   EXPECT_EQ(d.move_absolute(1e-3).code, error_code::kDataOutOfRange);
+  EXPECT_TRUE(wait_for([&] { return d.status().soft_upper_m == 5e-4; }, 10))
+      << d.status().soft_upper_m;
   {
     std::FILE* f = std::fopen(file.c_str(), "w");
     const std::string bad = "control:\n  max_retries: oops\n";
