@@ -94,17 +94,46 @@ std::string read_string(const YAML::Node& node, const std::string& file, const s
   return node.Scalar();
 }
 
+namespace {
+
+constexpr int kMaxYamlDepth = 32;
+
+// What every reader of a section takes for granted: every key is a plain name (a scalar, not a
+// map, a list or nothing), and the document is a tree of bounded depth (an alias to a node that
+// holds it would be endless).
+void check_document(const YAML::Node& node, const std::string& path, int depth) {
+  if (depth > kMaxYamlDepth)
+    throw InputError(located(path, node, "(document)",
+                             "nested deeper than " + std::to_string(kMaxYamlDepth) +
+                                 " levels (an alias to a node that holds it?)"));
+  if (node.IsMap()) {
+    for (const auto& kv : node) {
+      if (!kv.first.IsScalar())
+        throw InputError(located(path, kv.first, "(key)",
+                                 "a key must be a plain name, not a map, a list or nothing"));
+      check_document(kv.second, path, depth + 1);
+    }
+  } else if (node.IsSequence()) {
+    for (const auto& item : node) check_document(item, path, depth + 1);
+  }
+}
+
+}  // namespace
+
 YAML::Node load_yaml_file(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw InputError(path + ": cannot open file");
   std::stringstream text;
   text << in.rdbuf();
+  YAML::Node root;
   try {
-    return YAML::Load(text.str());
+    root = YAML::Load(text.str());
   } catch (const YAML::Exception& e) {
     throw InputError(path + ":" + std::to_string(e.mark.line + 1) + ": YAML syntax error: " +
                      e.msg);
   }
+  check_document(root, path, 0);
+  return root;
 }
 
 }  // namespace idm::model

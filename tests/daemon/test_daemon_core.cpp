@@ -11,6 +11,7 @@
 #include <new>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include "control/calibration.h"
@@ -79,6 +80,34 @@ TEST(DaemonConfig, ShippedConfigsParse) {
   EXPECT_DOUBLE_EQ(c.stage.stage.stroke_m, 20.35e-6);
   EXPECT_EQ(c.server.tcp_port, 5025);
   EXPECT_DOUBLE_EQ(c.realtime.period_s, 1e-4);
+}
+
+// Found by tests/fuzz/fuzz_config: a key that is a map ("{a: 1}: 2") escaped as yaml-cpp's
+// BadConversion instead of an error naming the file and line; an alias to a node that holds it
+// would recurse without end.
+TEST(DaemonConfig, AKeyThatIsNoPlainNameAndEndlessNestingNameTheFileAndLine) {
+  for (const auto& [name, text, line] :
+       std::vector<std::tuple<std::string, std::string, std::string>>{
+           {"map-key", "{a: 1}: 2\n", ":1:"},
+           {"list-key", "server:\n  [1, 2]: 3\n", ":2:"},
+           {"null-key", "server:\n  ? \n  : 3\n", ":3:"},
+           {"alias-loop", "stage: &a\n  - *a\n", ":"},
+       }) {
+    SCOPED_TRACE(name);
+    const auto file = std::filesystem::temp_directory_path() /
+                      ("idmd-fuzz-" + name + "-" + std::to_string(::getpid()) + ".yaml");
+    std::FILE* f = std::fopen(file.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fwrite(text.data(), 1, text.size(), f);
+    std::fclose(f);
+    try {
+      load_daemon_config(file.string());
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const InputError& e) {
+      EXPECT_EQ(std::string(e.what()).rfind(file.string() + line, 0), 0u) << e.what();
+    }
+    std::filesystem::remove(file);
+  }
 }
 
 TEST(DaemonConfig, DefaultsWhenSectionsAreMissing) {
