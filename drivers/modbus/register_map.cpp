@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <vector>
 
 #include "drivers/config.h"
@@ -181,7 +182,7 @@ bool encode_value(const ScaledField& f, double value, WordOrder order, std::uint
       return true;
     }
     case ValueFormat::Float32: {
-      if (std::fabs(scaled) > 3.4e38) return false;
+      if (std::fabs(scaled) > std::numeric_limits<float>::max()) return false;
       const float fl = static_cast<float>(scaled);
       std::uint32_t bits = 0;
       std::memcpy(&bits, &fl, sizeof bits);
