@@ -186,6 +186,13 @@ TEST(ModbusRegisterMap, EveryFiniteFloat32EncodesBack) {
     ASSERT_TRUE(mb::encode_value(f, -value, order, again));
     EXPECT_EQ(mb::decode_value(f, order, again), -value);
     EXPECT_FALSE(mb::encode_value(f, 2 * value, order, again));  // beyond float32
+    // Through a scale (registers 0xffff 0x7f7f low first, scale 1e9): value / 1e9 * 1e9 is a
+    // rounding above the largest float32, and still that float32.
+    const mb::ScaledField scaled{0, mb::ValueFormat::Float32, 1e9};
+    const double small = mb::decode_value(scaled, order, largest);
+    ASSERT_TRUE(mb::encode_value(scaled, small, order, again));
+    EXPECT_EQ(again[0], largest[0]);
+    EXPECT_EQ(again[1], largest[1]);
   }
 }
 
