@@ -148,7 +148,7 @@ bool looks_like_query(std::string_view line) {
   while (i < line.size() && is_blank(line[i])) ++i;
   std::size_t end = i;
   while (end < line.size() && !is_blank(line[end]) && line[end] != '\r' && line[end] != '\n') ++end;
-  return end > i && line[end - 1] == '?';
+  return end > i && end <= kMaxLineBytes && line[end - 1] == '?';
 }
 
 CommandError parse_line(std::string_view line, ParsedLine& out) {

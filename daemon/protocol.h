@@ -60,8 +60,9 @@ std::string format_error(const CommandError& error);
 // +-infinity as SCPI's +-9.9e+37 and NaN as 9.91e+37, so that a reply is always a finite number.
 std::string format_value(double value);
 
-// Is this line a query (its first word ends in '?')? Decided on the raw bytes so that the server
-// and a client agree also on lines that fail to parse.
+// Is this line a query (its first word ends in '?' within the first kMaxLineBytes bytes)? Decided
+// on the raw bytes so that the server and a client agree also on lines that fail to parse, and on
+// lines too long, which the server judges by their first kMaxLineBytes + 2 bytes.
 bool looks_like_query(std::string_view line);
 
 struct ParsedLine {

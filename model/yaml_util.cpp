@@ -97,18 +97,29 @@ std::string read_string(const YAML::Node& node, const std::string& file, const s
 
 namespace {
 
-void check_unique_keys(const YAML::Node& node, const std::string& file, const std::string& path,
-                       int depth) {
-  if (depth > 64) throw InputError(located(file, node, path.empty() ? "(top)" : path, "nested too deeply"));
+constexpr int kMaxYamlDepth = 32;
+
+// What every reader of a section takes for granted: every key is a plain name (a scalar, not a
+// map, a list or nothing) and appears once in its map, and the document is a tree of bounded
+// depth (an alias to a node that holds it would be endless).
+void check_document(const YAML::Node& node, const std::string& file, const std::string& path,
+                    int depth) {
+  if (depth > kMaxYamlDepth)
+    throw InputError(located(file, node, path.empty() ? "(document)" : path,
+                             "nested deeper than " + std::to_string(kMaxYamlDepth) +
+                                 " levels (an alias to a node that holds it?)"));
   if (node.IsSequence()) {
     for (std::size_t i = 0; i < node.size(); ++i)
-      check_unique_keys(node[i], file, path + "[" + std::to_string(i) + "]", depth + 1);
+      check_document(node[i], file, path + "[" + std::to_string(i) + "]", depth + 1);
     return;
   }
   if (!node.IsMap()) return;
   std::map<std::string, int> seen;  // key -> 1-based line of its first appearance
   for (const auto& kv : node) {
-    const std::string key = kv.first.IsScalar() ? kv.first.Scalar() : std::string("(complex key)");
+    if (!kv.first.IsScalar())
+      throw InputError(located(file, kv.first, path.empty() ? "(key)" : path + ".(key)",
+                               "a key must be a plain name, not a map, a list or nothing"));
+    const std::string key = kv.first.Scalar();
     const std::string full = path.empty() ? key : path + "." + key;
     const int line = kv.first.Mark().line + 1;
     const auto [it, fresh] = seen.emplace(key, line);
@@ -116,14 +127,14 @@ void check_unique_keys(const YAML::Node& node, const std::string& file, const st
       throw InputError(located(file, kv.first, full,
                                "duplicate key: also at line " + std::to_string(it->second) +
                                    " (YAML would silently keep one of them; remove the other)"));
-    check_unique_keys(kv.second, file, full, depth + 1);
+    check_document(kv.second, file, full, depth + 1);
   }
 }
 
 }  // namespace
 
 void require_unique_keys(const YAML::Node& root, const std::string& file) {
-  check_unique_keys(root, file, "", 0);
+  check_document(root, file, "", 0);
 }
 
 YAML::Node load_yaml_text(const std::string& text, const std::string& name) {

@@ -1,7 +1,9 @@
 #include "drivers/modbus/register_map.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <vector>
 
 #include "drivers/config.h"
@@ -189,8 +191,11 @@ bool encode_value(const ScaledField& f, double value, WordOrder order, std::uint
       return true;
     }
     case ValueFormat::Float32: {
-      if (std::fabs(scaled) > 3.4e38) return false;
-      const float fl = static_cast<float>(scaled);
+      // Every value that rounds to a finite float32, up to halfway between its largest and 2^128:
+      // the largest a device sends, read back through a scale, can come back a rounding above it.
+      constexpr double kFloatMax = std::numeric_limits<float>::max();
+      if (!(std::fabs(scaled) < 0x1.ffffffp127)) return false;
+      const float fl = static_cast<float>(std::clamp(scaled, -kFloatMax, kFloatMax));
       std::uint32_t bits = 0;
       std::memcpy(&bits, &fl, sizeof bits);
       put32(bits, order, regs);

@@ -15,6 +15,7 @@
 #include <new>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include "control/calibration.h"
@@ -24,41 +25,14 @@
 #include "daemon/rt_loop.h"
 #include "model/yaml_util.h"
 #include "recording/dataset.h"
-
-// ---- allocation counter: global operator new/delete, counting only on a flagged thread ----------
-namespace {
-thread_local bool t_count_allocations = false;
-std::atomic<long> g_loop_allocations{0};
-std::atomic<long> g_loop_frees{0};
-}  // namespace
-
-__attribute__((noinline)) void* operator new(std::size_t n) {
-  if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t n) { return operator new(n); }
-void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
-  if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
-  return std::malloc(n ? n : 1);
-}
-void* operator new[](std::size_t n, const std::nothrow_t& t) noexcept { return operator new(n, t); }
-// Not inlined: GCC would otherwise see malloc'd memory "freed" by a delete expression it inlined
-// this into, and warn (-Wmismatched-new-delete) about what is a matched replacement pair.
-__attribute__((noinline)) void operator delete(void* p) noexcept {
-  if (p && t_count_allocations) g_loop_frees.fetch_add(1, std::memory_order_relaxed);
-  std::free(p);
-}
-void operator delete[](void* p) noexcept { operator delete(p); }
-void operator delete(void* p, std::size_t) noexcept { operator delete(p); }
-void operator delete[](void* p, std::size_t) noexcept { operator delete(p); }
+#include "tests/counting_new.h"  // counts allocations on the loop thread
 
 namespace {
 
 using namespace idm::daemon;
 using idm::model::InputError;
 
-void count_on_this_thread(bool entering) { t_count_allocations = entering; }
+void count_on_this_thread(bool entering) { idm::test_alloc::t_counting = entering; }
 
 YAML::Node yaml(const std::string& text) { return YAML::Load(text); }
 
@@ -119,6 +93,34 @@ TEST(DaemonConfig, ShippedConfigsParse) {
   EXPECT_DOUBLE_EQ(c.axes[0].stage.stage.stroke_m, 20.35e-6);
   EXPECT_EQ(c.server.tcp_port, 5025);
   EXPECT_DOUBLE_EQ(c.realtime.period_s, 1e-4);
+}
+
+// Found by tests/fuzz/fuzz_config: a key that is a map ("{a: 1}: 2") escaped as yaml-cpp's
+// BadConversion instead of an error naming the file and line; an alias to a node that holds it
+// would recurse without end.
+TEST(DaemonConfig, AKeyThatIsNoPlainNameAndEndlessNestingNameTheFileAndLine) {
+  for (const auto& [name, text, line] :
+       std::vector<std::tuple<std::string, std::string, std::string>>{
+           {"map-key", "{a: 1}: 2\n", ":1:"},
+           {"list-key", "server:\n  [1, 2]: 3\n", ":2:"},
+           {"null-key", "server:\n  ? \n  : 3\n", ":3:"},
+           {"alias-loop", "stage: &a\n  - *a\n", ":"},
+       }) {
+    SCOPED_TRACE(name);
+    const auto file = std::filesystem::temp_directory_path() /
+                      ("idmd-fuzz-" + name + "-" + std::to_string(::getpid()) + ".yaml");
+    std::FILE* f = std::fopen(file.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fwrite(text.data(), 1, text.size(), f);
+    std::fclose(f);
+    try {
+      load_daemon_config(file.string());
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const InputError& e) {
+      EXPECT_EQ(std::string(e.what()).rfind(file.string() + line, 0), 0u) << e.what();
+    }
+    std::filesystem::remove(file);
+  }
 }
 
 TEST(DaemonConfig, DefaultsWhenSectionsAreMissing) {
@@ -337,13 +339,13 @@ TEST(RtLoop, RealtimeRefusalIsOneWarningThatSaysWhy) {
 }
 
 TEST(AllocationHook, CountsOnTheFlaggedThreadOnly) {
-  g_loop_allocations = 0;
+  idm::test_alloc::allocations = 0;
   count_on_this_thread(true);
   auto* v = new std::vector<int>(100);
   count_on_this_thread(false);
   delete v;
   std::thread([] { std::vector<int> w(100); }).join();
-  EXPECT_EQ(g_loop_allocations.load(), 2);  // the vector object and its buffer
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 2);  // the vector object and its buffer
 }
 
 // ---- the daemon on the simulated stage ---------------------------------------------------------
@@ -358,7 +360,7 @@ class DaemonSim : public ::testing::Test {
 TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
   auto d = make(sim_config(std::getenv("IDM_TEST_CLOCK") ? std::getenv("IDM_TEST_CLOCK") : "wall"));
   d->set_loop_thread_hook(&count_on_this_thread);
-  g_loop_allocations = 0;
+  idm::test_alloc::allocations = 0;
   d->start();
   ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
   const double start = d->status(0).position_m;
@@ -373,8 +375,8 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
   d->shutdown();
   EXPECT_GT(d->loop_stats().wakeups, 10u);
   // The hook counted on the loop thread only, from its first tick to its last.
-  EXPECT_EQ(g_loop_allocations.load(), 0) << "the real-time loop allocated";
-  EXPECT_EQ(g_loop_frees.load(), 0);
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 0) << "the real-time loop allocated";
+  EXPECT_EQ(idm::test_alloc::frees.load(), 0);
   EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
 }
 
@@ -405,8 +407,8 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingOnModbusEvenThroughALossAndReconnect
       "server:\n  unix_socket: \"\"\n";
   auto d = make(text);
   d->set_loop_thread_hook(&count_on_this_thread);
-  g_loop_allocations = 0;
-  g_loop_frees = 0;
+  idm::test_alloc::allocations = 0;
+  idm::test_alloc::frees = 0;
   d->start();
   ASSERT_TRUE(d->move_relative(0, 20e-6).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
@@ -421,8 +423,8 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingOnModbusEvenThroughALossAndReconnect
   kill(pid, SIGTERM);
   waitpid(pid, nullptr, 0);
   EXPECT_GT(d->loop_stats().wakeups, 10u);
-  EXPECT_EQ(g_loop_allocations.load(), 0) << "the real-time loop allocated";
-  EXPECT_EQ(g_loop_frees.load(), 0);
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 0) << "the real-time loop allocated";
+  EXPECT_EQ(idm::test_alloc::frees.load(), 0);
 }
 
 TEST_F(DaemonSim, RefusalsBecomeProtocolErrors) {
@@ -648,6 +650,8 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   Daemon d(load_daemon_config(file.string()));
   d.start();
+  // A move is judged against the limits only once there is a position to move from.
+  ASSERT_TRUE(wait_for([&] { return d.status(0).position_valid; }, 10));
   {
     std::FILE* f = std::fopen(file.c_str(), "w");
     std::string changed = sim_config("wall");
@@ -657,8 +661,11 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   std::string error;
   ASSERT_TRUE(d.reload_control(error)) << error;
-  EXPECT_DOUBLE_EQ(d.status(0).soft_upper_m, 5e-4);
+  // The positioner has the new limits when reload_control returns; the status shows them from
+  // the loop's next publication on.
   EXPECT_EQ(d.move_absolute(0, 1e-3).code, error_code::kDataOutOfRange);
+  EXPECT_TRUE(wait_for([&] { return d.status(0).soft_upper_m == 5e-4; }, 10))
+      << d.status(0).soft_upper_m;
   {
     std::FILE* f = std::fopen(file.c_str(), "w");
     const std::string bad = "control:\n  max_retries: oops\n";

@@ -559,6 +559,27 @@ TEST(ProtocolSession, TooLongQueryStillGetsItsOneReplyLine) {
   EXPECT_EQ(h.send("\n*IDN?\n"), "idm,idmd,0,test\n");
 }
 
+// Found by tests/fuzz/fuzz_protocol: a first word longer than the line limit, ending in '?'. The
+// session judges a too-long line by its start (the '?' had not arrived), the client by the whole
+// line, so the client waited for a reply that never came. Such a word is no query for either.
+TEST(ProtocolSession, AQueryWordLongerThanTheLineLimitIsNoQueryForServerOrClient) {
+  const std::string long_word = "STAT" + std::string(5910, 'U') + "?";
+  EXPECT_FALSE(looks_like_query(long_word));
+  EXPECT_FALSE(looks_like_query(long_word + " 1"));
+  EXPECT_TRUE(looks_like_query(std::string(kMaxLineBytes - 1, 'X') + "?"));
+  EXPECT_FALSE(looks_like_query(std::string(kMaxLineBytes, 'X') + "?"));
+  for (std::size_t piece : {std::size_t{1}, std::size_t{256}, std::size_t{100000}}) {
+    SCOPED_TRACE(piece);
+    Harness h;
+    const std::string stream = "POS?\n" + long_word + "\n*IDN?\n";
+    std::string out;
+    for (std::size_t at = 0; at < stream.size(); at += piece)
+      h.session.receive(std::string_view(stream).substr(at, piece), out);
+    EXPECT_EQ(out, "0\nidm,idmd,0,test\n");
+    EXPECT_EQ(h.next_error(), ec::kInputBufferOverrun);
+  }
+}
+
 TEST(ProtocolSession, RandomLinesGetOneReplyPerQueryAndNeverMove) {
   // Lines built from pieces of real commands, garbage and bytes that must be refused.
   const std::vector<std::string> heads = {"POS?",  "MOVE",      "MOVE:ABS", "MOVE:",     "REG?",
