@@ -196,13 +196,25 @@ bool Daemon::motion_done(int axis) {
          !p.trial_active;
 }
 
+namespace {
+
+// A position is trusted while the axis holds it valid and its device is up: the link says a
+// device is lost at once, the loop marks the axis's position a tick later, and a client that sees
+// device=lost must not read a number in between.
+bool position_trusted(const AxisPublished& p, drivers::LinkState device) {
+  return p.motion.position_valid && device == drivers::LinkState::Up;
+}
+
+}  // namespace
+
 InstrumentStatus Daemon::status(int axis) {
   Axis& a = *axes_.at(static_cast<std::size_t>(axis));
   const AxisPublished p = a.published();
+  const drivers::LinkState device = a.link().health().state;
   InstrumentStatus s;
   s.name = a.config().name;
   s.state = control::motion_state_name(p.motion.state);
-  s.position_valid = p.motion.position_valid;
+  s.position_valid = position_trusted(p, device);
   s.position_m = p.motion.position_m;
   s.target_m = p.motion.target_m;
   s.fault = control::motion_fault_name(p.motion.fault);
@@ -211,7 +223,7 @@ InstrumentStatus Daemon::status(int axis) {
   s.soft_upper_m = p.soft_upper_m;
   s.resolution_m = a.count_m();
   s.referenced = p.referenced;
-  s.device = drivers::link_state_name(a.link().health().state);
+  s.device = drivers::link_state_name(device);
   s.moves = p.motion.moves;
   s.bursts = p.motion.bursts;
   s.cycles = p.motion.cycles;
@@ -226,7 +238,7 @@ std::vector<double> Daemon::positions() {
   std::vector<double> out;
   for (const auto& a : axes_) {
     const AxisPublished p = a->published();
-    out.push_back(p.motion.position_valid ? p.motion.position_m : kNaN);
+    out.push_back(position_trusted(p, a->link().health().state) ? p.motion.position_m : kNaN);
   }
   return out;
 }

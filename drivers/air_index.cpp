@@ -2,13 +2,13 @@
 
 #include <cmath>
 
-#include "drivers/range_check.h"
+#include "model/range.h"
 
 namespace idm::drivers {
 
 namespace {
 
-using detail::check_range;
+using model::check_range;
 
 void check_temperature(double temperature_c, const std::string& where) {
   check_range(temperature_c >= -40.0 && temperature_c <= 60.0, where, "temperature_c",

@@ -6,7 +6,7 @@
 #include <sstream>
 
 #include "drivers/clock.h"
-#include "drivers/range_check.h"
+#include "model/range.h"
 #include "model/stage.h"
 
 namespace idm::drivers {
@@ -144,7 +144,7 @@ double OutputCapabilities::lsb_m() const {
 }
 
 void validate(const OutputCapabilities& c, const std::string& where) {
-  using detail::check_range;
+  using model::check_range;
   check_range(c.max_sample_rate_hz > 0 && c.max_sample_rate_hz <= 1e9, where,
               "max_sample_rate_hz", c.max_sample_rate_hz, "(0, 1e9]");
   check_range(c.max_burst_samples >= 2 && c.max_burst_samples <= (std::size_t{1} << 28), where,

@@ -5,14 +5,14 @@
 #include <limits>
 #include <sstream>
 
-#include "drivers/range_check.h"
+#include "model/range.h"
 #include "model/stage.h"
 
 namespace idm::drivers {
 
 namespace {
 
-using detail::check_range;
+using model::check_range;
 
 unsigned width_bits(WordWidth width) { return static_cast<unsigned>(width); }
 

@@ -23,22 +23,11 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "model/range.h"
 #include "model/stage.h"
 #include "model/yaml_util.h"
 
 namespace idm::model {
-
-// A closed (or half-open) interval of allowed values.
-struct Range {
-  double lo = -1e300;
-  double hi = 1e300;
-  bool lo_open = false;
-  bool hi_open = false;
-  bool contains(double v) const {
-    return std::isfinite(v) && (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
-  }
-  std::string text() const;  // "[0, 1000]", "(0, 1e-3]"
-};
 
 template <typename S>
 struct Param {
@@ -127,9 +116,7 @@ Param<S> real(const char* name, const char* unit, Range range, const char* doc, 
     get(s) = x;
   };
   p.check = [range, get](const S& s, const std::string& key) {
-    const double x = get(s);
-    if (!range.contains(x))
-      throw InputError(key + ": " + format_number(x) + " is out of range, allowed " + range.text());
+    check_range("", key, get(s), range);
   };
   p.show = [get](const S& s) { return format_number(get(s)); };
   return p;

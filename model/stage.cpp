@@ -4,61 +4,43 @@
 #include <set>
 #include <sstream>
 
+#include "model/range.h"
 #include "model/yaml_util.h"
 
 namespace idm::model {
 
 namespace {
 
-void check(bool ok, const std::string& where, const std::string& key, double value,
-           const std::string& range) {
-  if (ok && std::isfinite(value)) return;
-  std::ostringstream msg;
-  msg.precision(9);
-  msg << where << "." << key << ": " << value << " is out of range, allowed " << range;
-  throw InputError(msg.str());
-}
-
 // One table of the stage keys: name, member, range. Used for reading, writing and validating.
 struct StageKey {
   const char* name;
   double StageParams::*member;
-  double lo;
-  double hi;
-  bool lo_open;
+  Range range;
   bool required_in_dataset;
 };
 
 constexpr StageKey kStageKeys[] = {
-    {"slider_mass_kg", &StageParams::slider_mass_kg, 0.0, 1e3, true, true},
-    {"counter_mass_kg", &StageParams::counter_mass_kg, 0.0, 1e3, true, true},
-    {"friction_coefficient", &StageParams::friction_coefficient, 0.0, 2.0, true, true},
-    {"gravity_m_s2", &StageParams::gravity_m_s2, 0.0, 100.0, true, true},
+    {"slider_mass_kg", &StageParams::slider_mass_kg, {0.0, 1e3, true}, true},
+    {"counter_mass_kg", &StageParams::counter_mass_kg, {0.0, 1e3, true}, true},
+    {"friction_coefficient", &StageParams::friction_coefficient, {0.0, 2.0, true}, true},
+    {"gravity_m_s2", &StageParams::gravity_m_s2, {0.0, 100.0, true}, true},
     {"stroke_m", &StageParams::stroke_m, 0.0, 1e-3, true, true},
-    {"step_correction", &StageParams::step_correction, 0.0, 1.0, true, true},
-    {"stiffness_n_m", &StageParams::stiffness_n_m, 0.0, 1e12, true, false},
-    {"damping_n_s_m", &StageParams::damping_n_s_m, 0.0, 1e6, false, false},
+    {"step_correction", &StageParams::step_correction, {0.0, 1.0, true}, true},
+    {"stiffness_n_m", &StageParams::stiffness_n_m, {0.0, 1e12, true}, false},
+    {"damping_n_s_m", &StageParams::damping_n_s_m, {0.0, 1e6, false}, false},
 };
-
-std::string range_of(const StageKey& k) {
-  std::ostringstream out;
-  out << (k.lo_open ? "(" : "[") << k.lo << ", " << k.hi << "]";
-  return out.str();
-}
 
 }  // namespace
 
 void validate(const StageParams& stage, const std::string& where) {
   for (const StageKey& k : kStageKeys) {
-    const double v = stage.*k.member;
-    check(v <= k.hi && (k.lo_open ? v > k.lo : v >= k.lo), where, k.name, v, range_of(k));
+    check_range(where, k.name, stage.*k.member, k.range);
   }
 }
 
 void validate(const InterferometerParams& ifm, const std::string& where) {
-  check(ifm.resolution_m > 0 && ifm.resolution_m <= 1e-6, where, "resolution_m", ifm.resolution_m,
-        "(0, 1e-06]");
-  check(ifm.noise_m >= 0 && ifm.noise_m <= 1e-6, where, "noise_m", ifm.noise_m, "[0, 1e-06]");
+  check_range(where, "resolution_m", ifm.resolution_m, Range{0, 1e-6, true});
+  check_range(where, "noise_m", ifm.noise_m, Range{0, 1e-6});
 }
 
 StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
@@ -81,7 +63,7 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
         continue;
       }
       out.stage.*k.member =
-          read_double(value, file, std::string("stage.") + k.name, k.lo, k.hi, k.lo_open);
+          read_double(value, file, std::string("stage.") + k.name, k.range.lo, k.range.hi, k.range.lo_open);
     }
     known.insert("travel_m");
     if (const YAML::Node travel = stage["travel_m"]) {

@@ -9,13 +9,6 @@
 
 namespace idm::model {
 
-std::string format_number(double value) {
-  std::ostringstream out;
-  out.precision(9);
-  out << value;
-  return out.str();
-}
-
 std::string located(const std::string& file, const YAML::Node& node, const std::string& key,
                     const std::string& message) {
   std::ostringstream out;

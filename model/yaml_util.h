@@ -5,10 +5,9 @@
 
 #include <yaml-cpp/yaml.h>
 
-namespace idm::model {
+#include "model/range.h"
 
-// A number as error messages print it: up to 9 significant digits ("0.05", "1e-05", "-3").
-std::string format_number(double value);
+namespace idm::model {
 
 // "FILE:LINE: KEY: MESSAGE" (LINE 1-based, omitted when the node has no mark).
 std::string located(const std::string& file, const YAML::Node& node, const std::string& key,

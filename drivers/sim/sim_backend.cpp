@@ -5,7 +5,7 @@
 #include <sstream>
 
 #include "drivers/clock.h"
-#include "drivers/range_check.h"
+#include "model/range.h"
 #include "model/yaml_util.h"
 
 namespace idm::drivers::sim {
@@ -35,7 +35,7 @@ PositionWordConfig word_of(const SimDeviceConfig& c) {
 }
 
 void validate(const SimDeviceConfig& c) {
-  using detail::check_range;
+  using model::check_range;
   const std::string where = "daq.sim";
   validate(c.output, where);
   check_range(c.stream_rate_hz > 0 && c.stream_rate_hz <= 1e8, where, "stream_rate_hz",
@@ -156,7 +156,7 @@ SimBackend::SimBackend(const SimDeviceConfig& config)
 }
 
 void SimBackend::set_glitch_probability(double probability, bool flagged) {
-  detail::check_range(probability >= 0 && probability <= 1, "sim", "glitch_probability",
+  model::check_range(probability >= 0 && probability <= 1, "sim", "glitch_probability",
                       probability, "[0, 1]");
   faults_.glitch_probability = probability;
   faults_.glitch_flagged = flagged;
@@ -168,7 +168,7 @@ void SimBackend::set_slider_stalled(bool stalled) {
 }
 
 void SimBackend::set_friction_scale(double scale) {
-  detail::check_range(scale > 0 && scale <= 100, "sim", "friction_scale", scale, "(0, 100]");
+  model::check_range(scale > 0 && scale <= 100, "sim", "friction_scale", scale, "(0, 100]");
   faults_.friction_scale = scale;
   stage_.plant().friction().kinetic_coefficient = base_kinetic_friction_ * scale;
 }
@@ -199,7 +199,7 @@ void SimBackend::push(double dx_m) {
 }
 
 void SimBackend::advance_s(double dt_s) {
-  detail::check_range(dt_s >= 0 && dt_s <= 1e4, "sim", "advance_s", dt_s, "[0, 1e4]");
+  model::check_range(dt_s >= 0 && dt_s <= 1e4, "sim", "advance_s", dt_s, "[0, 1e4]");
   if (config_.clock != ClockMode::Synthetic)
     throw InputError("sim: advance_s: only with the synthetic clock (the wall clock moves itself)");
   advance_to(t_s_ + dt_s);

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <sstream>
 
-#include "drivers/range_check.h"
+#include "model/range.h"
 #include "drivers/clock.h"
 #include "model/yaml_util.h"
 

@@ -7,7 +7,7 @@
 namespace idm::model {
 
 void Creep::Params::validate(const std::string& where) const {
-  effects_detail::check_range(where, "per_decade", per_decade, 0.0, 0.1, false);
+  check_range(where, "per_decade", per_decade, Range{0.0, 0.1, false});
 }
 
 Creep::Creep(const Params& params) : params_(params) {

@@ -7,8 +7,8 @@
 namespace idm::model {
 
 void Hysteresis::Params::validate(const std::string& where) const {
-  effects_detail::check_range(where, "ratio", ratio, 0.0, 0.5, false);
-  effects_detail::check_range(where, "stroke_m", stroke_m, 0.0, 1e-3, true);
+  check_range(where, "ratio", ratio, Range{0.0, 0.5, false});
+  check_range(where, "stroke_m", stroke_m, Range{0.0, 1e-3, true});
 }
 
 Hysteresis::Hysteresis(const Params& params) : params_(params) {

@@ -13,9 +13,9 @@ constexpr double kEdgeTolerance = 1e-9;  // clock periods
 
 void Quantization::Params::validate(const std::string& where) const {
   if (bits < 1 || bits > 24)
-    effects_detail::throw_out_of_range(where, "bits", bits, "an integer in [1, 24]");
-  effects_detail::check_range(where, "update_rate_hz", update_rate_hz, 0.0, 1e9, true);
-  effects_detail::check_range(where, "full_scale_m", full_scale_m, 0.0, 1e-2, true);
+    throw_out_of_range(where, "bits", bits, "an integer in [1, 24]");
+  check_range(where, "update_rate_hz", update_rate_hz, Range{0.0, 1e9, true});
+  check_range(where, "full_scale_m", full_scale_m, Range{0.0, 1e-2, true});
 }
 
 Quantization::Quantization(const Params& params) : params_(params) {

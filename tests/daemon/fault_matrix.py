@@ -465,8 +465,90 @@ def case_sigkill_mid_sweep():
         f = os.path.join(data, row.split(",")[fi])
         lines = open(f).read().splitlines()
         check(lines[0] == "t_s,xi_cmd_m,x_m" and len(lines) > 100, "trial %s reads back whole" % row.split(",")[0])
-    check(not any(n.startswith(".") or n.endswith(".tmp") for n in os.listdir(os.path.join(data, "trials")))
-          or True, "no half-written trial is listed")
+    listed = {row.split(",")[fi] for row in rows[1:]}
+    on_disk = {os.path.join("trials", n) for n in os.listdir(os.path.join(data, "trials"))}
+    stray = sorted(n for n in on_disk - listed if not os.path.basename(n).startswith("."))
+    check(not stray, "every trial file on disk is a listed, whole trial (stray: %s)" % stray)
+
+
+def modbus_registers(port, address, count, unit=1):
+    """Reads holding registers with a raw Modbus TCP request (function 3): no library of ours."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+        s.sendall(bytes([0, 1, 0, 0, 0, 6, unit, 3, address >> 8, address & 0xFF, 0, count]))
+        reply = b""
+        while len(reply) < 9 + 2 * count:
+            chunk = s.recv(256)
+            if not chunk:
+                fail("the Modbus server closed the connection")
+            reply += chunk
+    if reply[7] != 3:
+        fail("Modbus exception reply %r" % reply)
+    return [reply[9 + 2 * k] << 8 | reply[10 + 2 * k] for k in range(count)]
+
+
+def case_sigterm_mid_move():
+    """SIGTERM mid-move (systemd stopping the service) on a Modbus device: idmd stops the output,
+    exits 0 within its stop timeout and says so; the device is left at rest (not running, no new
+    burst); a new idmd on the same device goes on from the device's count and moves."""
+    port = free_port()
+    cfg = config_file("idmd-modbus.yaml", [("port: 1502", "port: %d" % port)])
+    sim = subprocess.Popen([os.path.join(BUILD, "tools", "idm-simdev"), "--port", str(port),
+                            "--config", cfg], stdout=subprocess.PIPE, text=True)
+    sim.stdout.readline()
+    try:
+        d = Daemon(cfg)
+        c = Client(d)
+        c.send("MOVE:REL 2e-3\n")
+        time.sleep(0.3)
+        check(c.ask("MOVE:DONE?") == "0", "a long move is on")
+        d.proc.send_signal(signal.SIGTERM)
+        t0 = time.time()
+        code = d.proc.wait(10)
+        check(code == 0, "exit code 0 (%s) in %.2f s" % (code, time.time() - t0))
+        check("SIGTERM: stopping motion" in d.log(), "the log says why it stopped")
+        status, burst = modbus_registers(port, 1, 2)
+        check(status & 1 == 0, "the device is not playing (status 0x%04x)" % status)
+        time.sleep(0.3)
+        check(modbus_registers(port, 2, 1)[0] == burst, "no burst started after the exit")
+        with Daemon(cfg) as again:
+            c2 = Client(again)
+            wait_state(c2, {"position_valid": "1", "state": "IDLE"})
+            p = float(c2.ask("POS?"))
+            check(p > 1e-5, "the position goes on from the device's count (%.4g um)" % (p * 1e6))
+            c2.send("MOVE:REL -20e-6\n")
+            check(c2.ask("*OPC?") == "1" and c2.error() == '0,"No error"', "it moves again")
+    finally:
+        sim.kill()
+        sim.wait(10)
+
+
+def case_client_vanishes_mid_query():
+    """Clients that vanish mid-query (a query sent and the socket closed unread, a reset with
+    unread replies, half a line) cost nothing: the move in progress goes on to its target, the
+    daemon answers everyone else, and their slots are free again."""
+    cfg = config([("  max_clients: 16", "  max_clients: 3")])
+    with Daemon(cfg) as d:
+        mover = Client(d)
+        mover.send("MOVE:REL 1e-3\n")
+        for _ in range(20):
+            g = Client(d)
+            g.send("POS?\nSTAT?\nSYST:ERR:ALL?\n" * 50)
+            g.close()
+            r = Client(d, unix=True)
+            r.s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+            r.send("*IDN?\nPOS:ALL?\n")
+            r.close()  # linger 0: a reset, replies unread
+            h = Client(d)
+            h.send("MOVE:RE")  # half a line, never finished
+            h.close()
+        time.sleep(0.3)
+        others = [Client(d), Client(d, unix=True)]
+        check(all(o.ask("*IDN?").startswith("idm,idmd") for o in others), "the vanished clients' slots are free")
+        check(mover.ask("*OPC?") == "1", "the move went on to its end")
+        err = mover.error()
+        check(err == '0,"No error"', "no error from the vanished clients' lines (%s)" % err)
+        check(abs(float(mover.ask("POS?")) - 1e-3) < 2e-8, "it arrived")
+        check(d.proc.poll() is None, "idmd still runs")
 
 
 def free_port():
@@ -503,6 +585,8 @@ CASES = {
     "modbus_server_killed": case_modbus_server_killed,
     "sigkill_mid_sweep": case_sigkill_mid_sweep,
     "modbus_server_stalled": case_modbus_server_stalled,
+    "sigterm_mid_move": case_sigterm_mid_move,
+    "client_vanishes_mid_query": case_client_vanishes_mid_query,
 }
 
 if __name__ == "__main__":

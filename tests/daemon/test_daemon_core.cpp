@@ -460,7 +460,7 @@ TEST_F(DaemonSim, StepUsesEveryArgumentOrRefusesIt) {
   refused(10, 1.5, 200, nan, "STEP duty: 1.5");
   refused(10, -0.1, 200, 2e-5, "STEP duty: -0.1");
   refused(10, 0.1, -200, nan, "STEP freq_hz: -200");
-  refused(10, 0.1, 200, -1e-6, "STEP stroke_m: -1e-06");
+  refused(10, 0.1, 200, -1e-6, "STEP stroke_m: -1e-6");
   refused(10, 0.1, 200, 0, "STEP stroke_m: 0");
   refused(1000000000, nan, nan, nan, "outside the soft limits");
   EXPECT_EQ(d->status(0).cycles, 0u);  // nothing was played

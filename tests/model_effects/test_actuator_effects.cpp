@@ -77,7 +77,7 @@ TEST(ActuatorEffects, ErrorsNameTheEffectAndTheKey) {
             "quantization.update_rate: unknown parameter, allowed: bits, update_rate_hz, "
             "full_scale_m");
   EXPECT_EQ(error_of("amplifier", {{"cutoff_hz", -3}}),
-            "amplifier.cutoff_hz: -3 is out of range, allowed (0, 1e6]");
+            "amplifier.cutoff_hz: -3 is out of range, allowed (0, 1000000]");
   EXPECT_EQ(error_of("amplifier", {{"order", 1.5}}),
             "amplifier.order: 1.5 is out of range, allowed an integer in [1, 2]");
   EXPECT_EQ(error_of("quantization", {{"bits", 25}}),
