@@ -157,7 +157,10 @@ int main(int argc, char** argv) {
     }
     if (have_idmd && have_unix) throw InputError("--unix: give either --idmd or --unix");
     if (!have_idmd && !have_unix) options.address = idm::client::address_from_environment();
-  } catch (const std::invalid_argument& e) {  // InputError and AddressError
+  } catch (const InputError& e) {
+    std::fprintf(stderr, "idm-web: %s\n", e.what());
+    return 2;
+  } catch (const idm::client::AddressError& e) {
     std::fprintf(stderr, "idm-web: %s\n", e.what());
     return 2;
   }
