@@ -2,7 +2,7 @@
 of tests/python/conftest.py) and idm-tango started without a database (-nodb -port -dlist),
 driven by PyTango (Debian's python3-tango).
 
-The simulated stage is slowed (device.max_freq_hz 200: about 0.8 mm/s) so that a long move
+The simulated stage is slowed (a 1.5 um stroke: about 0.8 mm/s) so that a long move
 lasts seconds and a Stop lands in the middle of it."""
 import importlib.util
 import os
@@ -23,7 +23,7 @@ _spec.loader.exec_module(fixtures)
 
 BUILD = fixtures.BUILD
 IDM_TANGO = os.path.join(BUILD, "tango", "idm-tango")
-SLOW = [("max_freq_hz: 2000", "max_freq_hz: 200")]
+SLOW = [("stroke_m: 20.35e-6", "stroke_m: 1.5e-6")]
 
 
 class TangoServer:

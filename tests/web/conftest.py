@@ -1,7 +1,7 @@
 """Fixtures of the status page tests: a real idmd on the simulated stage (the Idmd helper of
 tests/python/conftest.py) and idm-web as a separate process, on a free port.
 
-The simulated stage is slowed (device.max_freq_hz 200: about 0.8 mm/s) so that a long move lasts
+The simulated stage is slowed (a 1.5 um stroke: about 0.8 mm/s) so that a long move lasts
 seconds and a STOP lands in the middle of it."""
 import importlib.util
 import json
@@ -25,7 +25,7 @@ _spec.loader.exec_module(fixtures)
 
 BUILD = fixtures.BUILD
 IDM_WEB = os.path.join(BUILD, "web", "idm-web")
-SLOW = [("max_freq_hz: 2000", "max_freq_hz: 200")]
+SLOW = [("stroke_m: 20.35e-6", "stroke_m: 1.5e-6")]
 
 
 class Web:
