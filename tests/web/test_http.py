@@ -312,3 +312,23 @@ def test_bad_command_lines_are_refused(tmp_path):
         r = subprocess.run([IDM_WEB] + args, capture_output=True, text=True, timeout=30)
         assert r.returncode == 2, (args, r.returncode, r.stderr)
         assert r.stderr.startswith("idm-web: ") and len(r.stderr.splitlines()) == 1, r.stderr
+
+
+def test_sweep_progress_is_the_daemon_s(lab, restore):
+    daemon, web, _ = lab
+    send(daemon, 'SWEEP "web-sweep",400;500,0.1;0.2,2,4')
+    wait_for("the sweep done", lambda: ask(daemon, "SWEEP?")[0].startswith("DONE,"), 120)
+    state, axis, written, failed, planned, directory = ask(daemon, "SWEEP?")[0].split(",", 5)
+    assert int(planned) == 8 and int(written) + int(failed) == 8
+
+    def shown():
+        s = web.json("/api/state")["sweep"]
+        return s if s["state"] == "DONE" else None
+    s = wait_for("the sweep in /api/state", shown, 10)
+    assert (s["axis"], s["written"], s["failed"], s["planned"]) == \
+        (int(axis) + 1, int(written), int(failed), int(planned))
+    assert s["directory"] == json.loads(directory)
+    samples, _ = parse_metrics(web.metrics())
+    assert samples[("idm_sweep_running", ())] == 0
+    assert samples[("idm_sweep_trials", (("kind", "written"),))] == int(written)
+    assert samples[("idm_sweep_trials", (("kind", "planned"),))] == 8
