@@ -164,19 +164,24 @@ void Monitor::poll_once(client::Client& c, double& next_loop) {
 
 void Monitor::command(const std::string& line) {
   std::lock_guard<std::mutex> lock(control_mutex_);
-  try {
-    if (!control_) control_ = std::make_unique<client::Client>(options_.address, options_.timeout_s);
-    control_->command(line);
-  } catch (const client::DaemonError&) {
-    throw;
-  } catch (...) {
-    control_.reset();
-    throw;
+  // A connection kept from before may have been closed by a daemon that restarted: once more on
+  // a new one (the control lines, STOP and an absolute move, may be sent twice).
+  for (int attempt = 0;; ++attempt) {
+    try {
+      if (!control_) control_ = std::make_unique<client::Client>(options_.address, options_.timeout_s);
+      control_->command(line);
+      return;
+    } catch (const client::DaemonError&) {
+      throw;
+    } catch (...) {
+      control_.reset();
+      if (attempt > 0) throw;
+    }
   }
 }
 
 RegionMap Monitor::regions(int axis) {
-  std::lock_guard<std::mutex> lock(control_mutex_);
+  std::lock_guard<std::mutex> lock(regions_mutex_);
   const double t = now_s();
   if (const auto it = regions_.find(axis); it != regions_.end() && t - it->second.time < kRegionCacheS)
     return it->second;
@@ -186,14 +191,15 @@ RegionMap Monitor::regions(int axis) {
   m.duties = options_.region_duties;
   m.time = t;
   try {
-    if (!control_) control_ = std::make_unique<client::Client>(options_.address, options_.timeout_s);
+    if (!regions_client_)
+      regions_client_ = std::make_unique<client::Client>(options_.address, options_.timeout_s);
     for (const double f : m.freqs_hz) {
       std::vector<client::RegionReply> row;
       for (const double d : m.duties) {
         client::RegionReply r;
         try {
           r = client::parse_region(
-              control_->query(axis_prefix(axis) + "REG? " + number_text(f) + "," + number_text(d)));
+              regions_client_->query(axis_prefix(axis) + "REG? " + number_text(f) + "," + number_text(d)));
         } catch (const client::DaemonError& e) {
           if (e.code == -114) throw;  // no such axis: no map at all
           r.region.clear();           // a cell the daemon refuses (e.g. outside the device's range)
@@ -206,7 +212,7 @@ RegionMap Monitor::regions(int axis) {
     m.cells.clear();
     m.error = e.what();
   } catch (const std::exception& e) {
-    control_.reset();
+    regions_client_.reset();
     m.cells.clear();
     m.error = e.what();
     return m;  // not cached: the daemon may come back

@@ -74,7 +74,7 @@ class Monitor {
   void stop();
 
   Snapshot snapshot() const;
-  // REG? over the grid for one axis (cached for 30 s); on its own connection.
+  // REG? over the grid for one axis (cached for 30 s), on a connection of its own.
   RegionMap regions(int axis);
   // A command on the control connection: the daemon's error as client::DaemonError.
   void command(const std::string& line);
@@ -87,9 +87,13 @@ class Monitor {
   MonitorOptions options_;
   mutable std::mutex mutex_;
   Snapshot snapshot_;
-  std::map<int, RegionMap> regions_;
-  std::mutex control_mutex_;  // the control connection and the region queries
+  // STOP and moves on their own connection, so that a region map being computed never holds
+  // up a STOP.
+  std::mutex control_mutex_;
   std::unique_ptr<client::Client> control_;
+  std::mutex regions_mutex_;  // the region queries' connection and the cache
+  std::unique_ptr<client::Client> regions_client_;
+  std::map<int, RegionMap> regions_;
   std::mutex wake_mutex_;
   std::condition_variable wake_;
   std::atomic<bool> stopping_{false};
