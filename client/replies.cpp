@@ -67,6 +67,10 @@ ErrorReply parse_error(std::string_view reply) {
   std::string_view code = reply.substr(0, comma);
   const bool negative = code.front() == '-';
   if (negative) code.remove_prefix(1);
+  // As idmd prints them: no leading zero, no "-0" (so "00,..." never reads as "no error").
+  if (code.size() > 1 && code.front() == '0')
+    throw ReplyError("'" + shown(reply) + "': a code with a leading zero");
+  if (negative && code == "0") throw ReplyError("'" + shown(reply) + "': the code -0");
   ErrorReply e;
   e.code = static_cast<int>(parse_reply_count(code)) * (negative ? -1 : 1);
   std::string_view text = reply.substr(comma + 1);

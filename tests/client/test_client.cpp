@@ -74,7 +74,9 @@ TEST(Replies, ErrorsWithQuotes) {
   EXPECT_EQ(e.text, "Undefined header; \"X\"");
   EXPECT_EQ(parse_error("0,\"No error\"").code, 0);
   EXPECT_EQ(parse_error("102,\"Stall\"").code, 102);
-  for (const char* bad : {"", "0", ",\"x\"", "-,\"x\"", "1,x", "1,\"a\"b\"", "12345678,\"x\""})
+  // "00,..." and "-0,..." would read as code 0, "no error".
+  for (const char* bad : {"", "0", ",\"x\"", "-,\"x\"", "1,x", "1,\"a\"b\"", "12345678,\"x\"",
+                          "00,\"o#r\"", "-0,\"x\"", "-0113,\"x\""})
     EXPECT_THROW(parse_error(bad), ReplyError) << bad;
 }
 
