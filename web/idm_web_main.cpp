@@ -8,6 +8,7 @@
 #include <atomic>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <sstream>
@@ -265,8 +266,11 @@ int main(int argc, char** argv) {
   });
   server.Get("/api/gap", [&](const httplib::Request&, httplib::Response& res) {
     if (gap_report.empty()) return json_error(res, 404, "no gap report (idm-web --gap-report FILE)");
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(gap_report, ec))
+      return json_error(res, 404, "no gap report at " + gap_report + " yet");
     std::ifstream in(gap_report, std::ios::binary);
-    if (!in) return json_error(res, 404, "no gap report at " + gap_report + " yet");
+    if (!in) return json_error(res, 404, "cannot read the gap report " + gap_report);
     std::string body;
     body.resize(kMaxGapReportBytes + 1);
     in.read(body.data(), static_cast<std::streamsize>(body.size()));
