@@ -10,14 +10,9 @@
 // stdin are sent as they are and the reply of every query is printed.
 // Exit status: 0 ok, 1 an error from the daemon / a timeout / no connection, 2 bad usage,
 // 130 interrupted.
-#include <netdb.h>
-#include <poll.h>
 #include <signal.h>
-#include <sys/socket.h>
-#include <sys/un.h>
 #include <unistd.h>
 
-#include <cerrno>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -26,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "client/connection.h"
 #include "daemon/protocol.h"
 #include "model/stage.h"
 #include "model/yaml_util.h"
@@ -67,120 +63,12 @@ void on_sigint(int) {
   g_interrupted = 1;
 }
 
-struct Interrupted {};
+using idm::client::Connection;
+using idm::client::Interrupted;
 
-// One connection to the daemon, line by line, every read bounded by the timeout.
-class Connection {
- public:
-  Connection(const std::string& host, int port, const std::string& unix_path, double timeout_s)
-      : timeout_s_(timeout_s) {
-    if (!unix_path.empty()) {
-      address_ = "unix socket " + unix_path;
-      sockaddr_un a{};
-      a.sun_family = AF_UNIX;
-      if (unix_path.size() >= sizeof a.sun_path)
-        throw std::runtime_error(address_ + ": path too long");
-      std::memcpy(a.sun_path, unix_path.c_str(), unix_path.size() + 1);
-      fd_ = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-      if (fd_ < 0 || connect(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0)
-        fail_connect(std::strerror(errno));
-      return;
-    }
-    address_ = (host.find(':') != std::string::npos ? "[" + host + "]" : host) + ":" +
-               std::to_string(port);
-    addrinfo hints{};
-    hints.ai_family = AF_UNSPEC;
-    hints.ai_socktype = SOCK_STREAM;
-    hints.ai_flags = AI_NUMERICSERV;
-    addrinfo* list = nullptr;
-    if (const int rc = getaddrinfo(host.c_str(), std::to_string(port).c_str(), &hints, &list);
-        rc != 0)
-      fail_connect(gai_strerror(rc));
-    std::string why = "no address";
-    for (addrinfo* ai = list; ai && fd_ < 0; ai = ai->ai_next) {
-      fd_ = socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC, ai->ai_protocol);
-      if (fd_ >= 0 && connect(fd_, ai->ai_addr, ai->ai_addrlen) != 0) {
-        why = std::strerror(errno);
-        close(fd_);
-        fd_ = -1;
-      }
-    }
-    freeaddrinfo(list);
-    if (fd_ < 0) fail_connect(why);
-  }
-  ~Connection() {
-    if (fd_ >= 0) close(fd_);
-  }
-  Connection(const Connection&) = delete;
-  Connection& operator=(const Connection&) = delete;
-
-  void send_line(const std::string& line) {
-    const std::string bytes = line + "\n";
-    std::size_t done = 0;
-    while (done < bytes.size()) {
-      const ssize_t n = send(fd_, bytes.data() + done, bytes.size() - done, MSG_NOSIGNAL);
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0)
-        throw std::runtime_error(address_ + ": connection lost (" + std::strerror(errno) + ")");
-      done += static_cast<std::size_t>(n);
-    }
-  }
-
-  // One reply line. Ctrl-C while waiting throws Interrupted when `interruptible`.
-  std::string read_line(bool interruptible = false) {
-    const auto start = std::chrono::steady_clock::now();
-    for (;;) {
-      if (const std::size_t nl = buffer_.find('\n'); nl != std::string::npos) {
-        std::string line = buffer_.substr(0, nl);
-        buffer_.erase(0, nl + 1);
-        if (!line.empty() && line.back() == '\r') line.pop_back();
-        return line;
-      }
-      if (interruptible && g_interrupted) throw Interrupted{};
-      int wait_ms = 200;
-      if (timeout_s_ > 0) {
-        const double left = timeout_s_ - seconds_since(start);
-        if (left <= 0)
-          throw std::runtime_error(address_ + ": no reply within " +
-                                   idm::model::format_number(timeout_s_) + " s (--timeout)");
-        wait_ms = std::min(wait_ms, static_cast<int>(left * 1000) + 1);
-      }
-      pollfd p{fd_, POLLIN, 0};
-      const int rc = poll(&p, 1, wait_ms);
-      if (rc <= 0) continue;  // timeout slice or EINTR: check again
-      char buf[4096];
-      const ssize_t n = recv(fd_, buf, sizeof buf, 0);
-      if (n < 0 && errno == EINTR) continue;
-      if (n == 0) throw std::runtime_error(address_ + ": the daemon closed the connection");
-      if (n < 0)
-        throw std::runtime_error(address_ + ": connection lost (" + std::strerror(errno) + ")");
-      buffer_.append(buf, static_cast<std::size_t>(n));
-    }
-  }
-
-  std::string query(const std::string& line, bool interruptible = false) {
-    send_line(line);
-    return read_line(interruptible);
-  }
-
-  double timeout_s() const { return timeout_s_; }
-
-  static double seconds_since(std::chrono::steady_clock::time_point t) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
-  }
-
- private:
-  [[noreturn]] void fail_connect(const std::string& why) {
-    if (fd_ >= 0) close(fd_);
-    fd_ = -1;
-    throw std::runtime_error("cannot connect to " + address_ + ": " + why);
-  }
-
-  int fd_ = -1;
-  std::string address_;
-  std::string buffer_;
-  double timeout_s_;
-};
+bool interrupted() {
+  return g_interrupted != 0;
+}
 
 // Prints and removes every error in the session's queue; returns how many there were.
 int drain_errors(Connection& c) {
@@ -200,7 +88,7 @@ void wait_done(Connection& c, bool stop_on_interrupt) {
   for (;;) {
     std::string done;
     try {
-      done = c.query(g_axis + "MOVE:DONE?", true);
+      done = c.query(g_axis + "MOVE:DONE?", interrupted);
     } catch (const Interrupted&) {
       done = c.read_line();
     }
@@ -446,7 +334,11 @@ int main(int argc, char** argv) {
   signal(SIGPIPE, SIG_IGN);
 
   try {
-    Connection c(host, port, unix_path, timeout_s);
+    idm::client::Address address;
+    address.host = host;
+    address.port = port;
+    address.unix_path = unix_path;
+    Connection c(address, timeout_s);
     if (!axis.empty()) g_axis = "AXIS" + std::to_string(resolve_axis(c, axis)) + ":";
     return args.empty() ? interactive(c) : run(args, c, wait);
   } catch (const InputError& e) {

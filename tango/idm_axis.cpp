@@ -1,0 +1,526 @@
+#include "tango/idm_axis.h"
+
+#include <cctype>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+namespace idm::tango {
+
+namespace {
+
+constexpr double kTimeoutS = 5;
+constexpr auto kMonitorPeriod = std::chrono::milliseconds(100);
+
+std::string number_text(double v) {
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.12g", v);
+  return buf;
+}
+
+Tango::DevState tango_state(AxisState s) {
+  switch (s) {
+    case AxisState::On: return Tango::ON;
+    case AxisState::Moving: return Tango::MOVING;
+    case AxisState::Fault: return Tango::FAULT;
+    case AxisState::Alarm: return Tango::ALARM;
+    case AxisState::Disable: return Tango::DISABLE;
+  }
+  return Tango::UNKNOWN;
+}
+
+// The axis a device name stands for: idm/axis/<n> is axis n; 0 when the last member is no number.
+int axis_from_name(const std::string& name) {
+  const std::size_t slash = name.rfind('/');
+  const std::string member = slash == std::string::npos ? name : name.substr(slash + 1);
+  if (member.empty() || member.size() > 4 ||
+      member.find_first_not_of("0123456789") != std::string::npos)
+    return 0;
+  return std::stoi(member);
+}
+
+}  // namespace
+
+IdmAxis::IdmAxis(Tango::DeviceClass* cl, const char* name) : TANGO_BASE_CLASS(cl, name) {
+  init_device();
+}
+
+IdmAxis::~IdmAxis() {
+  delete_device();
+}
+
+void IdmAxis::init_device() {
+  set_state(Tango::INIT);
+  config_error_.clear();
+  axis_ = axis_from_name(get_name());
+  try {
+    address_ = client::address_from_environment();
+  } catch (const client::AddressError& e) {
+    config_error_ = e.what();
+  }
+  // With a database, the device's properties override the environment and the name.
+  if (Tango::Util::_UseDb) {
+    Tango::DbData props;
+    props.push_back(Tango::DbDatum("IdmdAddress"));
+    props.push_back(Tango::DbDatum("IdmdSocket"));
+    props.push_back(Tango::DbDatum("Axis"));
+    get_db_device()->get_property(props);
+    std::string text;
+    try {
+      if (!props[1].is_empty()) {
+        props[1] >> text;
+        address_ = client::Address{};
+        address_.unix_path = text;
+      } else if (!props[0].is_empty()) {
+        props[0] >> text;
+        address_ = client::parse_host_port(text);
+      }
+    } catch (const client::AddressError& e) {
+      config_error_ = std::string("property IdmdAddress: ") + e.what();
+    }
+    if (!props[2].is_empty()) {
+      Tango::DevLong axis = 0;
+      props[2] >> axis;
+      axis_ = axis;
+    }
+  }
+  if (config_error_.empty() && (axis_ < 1 || axis_ > 1000))
+    config_error_ = "device " + get_name() +
+                    ": the name does not end in an axis number (idm/axis/<n>) and no Axis property "
+                    "says which axis it is";
+  set_change_event("Position", true, false);
+  set_change_event("State", true, false);
+  refresh();
+  apply_status();
+  stopping_ = false;
+  monitor_ = std::thread([this] { monitor_loop(); });
+}
+
+void IdmAxis::delete_device() {
+  stopping_ = true;
+  if (monitor_.joinable()) monitor_.join();
+  std::lock_guard<std::mutex> lock(mutex_);
+  client_.reset();
+}
+
+std::string IdmAxis::query(const std::string& header, const char* origin) {
+  if (!config_error_.empty()) Tango::Except::throw_exception("IdmConfig", config_error_, origin);
+  const std::string line = "AXIS" + std::to_string(axis_) + ":" + header;
+  std::string reason, why;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    try {
+      if (!client_) client_ = std::make_unique<client::Client>(address_, kTimeoutS);
+      return client_->query(line);
+    } catch (const client::DaemonError& e) {
+      reason = "IdmdError";
+      why = "idmd refused '" + line + "': " + e.what();
+    } catch (const std::exception& e) {
+      client_.reset();
+      reason = "IdmdUnreachable";
+      why = e.what();
+    }
+  }
+  Tango::Except::throw_exception(reason, why, origin);
+  return {};
+}
+
+void IdmAxis::command(const std::string& header, const char* origin) {
+  if (!config_error_.empty()) Tango::Except::throw_exception("IdmConfig", config_error_, origin);
+  const std::string line = "AXIS" + std::to_string(axis_) + ":" + header;
+  std::string reason, why;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    try {
+      if (!client_) client_ = std::make_unique<client::Client>(address_, kTimeoutS);
+      client_->command(line);
+      return;
+    } catch (const client::DaemonError& e) {
+      reason = "IdmdError";
+      why = "idmd refused '" + line + "': " + e.what();
+    } catch (const std::exception& e) {
+      client_.reset();
+      reason = "IdmdUnreachable";
+      why = e.what();
+    }
+  }
+  Tango::Except::throw_exception(reason, why, origin);
+}
+
+void IdmAxis::refresh() {
+  if (!config_error_.empty()) return;
+  std::lock_guard<std::mutex> lock(mutex_);
+  try {
+    if (!client_) client_ = std::make_unique<client::Client>(address_, kTimeoutS);
+    status_ = client::parse_status(client_->query("AXIS" + std::to_string(axis_) + ":STAT?"));
+    status_error_.clear();
+  } catch (const client::DaemonError& e) {
+    status_.reset();
+    status_error_ = std::string("idmd refused STAT? of axis ") + std::to_string(axis_) + ": " + e.what();
+  } catch (const std::exception& e) {
+    client_.reset();
+    status_.reset();
+    status_error_ = std::string("idmd not reached: ") + e.what();
+  }
+}
+
+void IdmAxis::apply_status() {
+  std::optional<client::AxisStatus> s;
+  std::string error;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    s = status_;
+    error = status_error_;
+  }
+  if (!config_error_.empty()) {
+    set_state(Tango::FAULT);
+    status_text_ = config_error_;
+  } else if (!s) {
+    set_state(Tango::FAULT);
+    status_text_ = error;
+  } else {
+    const AxisState state = axis_state(*s);
+    set_state(tango_state(state));
+    status_text_ = axis_status_text(*s, state) + " (idmd at " + address_.text() + ", axis " +
+                   std::to_string(axis_) + ")";
+    // Position's write limits follow the soft limits (a write outside is refused by Tango).
+    if (std::isfinite(s->lower_m) && std::isfinite(s->upper_m) && s->lower_m < s->upper_m &&
+        (!limits_set_ || s->lower_m != limit_lo_ || s->upper_m != limit_hi_)) {
+      try {
+        Tango::WAttribute& w = get_device_attr()->get_w_attr_by_name("Position");
+        // Never min >= max in between: the side that moves away from the other first.
+        if (limits_set_ && s->lower_m >= limit_hi_) {
+          w.set_max_value(s->upper_m);
+          w.set_min_value(s->lower_m);
+        } else {
+          w.set_min_value(s->lower_m);
+          w.set_max_value(s->upper_m);
+        }
+        limit_lo_ = s->lower_m;
+        limit_hi_ = s->upper_m;
+        limits_set_ = true;
+      } catch (const Tango::DevFailed& e) {
+        status_text_ += ", cannot set Position's limits: " + std::string(e.errors[0].desc.in());
+      }
+    }
+  }
+  set_status(status_text_);
+}
+
+void IdmAxis::publish() {
+  Tango::Util* tg = Tango::Util::instance();
+  if (tg->is_svr_starting() || tg->is_svr_shutting_down()) return;
+  std::optional<client::AxisStatus> s;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    s = status_;
+  }
+  const AxisState state = !config_error_.empty() || !s ? AxisState::Fault : axis_state(*s);
+  const bool changed = !last_state_known_ || state != last_state_;
+  const bool was_moving = last_state_known_ && last_state_ == AxisState::Moving;
+  last_state_ = state;
+  last_state_known_ = true;
+  if (changed) push_change_event("State");
+  // Position while moving, and once more when the motion ends (the arrived position).
+  if (s && s->position_valid && (state == AxisState::Moving || was_moving)) {
+    event_position_ = s->position_m;
+    timeval now{};
+    gettimeofday(&now, nullptr);
+    push_change_event("Position", &event_position_, now,
+                      state == AxisState::Moving ? Tango::ATTR_CHANGING : Tango::ATTR_VALID);
+  }
+}
+
+void IdmAxis::monitor_loop() {
+  omni_thread::ensure_self self;  // Tango's monitor and event calls need an omni_thread
+  while (!stopping_) {
+    const auto next = std::chrono::steady_clock::now() + kMonitorPeriod;
+    refresh();
+    try {
+      Tango::AutoTangoMonitor sync(this);
+      if (stopping_) break;
+      apply_status();
+      publish();
+    } catch (const Tango::DevFailed&) {
+      // the device's monitor stayed busy (a long request, or the device being deleted): next round
+    }
+    while (!stopping_ && std::chrono::steady_clock::now() < next)
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+}
+
+Tango::DevState IdmAxis::dev_state() {
+  refresh();
+  apply_status();
+  return get_state();
+}
+
+Tango::ConstDevString IdmAxis::dev_status() {
+  refresh();
+  apply_status();
+  return status_text_.c_str();
+}
+
+void IdmAxis::read_attr_hardware(std::vector<long>&) {
+  refresh();
+  apply_status();
+}
+
+void IdmAxis::read_Position(Tango::Attribute& att) {
+  std::optional<client::AxisStatus> s;
+  std::string error;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    s = status_;
+    error = status_error_;
+  }
+  if (!config_error_.empty()) Tango::Except::throw_exception("IdmConfig", config_error_, "IdmAxis::read_Position");
+  if (!s) Tango::Except::throw_exception("IdmdUnreachable", error, "IdmAxis::read_Position");
+  if (!s->position_valid) {
+    // No position to trust (no valid reading, beam or device lost): never the last good one.
+    att.set_quality(Tango::ATTR_INVALID);
+    return;
+  }
+  position_ = s->position_m;
+  att.set_value(&position_);
+  if (axis_state(*s) == AxisState::Moving) att.set_quality(Tango::ATTR_CHANGING);
+}
+
+void IdmAxis::write_Position(Tango::WAttribute& att) {
+  Tango::DevDouble target = 0;
+  att.get_write_value(target);
+  command("MOVE:ABS " + number_text(target), "IdmAxis::write_Position");
+  // The motion has started: State and the events say so at once.
+  refresh();
+  apply_status();
+  publish();
+}
+
+void IdmAxis::read_Target(Tango::Attribute& att) {
+  target_ = client::parse_reply_number(query("MOVE?", "IdmAxis::read_Target"));
+  att.set_value(&target_);
+}
+
+void IdmAxis::read_Referenced(Tango::Attribute& att) {
+  std::optional<client::AxisStatus> s;
+  std::string error;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    s = status_;
+    error = status_error_;
+  }
+  if (!s) Tango::Except::throw_exception("IdmdUnreachable", error.empty() ? config_error_ : error,
+                                         "IdmAxis::read_Referenced");
+  referenced_ = s->referenced;
+  att.set_value(&referenced_);
+}
+
+void IdmAxis::read_Window(Tango::Attribute& att) {
+  window_ = client::parse_reply_number(query("MOVE:WIND?", "IdmAxis::read_Window"));
+  att.set_value(&window_);
+}
+
+void IdmAxis::write_Window(Tango::WAttribute& att) {
+  Tango::DevDouble v = 0;
+  att.get_write_value(v);
+  command("MOVE:WIND " + number_text(v), "IdmAxis::write_Window");
+}
+
+void IdmAxis::read_Hold(Tango::Attribute& att) {
+  hold_ = client::parse_reply_number(query("HOLD?", "IdmAxis::read_Hold"));
+  att.set_value(&hold_);
+}
+
+void IdmAxis::write_Hold(Tango::WAttribute& att) {
+  Tango::DevDouble v = 0;
+  att.get_write_value(v);
+  command("HOLD " + number_text(v), "IdmAxis::write_Hold");
+}
+
+void IdmAxis::read_StatusBits(Tango::Attribute& att) {
+  const std::uint64_t bits = client::parse_reply_count(query("STAT:OPER?", "IdmAxis::read_StatusBits"));
+  status_bits_ = static_cast<Tango::DevLong>(bits & 0x7fffffff);
+  att.set_value(&status_bits_);
+}
+
+void IdmAxis::stop() {
+  command("STOP", "IdmAxis::Stop");
+  refresh();
+  apply_status();
+  publish();
+}
+
+void IdmAxis::reference() {
+  command("REF", "IdmAxis::Reference");
+  refresh();
+  apply_status();
+  publish();
+}
+
+void IdmAxis::step(Tango::DevLong cycles) {
+  command("STEP " + std::to_string(cycles), "IdmAxis::Step");
+  refresh();
+  apply_status();
+  publish();
+}
+
+// ---- The class: attributes, commands, devices ------------------------------------------------
+
+namespace {
+
+IdmAxis* axis_of(Tango::DeviceImpl* dev) {
+  return static_cast<IdmAxis*>(dev);
+}
+
+class PositionAttr : public Tango::Attr {
+ public:
+  PositionAttr() : Attr("Position", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
+  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Position(a); }
+  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Position(a); }
+  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
+};
+
+class TargetAttr : public Tango::Attr {
+ public:
+  TargetAttr() : Attr("Target", Tango::DEV_DOUBLE, Tango::READ) {}
+  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Target(a); }
+  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
+};
+
+class ReferencedAttr : public Tango::Attr {
+ public:
+  ReferencedAttr() : Attr("Referenced", Tango::DEV_BOOLEAN, Tango::READ) {}
+  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Referenced(a); }
+  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
+};
+
+class WindowAttr : public Tango::Attr {
+ public:
+  WindowAttr() : Attr("Window", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
+  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Window(a); }
+  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Window(a); }
+  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
+};
+
+class HoldAttr : public Tango::Attr {
+ public:
+  HoldAttr() : Attr("Hold", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
+  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Hold(a); }
+  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Hold(a); }
+  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
+};
+
+class StatusBitsAttr : public Tango::Attr {
+ public:
+  StatusBitsAttr() : Attr("StatusBits", Tango::DEV_LONG, Tango::READ) {}
+  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_StatusBits(a); }
+  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
+};
+
+class StopCmd : public Tango::Command {
+ public:
+  StopCmd()
+      : Command("Stop", Tango::DEV_VOID, Tango::DEV_VOID, "", "", Tango::OPERATOR) {}
+  CORBA::Any* execute(Tango::DeviceImpl* d, const CORBA::Any&) override {
+    axis_of(d)->stop();
+    return new CORBA::Any();
+  }
+  bool is_allowed(Tango::DeviceImpl*, const CORBA::Any&) override { return true; }
+};
+
+class ReferenceCmd : public Tango::Command {
+ public:
+  ReferenceCmd()
+      : Command("Reference", Tango::DEV_VOID, Tango::DEV_VOID, "", "", Tango::OPERATOR) {}
+  CORBA::Any* execute(Tango::DeviceImpl* d, const CORBA::Any&) override {
+    axis_of(d)->reference();
+    return new CORBA::Any();
+  }
+  bool is_allowed(Tango::DeviceImpl*, const CORBA::Any&) override { return true; }
+};
+
+class StepCmd : public Tango::Command {
+ public:
+  StepCmd()
+      : Command("Step", Tango::DEV_LONG, Tango::DEV_VOID,
+                "cycles of an open-loop burst (negative: the other direction)", "",
+                Tango::OPERATOR) {}
+  CORBA::Any* execute(Tango::DeviceImpl* d, const CORBA::Any& in) override {
+    Tango::DevLong cycles = 0;
+    extract(in, cycles);
+    axis_of(d)->step(cycles);
+    return new CORBA::Any();
+  }
+  bool is_allowed(Tango::DeviceImpl*, const CORBA::Any&) override { return true; }
+};
+
+Tango::Attr* with_properties(Tango::Attr* attr, const char* unit, const char* description,
+                             const char* format) {
+  Tango::UserDefaultAttrProp p;
+  if (*unit) p.set_unit(unit);
+  p.set_description(description);
+  if (*format) p.set_format(format);
+  attr->set_default_properties(p);
+  return attr;
+}
+
+}  // namespace
+
+IdmAxisClass* IdmAxisClass::instance_ = nullptr;
+
+IdmAxisClass::IdmAxisClass(std::string& name) : Tango::DeviceClass(name) {}
+
+IdmAxisClass* IdmAxisClass::init(const char* name) {
+  if (!instance_) {
+    std::string s(name);
+    instance_ = new IdmAxisClass(s);
+  }
+  return instance_;
+}
+
+IdmAxisClass* IdmAxisClass::instance() {
+  if (!instance_) {
+    std::fprintf(stderr, "IdmAxisClass is not initialised\n");
+    std::abort();
+  }
+  return instance_;
+}
+
+void IdmAxisClass::command_factory() {
+  command_list.push_back(new StopCmd());
+  command_list.push_back(new ReferenceCmd());
+  command_list.push_back(new StepCmd());
+}
+
+void IdmAxisClass::attribute_factory(std::vector<Tango::Attr*>& attrs) {
+  attrs.push_back(with_properties(new PositionAttr(), "m",
+                                  "Position of the axis (write: a closed-loop move there); "
+                                  "min/max are the daemon's soft limits",
+                                  "%.9e"));
+  attrs.push_back(with_properties(new TargetAttr(), "m", "Target of the last move", "%.9e"));
+  attrs.push_back(with_properties(new ReferencedAttr(), "", "The axis is referenced", ""));
+  attrs.push_back(with_properties(new WindowAttr(), "m", "In-position window (MOVE:WINDow)", "%.3e"));
+  attrs.push_back(with_properties(new HoldAttr(), "s",
+                                  "Hold after the moves that follow (HOLD; 0 none, -1 until "
+                                  "the next motion)",
+                                  "%.3f"));
+  attrs.push_back(with_properties(new StatusBitsAttr(), "",
+                                  "STATus:OPERation?: 0 moving, 1 in position, 2 holding, 3 "
+                                  "referenced, 4/5 at lower/upper soft limit, 6 end of travel, 7 "
+                                  "fault, 8 position valid, 9 referencing",
+                                  ""));
+}
+
+void IdmAxisClass::device_factory(const Tango::DevVarStringArray* devlist) {
+  for (unsigned long i = 0; i < devlist->length(); ++i)
+    device_list.push_back(new IdmAxis(this, (*devlist)[i].in()));
+  for (unsigned long i = 1; i <= devlist->length(); ++i) {
+    auto* dev = static_cast<IdmAxis*>(device_list[device_list.size() - i]);
+    if (Tango::Util::_UseDb && !Tango::Util::_FileDb)
+      export_device(dev);
+    else
+      export_device(dev, dev->get_name().c_str());
+  }
+}
+
+}  // namespace idm::tango

@@ -1,0 +1,286 @@
+"""idm-tango against a real idmd on the simulated stage, driven by PyTango: the device's state,
+a move written to Position (State MOVING then ON, change events, the arrived position), Stop in
+the middle of a move, a write outside the soft limits refused, the attributes that mirror the
+daemon's queries, Step, and what a device says when idmd is gone or its name names no axis."""
+import math
+import os
+import tempfile
+import shutil
+import threading
+
+import pytest
+import tango
+
+from conftest import TangoServer, fixtures, wait_for
+
+
+def ask(daemon, line):
+    """One query on a fresh plain connection: (reply, error) with error the SYST:ERR? reply."""
+    raw = daemon.raw()
+    try:
+        reply = raw.ask(line)
+        return reply, raw.ask("SYST:ERR?")
+    finally:
+        raw.close()
+
+
+def send(daemon, line):
+    raw = daemon.raw()
+    try:
+        raw.f.write(line + "\n")
+        raw.f.flush()
+        err = raw.ask("SYST:ERR?")
+        assert err == '0,"No error"', "%s: %s" % (line, err)
+    finally:
+        raw.close()
+
+
+def resolution(daemon):
+    return float(ask(daemon, "RES?")[0])
+
+
+def mean_position(daemon, n=8):
+    return sum(float(ask(daemon, "POS?")[0]) for _ in range(n)) / n
+
+
+class Events:
+    """Change events of one attribute, collected by PyTango's callback thread."""
+
+    def __init__(self, dev, attr):
+        self.values = []
+        self.errors = []
+        self.cond = threading.Condition()
+        self.dev = dev
+        self.id = dev.subscribe_event(attr, tango.EventType.CHANGE_EVENT, self)
+
+    def push_event(self, ev):
+        with self.cond:
+            if ev.err:
+                self.errors.append(ev.errors)
+            else:
+                self.values.append((ev.attr_value.value, ev.attr_value.quality))
+            self.cond.notify_all()
+
+    def wait_for(self, what, predicate, timeout=60):
+        with self.cond:
+            if not self.cond.wait_for(lambda: predicate(list(self.values)), timeout):
+                pytest.fail("no %s within %g s; events: %r" % (what, timeout, self.values))
+
+    def close(self):
+        self.dev.unsubscribe_event(self.id)
+
+
+def wait_at_rest(dev, timeout=60):
+    wait_for("the axis at rest", lambda: dev.state() != tango.DevState.MOVING, timeout)
+
+
+@pytest.fixture
+def axis(lab):
+    """The device of axis 1; afterwards stopped, at rest, with its soft limits the travel."""
+    daemon, server = lab
+    dev = server.proxy()
+    yield dev
+    send(daemon, "STOP")
+    wait_at_rest(dev)
+    send(daemon, "LIM %g,%g" % fixtures.TRAVEL)
+
+
+def test_at_rest_the_device_is_on_and_reads_the_daemon(lab, axis):
+    daemon, _ = lab
+    assert axis.state() == tango.DevState.ON
+    assert "axis x" in axis.status()
+    position = axis.read_attribute("Position")
+    assert position.quality == tango.AttrQuality.ATTR_VALID
+    # The sensor's noise: a few counts around the daemon's own mean reading.
+    assert abs(position.value - mean_position(daemon)) < 5 * resolution(daemon)
+    config = axis.get_attribute_config("Position")
+    assert config.unit == "m"
+    lower, upper = (float(v) for v in ask(daemon, "LIM?")[0].split(","))
+    assert float(config.min_value) == pytest.approx(lower)
+    assert float(config.max_value) == pytest.approx(upper)
+
+
+def test_a_written_position_is_reached_with_moving_then_on_and_events(lab, axis):
+    daemon, _ = lab
+    start = mean_position(daemon)
+    target = start + 25e-6
+    states = Events(axis, "State")
+    positions = Events(axis, "Position")
+    try:
+        states.wait_for("the first State event", lambda v: len(v) >= 1, 10)
+        axis.write_attribute("Position", target)
+        states.wait_for("State MOVING then ON",
+                        lambda v: any(s == tango.DevState.MOVING for s, _ in v) and
+                        v[-1][0] == tango.DevState.ON and
+                        [s for s, _ in v].index(tango.DevState.MOVING) < len(v) - 1)
+        positions.wait_for("a Position event at the target",
+                           lambda v: v and abs(v[-1][0] - target) < 1e-6)
+    finally:
+        states.close()
+        positions.close()
+    seen = [s for s, _ in states.values]
+    assert seen[seen.index(tango.DevState.MOVING):][-1] == tango.DevState.ON
+    moving = [(p, q) for p, q in positions.values if q == tango.AttrQuality.ATTR_CHANGING]
+    assert moving, "no Position event while moving: %r" % positions.values
+    assert all(start - 1e-6 < p < target + 1e-6 for p, _ in moving)
+    assert axis.state() == tango.DevState.ON
+    # Arrived: within 1.5 counts of the target, as the daemon itself reads it.
+    arrived = axis.read_attribute("Position").value
+    assert abs(arrived - target) <= 1.5 * resolution(daemon), (arrived, target)
+    assert axis.read_attribute("Target").value == pytest.approx(target, abs=1e-12)
+    assert float(ask(daemon, "MOVE?")[0]) == pytest.approx(target, abs=1e-12)
+
+
+def test_stop_ends_a_move_midway(lab, axis):
+    daemon, _ = lab
+    lower, upper = fixtures.TRAVEL
+    axis.write_attribute("Position", lower + 0.2e-3)
+    wait_at_rest(axis)
+    start = axis.read_attribute("Position").value
+    target = upper - 0.2e-3  # 9.6 mm: seconds on the slowed stage
+    axis.write_attribute("Position", target)
+    wait_for("State MOVING", lambda: axis.state() == tango.DevState.MOVING, 10)
+    wait_for("progress", lambda: axis.read_attribute("Position").value > start + 20e-6, 30)
+    axis.Stop()
+    wait_at_rest(axis, 10)
+    assert axis.state() == tango.DevState.ON
+    stopped = axis.read_attribute("Position").value
+    assert start + 20e-6 < stopped < target - 1e-3, (start, stopped, target)
+    reply, _ = ask(daemon, "MOVE:DONE?")
+    assert reply == "1"
+    # At rest it stays where it stopped.
+    assert abs(mean_position(daemon) - stopped) < 5 * resolution(daemon)
+
+
+def test_a_write_outside_the_soft_limits_is_refused(lab, axis):
+    daemon, _ = lab
+    axis.write_attribute("Position", 0.0)
+    wait_at_rest(axis)
+    send(daemon, "LIM -1e-3,1e-3")
+    wait_for("Position's max_value to follow the soft limit",
+             lambda: float(axis.get_attribute_config("Position").max_value) == pytest.approx(1e-3),
+             10)
+    assert float(axis.get_attribute_config("Position").min_value) == pytest.approx(-1e-3)
+    before = ask(daemon, "MOVE?")[0]
+    with pytest.raises(tango.DevFailed) as refused:
+        axis.write_attribute("Position", 1.5e-3)
+    assert "maximum" in refused.value.args[0].desc
+    with pytest.raises(tango.DevFailed):
+        axis.write_attribute("Position", -1.5e-3)
+    # Nothing moved, nothing was asked of the daemon.
+    assert ask(daemon, "MOVE?")[0] == before
+    assert axis.state() == tango.DevState.ON
+    # Outside the limits (moved there before they shrank) the axis is in ALARM, as a motor at a
+    # limit switch.
+    send(daemon, "LIM -1e-3,1e-3")
+    send(daemon, "LIM 0.5e-3,1e-3")
+    wait_for("State ALARM", lambda: axis.state() == tango.DevState.ALARM, 10)
+
+
+def test_attributes_report_what_the_daemon_answers(lab, axis):
+    """Window, Hold and StatusBits read the protocol's MOVE:WIND?, HOLD? and STAT:OPER?: equal to
+    the daemon's reply where it answers, and the daemon's error (its code) as a Tango exception
+    where it does not; Referenced is STAT?'s referenced."""
+    daemon, _ = lab
+    for attr, query in (("Window", "MOVE:WIND?"), ("Hold", "HOLD?"), ("StatusBits", "STAT:OPER?")):
+        reply, error = ask(daemon, query)
+        if reply:
+            assert error == '0,"No error"'
+            assert axis.read_attribute(attr).value == pytest.approx(float(reply)), attr
+        else:
+            code = error.split(",", 1)[0]
+            assert code != "0", (query, error)
+            with pytest.raises(tango.DevFailed) as failed:
+                axis.read_attribute(attr)
+            assert failed.value.args[0].reason == "IdmdError"
+            assert code + "," in failed.value.args[0].desc, (attr, failed.value.args[0].desc)
+    status, _ = ask(daemon, "STAT?")
+    referenced = dict(w.split("=", 1) for w in status.split())["referenced"] == "1"
+    assert axis.read_attribute("Referenced").value == referenced
+
+
+def test_step_bursts_both_ways(lab, axis):
+    daemon, _ = lab
+    counts = resolution(daemon)
+    p0 = mean_position(daemon)
+    axis.Step(20)
+    wait_at_rest(axis)
+    p1 = mean_position(daemon)
+    axis.Step(-20)
+    wait_at_rest(axis)
+    p2 = mean_position(daemon)
+    assert abs(p1 - p0) > 10 * counts and abs(p2 - p1) > 10 * counts, (p0, p1, p2)
+    assert (p1 - p0) * (p2 - p1) < 0, "the two bursts went the same way: %r" % ((p0, p1, p2),)
+
+
+def test_step_outside_the_daemon_s_range_is_a_tango_exception(lab, axis):
+    with pytest.raises(tango.DevFailed) as failed:
+        axis.Step(0)
+    assert failed.value.args[0].reason == "IdmdError"
+    assert "-222," in failed.value.args[0].desc
+
+
+def test_reference_does_what_the_daemon_does(lab, axis):
+    daemon, _ = lab
+    reply, error = ask(daemon, "REF?")
+    if not reply:
+        code = error.split(",", 1)[0]
+        with pytest.raises(tango.DevFailed) as failed:
+            axis.Reference()
+        assert code + "," in failed.value.args[0].desc
+    else:
+        axis.Reference()
+        wait_at_rest(axis)
+        assert axis.read_attribute("Referenced").value
+
+
+def test_two_axes_and_a_device_that_names_none():
+    d = tempfile.mkdtemp(prefix="idm-tango-")
+    daemon = fixtures.Idmd(d, config=fixtures.axes_config(d))
+    server = TangoServer(d, {"IDMD_ADDRESS": "127.0.0.1:%d" % daemon.port},
+                         devices=("idm/axis/1", "idm/axis/2", "idm/axis/x"), instance="two")
+    try:
+        x, y, bad = server.proxy("idm/axis/1"), server.proxy("idm/axis/2"), server.proxy("idm/axis/x")
+        assert "axis x" in x.status() and "axis y" in y.status()
+        assert y.state() == tango.DevState.ON
+        target = y.read_attribute("Position").value - 15e-6
+        y.write_attribute("Position", target)
+        wait_at_rest(y)
+        assert abs(y.read_attribute("Position").value - target) <= 1.5 * resolution(daemon)
+        assert float(ask(daemon, "AXIS2:MOVE?")[0]) == pytest.approx(target, abs=1e-12)
+        assert float(ask(daemon, "AXIS1:MOVE?")[0]) == 0  # axis 1 was not moved
+        assert bad.state() == tango.DevState.FAULT
+        assert "axis number" in bad.status()
+        with pytest.raises(tango.DevFailed):
+            bad.read_attribute("Position")
+        assert server.alive()
+    finally:
+        server.stop()
+        daemon.stop()
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def test_without_idmd_the_device_is_in_fault_and_recovers():
+    d = tempfile.mkdtemp(prefix="idm-tango-")
+    daemon = fixtures.Idmd(d)
+    server = TangoServer(d, {"IDMD_SOCKET": daemon.unix}, instance="gone")
+    try:
+        dev = server.proxy()
+        assert dev.state() == tango.DevState.ON
+        daemon.stop()
+        wait_for("State FAULT", lambda: dev.state() == tango.DevState.FAULT, 10)
+        assert "idmd not reached" in dev.status()
+        with pytest.raises(tango.DevFailed) as failed:
+            dev.read_attribute("Position")
+        assert failed.value.args[0].reason == "IdmdUnreachable"
+        with pytest.raises(tango.DevFailed):
+            dev.write_attribute("Position", 1e-6)
+        # idmd back on the same socket: the device reconnects by itself.
+        daemon = fixtures.Idmd(d)
+        wait_for("State ON again", lambda: dev.state() == tango.DevState.ON, 10)
+        assert math.isfinite(dev.read_attribute("Position").value)
+        assert server.alive()
+    finally:
+        server.stop()
+        daemon.stop()
+        shutil.rmtree(d, ignore_errors=True)

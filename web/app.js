@@ -1,0 +1,294 @@
+// The status page's script: polls idm-web's JSON and draws with the DOM and canvas only.
+'use strict';
+
+const HISTORY_S = 60;
+const COLORS = ['#1f77b4', '#d62728', '#2ca02c', '#9467bd', '#ff7f0e', '#17becf', '#8c564b'];
+const view = { axes: [], control: false, history: {}, maps: {}, built: '' };
+
+function el(tag, attrs, text) {
+  const e = document.createElement(tag);
+  for (const k in (attrs || {})) e.setAttribute(k, attrs[k]);
+  if (text !== undefined) e.textContent = text;
+  return e;
+}
+
+async function getJSON(url) {
+  const r = await fetch(url, { cache: 'no-store' });
+  const body = await r.json();
+  if (!r.ok) throw new Error(body.error || (url + ': HTTP ' + r.status));
+  return body;
+}
+
+async function post(url, params) {
+  const r = await fetch(url, {
+    method: 'POST',
+    headers: { 'X-Idm-Control': '1', 'Content-Type': 'application/x-www-form-urlencoded' },
+    body: new URLSearchParams(params).toString(),
+  });
+  const body = await r.json();
+  if (!r.ok || !body.ok) throw new Error(body.error || ('HTTP ' + r.status));
+}
+
+function message(text) {
+  document.getElementById('message').textContent = text || '';
+}
+
+function um(m) {
+  if (m === null || m === undefined) return '\u2014';
+  return (m * 1e6).toFixed(4) + ' \u00b5m';
+}
+
+function limit(m) {
+  if (m === null || m === undefined) return 'none';
+  return (m * 1e6).toFixed(3);
+}
+
+// The axis's state in words: STATus:OPERation?'s bits when the daemon answers it, else from STAT?.
+function statusWords(a) {
+  if (a.status_words) return a.status_words.length ? a.status_words.join(', ') : 'idle';
+  const w = [];
+  if (a.done === false) w.push('moving');
+  if (a.fault && a.fault !== 'none') w.push('fault: ' + a.fault);
+  if (a.eot) w.push('end of travel (' + a.eot + ')');
+  w.push(a.position_valid ? 'position valid' : 'position not valid');
+  if (a.position_valid && a.lower_m !== null && a.position_m <= a.lower_m) w.push('at lower limit');
+  if (a.position_valid && a.upper_m !== null && a.position_m >= a.upper_m) w.push('at upper limit');
+  if (a.device && a.device !== 'up') w.push('device ' + a.device);
+  if (a.daemon_error && a.daemon_error !== 'none') w.push(a.daemon_error.replace(/_/g, ' '));
+  return w.join(', ');
+}
+
+function buildTable(axes) {
+  const tbody = document.querySelector('#axes tbody');
+  tbody.textContent = '';
+  for (const a of axes) {
+    const tr = el('tr', { id: 'axis-' + a.axis });
+    tr.appendChild(el('td', {}, a.name + ' (' + a.axis + ')'));
+    for (const k of ['pos', 'target']) tr.appendChild(el('td', { id: k + '-' + a.axis, class: 'num' }));
+    for (const k of ['state', 'status']) tr.appendChild(el('td', { id: k + '-' + a.axis }));
+    for (const k of ['limits', 'ref', 'moves']) tr.appendChild(el('td', { id: k + '-' + a.axis, class: 'num' }));
+    const ctl = el('td', { class: 'ctl' });
+    if (view.control) {
+      const stop = el('button', { class: 'stop', id: 'stop-' + a.axis }, 'STOP');
+      stop.onclick = () => post('/api/stop', { axis: a.axis }).then(() => message(''), e => message('STOP: ' + e.message));
+      const input = el('input', { id: 'target-input-' + a.axis, size: 10, placeholder: '\u00b5m' });
+      const go = el('button', { id: 'move-' + a.axis }, 'move');
+      go.onclick = () => {
+        const t = Number(input.value) * 1e-6;
+        if (!input.value.trim() || !isFinite(t)) { message('move: a target in \u00b5m is needed'); return; }
+        post('/api/move', { axis: a.axis, target: t }).then(() => message(''), e => message('move: ' + e.message));
+      };
+      ctl.append(stop, ' ', input, go);
+    } else {
+      ctl.textContent = 'read-only';
+    }
+    tr.appendChild(ctl);
+    tbody.appendChild(tr);
+  }
+  document.querySelectorAll('.ctl').forEach(c => { c.style.display = view.control ? '' : 'none'; });
+  const legend = document.getElementById('plot-legend');
+  legend.textContent = '';
+  axes.forEach((a, i) => {
+    legend.appendChild(el('span', { style: 'background:' + COLORS[i % COLORS.length] }));
+    legend.appendChild(document.createTextNode(a.name));
+  });
+  const maps = document.getElementById('maps');
+  maps.textContent = '';
+  for (const a of axes) {
+    const box = el('div');
+    box.appendChild(el('div', {}, 'axis ' + a.name + ': rows frequency (Hz), columns duty'));
+    box.appendChild(el('canvas', { id: 'regions-' + a.axis, width: 420, height: 300 }));
+    maps.appendChild(box);
+    loadRegions(a.axis);
+  }
+}
+
+function buildControl() {
+  const c = document.getElementById('control');
+  c.textContent = '';
+  if (!view.control) {
+    c.appendChild(el('span', { class: 'muted' }, 'read-only (idm-web --control enables STOP and moves)'));
+    return;
+  }
+  const stop = el('button', { class: 'stop', id: 'stop-all' }, 'STOP all axes');
+  stop.onclick = () => post('/api/stop', {}).then(() => message(''), e => message('STOP: ' + e.message));
+  c.appendChild(stop);
+}
+
+function update(s) {
+  const conn = document.getElementById('conn');
+  conn.textContent = s.connected ? 'connected to idmd' : ('idmd not reached: ' + s.error);
+  conn.className = s.connected ? 'ok' : 'bad';
+  document.getElementById('idn').textContent = s.idn;
+  const shape = JSON.stringify([s.control, s.axes.map(a => [a.axis, a.name])]);
+  if (shape !== view.built) {
+    view.control = s.control;
+    view.built = shape;
+    buildControl();
+    buildTable(s.axes);
+  }
+  view.axes = s.axes;
+  for (const a of s.axes) {
+    const pos = document.getElementById('pos-' + a.axis);
+    pos.textContent = a.position_valid ? um(a.position_m) : 'not valid';
+    pos.setAttribute('data-position-m', a.position_valid ? String(a.position_m) : '');
+    document.getElementById('target-' + a.axis).textContent = um(a.target_m);
+    const st = document.getElementById('state-' + a.axis);
+    st.textContent = a.state || ('unknown: ' + (a.status_error || ''));
+    st.className = 'state-' + a.state;
+    document.getElementById('status-' + a.axis).textContent = statusWords(a);
+    document.getElementById('limits-' + a.axis).textContent = limit(a.lower_m) + ' .. ' + limit(a.upper_m) + ' \u00b5m';
+    document.getElementById('ref-' + a.axis).textContent = a.referenced ? 'yes' : 'no';
+    document.getElementById('moves-' + a.axis).textContent = a.moves === undefined ? '' : String(a.moves);
+    if (a.position_valid && s.connected) {
+      const h = view.history[a.axis] || (view.history[a.axis] = []);
+      if (!h.length || h[h.length - 1][0] < s.time) h.push([s.time, a.position_m]);
+      while (h.length && h[0][0] < s.time - HISTORY_S) h.shift();
+    }
+  }
+  updateSweep(s.sweep);
+  drawPlot(s.time);
+}
+
+function updateSweep(sw) {
+  const box = document.getElementById('sweep');
+  box.textContent = '';
+  if (!sw || sw.state === 'NONE') { box.textContent = 'no sweep'; return; }
+  const done = sw.written + sw.failed;
+  const p = el('progress', { id: 'sweep-progress', max: Math.max(sw.planned, 1), value: done });
+  box.append(sw.state + ' on axis ' + sw.axis + ': ' + sw.written + ' of ' + sw.planned +
+             ' trials written, ' + sw.failed + ' failed, into ' + sw.directory + ' ', p);
+}
+
+function drawPlot(now) {
+  const c = document.getElementById('plot');
+  const g = c.getContext('2d');
+  const W = c.width, H = c.height, L = 90, R = 10, T = 10, B = 30;
+  g.clearRect(0, 0, W, H);
+  let lo = Infinity, hi = -Infinity;
+  for (const k in view.history) for (const [, x] of view.history[k]) { lo = Math.min(lo, x); hi = Math.max(hi, x); }
+  g.strokeStyle = '#999'; g.strokeRect(L, T, W - L - R, H - T - B);
+  g.fillStyle = '#444'; g.font = '12px sans-serif';
+  for (let s = 0; s <= HISTORY_S; s += 10) {
+    const x = L + (W - L - R) * s / HISTORY_S;
+    g.fillText((s - HISTORY_S) + ' s', x - 12, H - 10);
+  }
+  if (!isFinite(lo)) { g.fillText('no valid position yet', L + 10, T + 20); return; }
+  if (hi - lo < 1e-9) { lo -= 5e-10; hi += 5e-10; }
+  const pad = (hi - lo) * 0.05; lo -= pad; hi += pad;
+  for (let i = 0; i <= 4; i++) {
+    const v = lo + (hi - lo) * i / 4, y = H - B - (H - T - B) * i / 4;
+    g.fillText((v * 1e6).toFixed(3) + ' \u00b5m', 2, y + 4);
+  }
+  view.axes.forEach((a, i) => {
+    const h = view.history[a.axis] || [];
+    g.strokeStyle = COLORS[i % COLORS.length]; g.lineWidth = 1.5; g.beginPath();
+    h.forEach(([t, x], j) => {
+      const px = L + (W - L - R) * (t - (now - HISTORY_S)) / HISTORY_S;
+      const py = H - B - (H - T - B) * (x - lo) / (hi - lo);
+      if (j) g.lineTo(px, py); else g.moveTo(px, py);
+    });
+    g.stroke();
+  });
+}
+
+function cellColor(cell, maxLog, minLog) {
+  if (!cell) return '#fff';
+  if (cell.region === 'CUTOFF') return '#bdbdbd';
+  if (cell.region === 'MULTISTEP') return 'hsl(25,85%,50%)';
+  const v = Math.log10(Math.max(Math.abs(cell.step_m), 1e-15));
+  const f = maxLog > minLog ? (v - minLog) / (maxLog - minLog) : 0.5;
+  return 'hsl(120,60%,' + (75 - 45 * f).toFixed(0) + '%)';
+}
+
+async function loadRegions(axis) {
+  try {
+    const m = await getJSON('/api/regions?axis=' + axis);
+    view.maps[axis] = m;
+    drawRegions(axis);
+  } catch (e) {
+    const c = document.getElementById('regions-' + axis);
+    if (c) c.getContext('2d').fillText('region map: ' + e.message, 10, 20);
+  }
+}
+
+function drawRegions(axis) {
+  const m = view.maps[axis], c = document.getElementById('regions-' + axis);
+  if (!m || !c) return;
+  const g = c.getContext('2d'), L = 50, T = 5, B = 25;
+  const nf = m.freqs_hz.length, nd = m.duties.length;
+  const cw = (c.width - L - 5) / nd, ch = (c.height - T - B) / nf;
+  let minLog = Infinity, maxLog = -Infinity;
+  for (const row of m.cells) for (const cell of row) if (cell && cell.region === 'ONESTEP') {
+    const v = Math.log10(Math.max(Math.abs(cell.step_m), 1e-15));
+    minLog = Math.min(minLog, v); maxLog = Math.max(maxLog, v);
+  }
+  g.clearRect(0, 0, c.width, c.height);
+  m.cells.forEach((row, f) => row.forEach((cell, d) => {
+    g.fillStyle = cellColor(cell, maxLog, minLog);
+    g.fillRect(L + d * cw, T + f * ch, Math.ceil(cw), Math.ceil(ch));
+  }));
+  g.fillStyle = '#444'; g.font = '11px sans-serif';
+  const fstep = Math.max(1, Math.ceil(nf / 10));
+  for (let f = 0; f < nf; f += fstep) g.fillText(String(m.freqs_hz[f]), 2, T + (f + 0.7) * ch);
+  const dstep = Math.max(1, Math.ceil(nd / 6));
+  for (let d = 0; d < nd; d += dstep) g.fillText(String(m.duties[d]), L + d * cw, c.height - 8);
+  c.onmousemove = ev => {
+    const r = c.getBoundingClientRect();
+    const d = Math.floor((ev.clientX - r.left - L) / cw), f = Math.floor((ev.clientY - r.top - T) / ch);
+    const info = document.getElementById('map-cell');
+    if (f < 0 || d < 0 || f >= nf || d >= nd) { info.textContent = '\u00a0'; return; }
+    const cell = m.cells[f][d];
+    info.textContent = 'axis ' + axis + ': ' + m.freqs_hz[f] + ' Hz, duty ' + m.duties[d] + ': ' +
+      (cell ? cell.region + ', step ' + (cell.step_m * 1e9).toFixed(2) + ' nm' : 'refused by the device');
+  };
+}
+
+async function loadGap() {
+  const box = document.getElementById('gap');
+  try {
+    const r = await getJSON('/api/gap');
+    box.textContent = '';
+    const d = r.diagnosis || {};
+    const effects = (d.effects || []).join(', ') || 'none';
+    box.appendChild(el('div', { id: 'gap-effects' }, 'effects: ' + effects));
+    if (d.gap_before !== undefined)
+      box.appendChild(el('div', {}, 'gap ' + Number(d.gap_before).toPrecision(3) + ' \u2192 ' +
+        Number(d.gap_after).toPrecision(3) + ' (shrink ' + (100 * d.shrink).toFixed(0) + ' %)'));
+    if (r.where && r.where.summary) box.appendChild(el('div', {}, r.where.summary));
+    if (r.dataset) box.appendChild(el('div', { class: 'muted' }, 'dataset ' + r.dataset));
+  } catch (e) {
+    box.textContent = 'none (' + e.message + ')';
+  }
+}
+
+let busy = false;
+async function tick() {
+  if (busy) return;
+  busy = true;
+  try {
+    update(await getJSON('/api/state'));
+  } catch (e) {
+    const conn = document.getElementById('conn');
+    conn.textContent = 'idm-web not reached: ' + e.message;
+    conn.className = 'bad';
+  } finally {
+    busy = false;
+  }
+}
+
+async function start() {
+  try {
+    const h = await getJSON('/api/history');
+    for (const a of h.axes) view.history[a.axis] = a.t.map((t, i) => [h.time + t, a.position_m[i]]);
+  } catch (e) {
+    message('history: ' + e.message);
+  }
+  await tick();
+  setInterval(tick, 250);
+  loadGap();
+  setInterval(loadGap, 30000);
+  setInterval(() => { for (const a of view.axes) loadRegions(a.axis); }, 60000);
+}
+
+start();
