@@ -51,6 +51,8 @@ drivers::sim::SimDeviceConfig realistic_device(std::uint64_t seed) {
 double g_uncertainty = 0.15;
 double g_max_freq_hz = 2000;
 bool g_trace = false;  // --trace: one line per move of ours, and the ladder at the end
+double g_dwell_s = 0;         // --dwell S: ours, MOVE:DWELl
+double g_window_counts = 0;   // --window W: ours, MOVE:WINDow in counts (0: half a count)
 double uncertainty() { return g_uncertainty; }
 
 struct StepMeasurement {
@@ -93,9 +95,12 @@ RegionMapConfig map_config(const StepMeasurement& m) {
   return c;
 }
 
-struct MoveResult {
+struct MoveOutcome {
   bool within_count = false;       // by the interferometer reading
   bool within_count_true = false;  // by the simulated true position
+  bool within_count_fresh = false; // by a fresh reading 5 ms after done (what POS? after *OPC? sees)
+  bool within_count_fresh_true = false;  // by the true position then
+  bool not_ok = false;             // ours: MOVE:RESult? other than OK
   bool faulted = false;
   double time_s = 0;
   std::uint64_t cycles = 0;
@@ -116,7 +121,7 @@ struct MoveResult {
 };
 
 struct Summary {
-  std::vector<MoveResult> moves;
+  std::vector<MoveOutcome> moves;
   double wall_s = 0;
 };
 
@@ -131,10 +136,10 @@ double percentile(std::vector<double> v, double q) {
 
 // Runs one move to rest, tracking the true position after every tick (overshoot, soft limits).
 template <class Start>
-MoveResult run_move(daemon::SimAxis& axis, double start_m, double target_m, Start&& start) {
+MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m, Start&& start) {
   Positioner& p = *axis.positioner;
   drivers::sim::SimBackend& sim = *axis.sim;
-  MoveResult r;
+  MoveOutcome r;
   const double sign = target_m >= start_m ? 1.0 : -1.0;
   const double t0 = sim.now_s();
   const std::uint64_t cycles0 = p.status().cycles, bursts0 = p.status().bursts;
@@ -196,9 +201,16 @@ MoveResult run_move(daemon::SimAxis& axis, double start_m, double target_m, Star
   return r;
 }
 
-void finish(MoveResult& r, const Positioner& p, const drivers::sim::SimBackend& sim, double target_m) {
+void finish(MoveOutcome& r, daemon::SimAxis& rig, double target_m) {
+  const Positioner& p = *rig.positioner;
+  const drivers::sim::SimBackend& sim = *rig.sim;
   r.within_count = p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
   r.within_count_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
+  r.not_ok = p.status().kind == MotionKind::Move && p.status().result != control::MoveResult::Ok;
+  // A moment later, as a client's POS? after *OPC?: the latest single reading at rest.
+  rig.run_for(5e-3);
+  r.within_count_fresh = p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
+  r.within_count_fresh_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
 }
 
 Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map,
@@ -207,6 +219,8 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
   PositionerConfig pc;
   pc.soft_lower_m = -kSoftLimitM;
   pc.soft_upper_m = kSoftLimitM;
+  pc.dwell_s = g_dwell_s;
+  pc.tolerance_m = g_window_counts > 0 ? g_window_counts * 632.991e-9 / 64 : 0.0;
   daemon::SimAxis rig(map, realistic_device(seed), pc, &cal);
   Positioner& p = *rig.positioner;
   final_step_bound_m = std::max(p.finest_live_step_m(1), p.finest_live_step_m(-1));
@@ -217,11 +231,11 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
       rig.tick();
     }
     const double start = rig.sim->true_position_m();
-    MoveResult r = run_move(rig, start, target, [&] { p.move_absolute(target); });
+    MoveOutcome r = run_move(rig, start, target, [&] { p.move_absolute(target); });
     r.corrections = p.status().corrections;
     r.step_m = std::max(p.count_m(), std::fabs(p.last_plan().final_step_m));
     if (!r.faulted) r.time_s = p.status().last_move_time_s;
-    finish(r, p, *rig.sim, target);
+    finish(r, rig, target);
     if (g_trace)
       std::printf("move %3zu  %+11.4g um  %-8s %-12s err %+7.2f counts  t %.4f s  chunks %3llu  corr %2u  over %.1f nm\n",
                   s.moves.size(), (target - start) * 1e6, motion_state_name(p.status().state),
@@ -269,7 +283,7 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
   for (double target : targets) {
     const double start = rig.sim->true_position_m();
     std::uint32_t retries = 0;
-    MoveResult r = run_move(rig, start, target, [] {});
+    MoveOutcome r = run_move(rig, start, target, [] {});
     const double t0 = rig.sim->now_s();
     const std::uint64_t cycles0 = p.status().cycles, bursts0 = p.status().bursts;
     for (int attempt = 0; attempt <= 10; ++attempt) {
@@ -282,7 +296,7 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
       for (double left = n; left > 0;) {
         const double burst = std::min(left, 2000.0);
         left -= burst;
-        const MoveResult part = run_move(rig, start, target, [&] {
+        const MoveOutcome part = run_move(rig, start, target, [&] {
           p.step_open_loop(static_cast<std::int64_t>(dir * burst), duty_positive, freq, stroke);
         });
         r.overshoot_m = std::max(r.overshoot_m, part.overshoot_m);
@@ -302,7 +316,7 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
     r.bursts = p.status().bursts - bursts0;
     r.corrections = retries;
     r.step_m = std::max(step_m[0], step_m[1]);
-    finish(r, p, *rig.sim, target);
+    finish(r, rig, target);
     s.moves.push_back(r);
   }
   s.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
@@ -313,13 +327,13 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
 // Time to target: the time a move takes to end within one count (by the reading); a move that
 // never gets there has no time to target (infinite). The median over all moves is infinite when
 // fewer than half arrive.
-double time_to_target_s(const MoveResult& m) {
+double time_to_target_s(const MoveOutcome& m) {
   return m.within_count ? m.time_s : std::numeric_limits<double>::infinity();
 }
 
 double median_time_to_target_s(const Summary& s) {
   std::vector<double> t;
-  for (const MoveResult& m : s.moves) t.push_back(time_to_target_s(m));
+  for (const MoveOutcome& m : s.moves) t.push_back(time_to_target_s(m));
   std::sort(t.begin(), t.end());
   return t.empty() ? 0 : t[(t.size() - 1) / 2];
 }
@@ -327,10 +341,14 @@ double median_time_to_target_s(const Summary& s) {
 void print_row(const char* name, const Summary& s) {
   std::vector<double> times, cycles, corrections;
   std::size_t within = 0, within_true = 0, faults = 0, over_step = 0, over_mean_step = 0, outside = 0;
+  std::size_t fresh = 0, fresh_true = 0, not_ok = 0;
   double max_overshoot = 0, worst_pass = 0;
-  for (const MoveResult& m : s.moves) {
+  for (const MoveOutcome& m : s.moves) {
     within += m.within_count;
     within_true += m.within_count_true;
+    fresh += m.within_count_fresh;
+    fresh_true += m.within_count_fresh_true;
+    not_ok += m.not_ok;
     faults += m.faulted;
     outside += m.left_soft_limits;
     times.push_back(m.time_s);
@@ -351,6 +369,8 @@ void print_row(const char* name, const Summary& s) {
               percentile(times, 0.95), percentile(cycles, 0.5), percentile(cycles, 0.95),
               percentile(corrections, 0.5), faults, max_overshoot * 1e9, over_step, over_mean_step, worst_pass,
               outside, s.wall_s);
+  std::printf("%-9s fresh reading 5 ms after done within one count %.1f %%, true position then %.1f %%; "
+              "results other than OK %zu\n", name, 100.0 * fresh / n, 100.0 * fresh_true / n, not_ok);
 }
 
 }  // namespace
@@ -365,6 +385,8 @@ int main(int argc, char** argv) {
     else if (std::strcmp(argv[i], "--max-freq") == 0 && i + 1 < argc) g_max_freq_hz = std::atof(argv[++i]);
     else if (std::strcmp(argv[i], "--uncertainty") == 0 && i + 1 < argc) g_uncertainty = std::atof(argv[++i]);
     else if (std::strcmp(argv[i], "--trace") == 0) g_trace = true;
+    else if (std::strcmp(argv[i], "--dwell") == 0 && i + 1 < argc) g_dwell_s = std::atof(argv[++i]);
+    else if (std::strcmp(argv[i], "--window") == 0 && i + 1 < argc) g_window_counts = std::atof(argv[++i]);
     else if (std::strcmp(argv[i], "--seed") == 0 && i + 1 < argc) seed = std::strtoull(argv[++i], nullptr, 10);
     else {
       std::fprintf(stderr, "usage: positioning_bench [--quick] [--moves N] [--seed S] [--uncertainty U] [--max-freq HZ] [--trace]\n");
@@ -406,11 +428,11 @@ int main(int argc, char** argv) {
   print_row("ours", ours);
   print_row("baseline", base);
   std::vector<double> t_ours, t_base;
-  for (const MoveResult& m : ours.moves) t_ours.push_back(m.time_s);
-  for (const MoveResult& m : base.moves) t_base.push_back(m.time_s);
+  for (const MoveOutcome& m : ours.moves) t_ours.push_back(m.time_s);
+  for (const MoveOutcome& m : base.moves) t_base.push_back(m.time_s);
   {
     int by_fault[6] = {};
-    for (const MoveResult& m : ours.moves) ++by_fault[static_cast<int>(m.fault)];
+    for (const MoveOutcome& m : ours.moves) ++by_fault[static_cast<int>(m.fault)];
     std::printf("ours: faults by kind:");
     for (int f = 1; f < 6; ++f) std::printf(" %s %d", motion_fault_name(static_cast<MotionFault>(f)), by_fault[f]);
     std::printf("\n");

@@ -443,7 +443,8 @@ TEST(PositionerRealistic, ConvergesWithinOneCount) {
     const double target = p.status().position_m + d;
     ASSERT_EQ(p.move_absolute(target), Refusal::None);
     ASSERT_EQ(rig.run(), MotionState::Idle) << d << ": " << motion_fault_name(p.status().fault);
-    EXPECT_LE(std::fabs(p.status().position_m - target), p.count_m()) << d;
+    EXPECT_LE(std::fabs(p.status().position_m - target), p.count_m())
+        << d << ": " << move_result_name(p.status().result);
     EXPECT_LE(std::fabs(rig.sim->true_position_m() - target), 3 * p.count_m()) << d;
     EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
   }
