@@ -23,7 +23,7 @@ const model::ParamTable<PositionerConfig>& positioner_params() {
   using model::with_default;
   using P = PositionerConfig;
   static const model::ParamTable<P> table({
-      real<P>("tolerance_m", "m", {0, 1e-3}, "|target - position| that counts as arrived; 0: one count (RDBD)",
+      real<P>("tolerance_m", "m", {0, 1e-3}, "the in-position window (RDBD, MOVE:WINDow); 0: one count (the loop aims for half a count within it)",
               [](auto& c) -> auto& { return c.tolerance_m; }),
       integer<P>("max_retries", "count", 0, 1000, "correction rounds after the first plan (RTRY)",
                  [](auto& c) -> auto& { return c.max_retries; }),
@@ -222,7 +222,14 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
 }
 
 double Positioner::tolerance_m() const {
-  return config_.tolerance_m > 0 ? config_.tolerance_m : 0.5 * count_m_;
+  return config_.tolerance_m > 0 ? config_.tolerance_m : count_m_;
+}
+
+double Positioner::landing_m() const {
+  // Within a window of up to one count the loop aims for the reading nearest the target (half a
+  // count), so that the slider itself, read again later with noise, stays inside the window;
+  // a wider window is aimed at as it is.
+  return tolerance_m() > count_m_ * (1 + 1e-9) ? tolerance_m() : 0.5 * count_m_;
 }
 
 bool Positioner::at_rest() const {
@@ -574,6 +581,7 @@ void Positioner::on_reading(const model::AxisEvent& e) {
       !e.in_segment && e.t_s >= fresh_.after_s && fresh_.count < config_.latch_words) {
     fresh_.sum_m += position;
     ++fresh_.count;
+    fresh_.worst_m = std::max(fresh_.worst_m, std::fabs(status_.target_m - position));
   }
   if (hold_armed_ && phase_ == Phase::Idle && !e.in_segment) {
     // Holding: the mean of latch_words readings at rest against the hold window.
@@ -705,8 +713,11 @@ void Positioner::dwell_tick(double now_s) {
     return;
   }
   double p = 0;
+  const double worst = fresh_.worst_m;
   if (!fresh_position(p)) return;
-  if (std::fabs(status_.target_m - p) > tolerance_m()) {
+  // Every reading of the dwell, not only their mean: a slider near the window's edge that the
+  // noise reads outside now and then is read outside by a client too.
+  if (worst > tolerance_m()) {
     // It left the window during the dwell: correct again (a try at the target).
     last_try_done_ = true;
     phase_ = Phase::Settling;

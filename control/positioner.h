@@ -35,7 +35,8 @@
 namespace idm::control {
 
 struct PositionerConfig {
-  // |target - position| that counts as arrived; 0: one interferometer count.
+  // The in-position window (MOVE:WINDow): |target - reading| that counts as arrived; 0: one
+  // interferometer count (the loop then aims for half a count: the reading nearest the target).
   double tolerance_m = 0.0;
   // Correction rounds after the first plan (the motor record's RTRY); one more -> FAULT.
   int max_retries = 10;
@@ -229,7 +230,8 @@ class Positioner {
   // At rest, or holding (a hold's corrections do not make a move undone).
   bool done() const { return at_rest() || status_.holding; }
   const PositionerConfig& config() const { return config_; }
-  double tolerance_m() const;
+  double tolerance_m() const;  // the in-position window
+  double landing_m() const;    // what a move aims for inside it
 
   // ---- for tests, tools and benchmarks ----
   const RegionMap& map() const { return map_; }
@@ -269,6 +271,7 @@ class Positioner {
     int count = 0;
     double sum_m = 0;
     bool requested = false;  // a Read request went out for them
+    double worst_m = 0;      // the largest |target - reading| among them
   };
   struct Chunk {
     double freq_hz = 0, duty = 0, stroke_m = 0;

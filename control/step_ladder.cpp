@@ -177,7 +177,7 @@ double Positioner::finest_live_step_m(int direction) const {
 
 void Positioner::plan_next_chunk(double now_s) {
   const double error = status_.target_m - status_.position_m;
-  const double tolerance = tolerance_m();
+  const double tolerance = landing_m();
   if (std::fabs(error) <= tolerance) {
     arrived(now_s);
     return;

@@ -26,8 +26,10 @@ TEST(Positioner, ConvergesOnTheIdealPlantBothDirections) {
   Positioner& p = *rig.positioner;
   ASSERT_TRUE(p.status().position_valid);
   const double count = p.count_m();
-  // Arrived: the reading nearest the target (half a count), so the slider is within one count.
-  EXPECT_NEAR(p.tolerance_m(), 0.5 * count, 1e-18);
+  // The window is one count; a move aims for the reading nearest the target (half a count), so
+  // that the slider is within one count.
+  EXPECT_NEAR(p.tolerance_m(), count, 1e-18);
+  EXPECT_NEAR(p.landing_m(), 0.5 * count, 1e-18);
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> log_distance(std::log(20e-9), std::log(1e-3));
   for (int i = 0; i < 12; ++i) {
