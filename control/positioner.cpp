@@ -718,8 +718,14 @@ void Positioner::dwell_tick(double now_s) {
   // Every reading of the dwell, not only their mean: a slider near the window's edge that the
   // noise reads outside now and then is read outside by a client too.
   if (worst > tolerance_m()) {
-    // It left the window during the dwell: correct again (a try at the target).
-    last_try_done_ = true;
+    // It left the window during the dwell: a try that failed (counted here: the mean may still
+    // say arrived, and then nothing is played before the next dwell), then correct again.
+    if (static_cast<int>(status_.corrections) >= config_.max_retries) {
+      enter_fault(MotionFault::RetryLimit);
+      return;
+    }
+    ++status_.corrections;
+    last_try_done_ = false;
     phase_ = Phase::Settling;
     plan_next_chunk(now_s);
     return;
