@@ -259,6 +259,7 @@ void Positioner::start_motion(MotionKind kind) {
   move_started_ = false;
   eot_count_ = 0;
   eot_next_ = 0;
+  dwell_failures_ = 0;
   phase_ = Phase::Pending;
   status_.state = MotionState::Moving;
 }
@@ -718,13 +719,12 @@ void Positioner::dwell_tick(double now_s) {
   // Every reading of the dwell, not only their mean: a slider near the window's edge that the
   // noise reads outside now and then is read outside by a client too.
   if (worst > tolerance_m()) {
-    // It left the window during the dwell: a try that failed (counted here: the mean may still
-    // say arrived, and then nothing is played before the next dwell), then correct again.
-    if (static_cast<int>(status_.corrections) >= config_.max_retries) {
+    // It left the window during the dwell: correct again. Counted on its own (the mean may still
+    // say arrived, and then nothing is played before the next dwell): five times max_retries.
+    if (++dwell_failures_ > 5 * std::max(config_.max_retries, 1)) {
       enter_fault(MotionFault::RetryLimit);
       return;
     }
-    ++status_.corrections;
     last_try_done_ = false;
     phase_ = Phase::Settling;
     plan_next_chunk(now_s);

@@ -412,6 +412,7 @@ class Positioner {
   MoveResult stop_result_ = MoveResult::Stopped;  // what a requested stop ends as
   std::uint64_t streak_cycles_ = 0;  // the chunks of the current run of non-moving chunks
   double streak_along_m_ = 0;
+  int dwell_failures_ = 0;  // dwells of this move that saw a reading outside the window
 };
 
 }  // namespace idm::control
