@@ -51,6 +51,8 @@ drivers::sim::SimDeviceConfig realistic_device(std::uint64_t seed) {
 double g_uncertainty = 0.15;
 double g_max_freq_hz = 2000;
 bool g_trace = false;  // --trace: one line per move of ours, and the ladder at the end
+double g_dwell_s = 0;         // --dwell S: ours, MOVE:DWELl
+double g_window_counts = 0;   // --window W: ours, MOVE:WINDow in counts (0: half a count)
 double uncertainty() { return g_uncertainty; }
 
 struct StepMeasurement {
@@ -93,9 +95,12 @@ RegionMapConfig map_config(const StepMeasurement& m) {
   return c;
 }
 
-struct MoveResult {
+struct MoveOutcome {
   bool within_count = false;       // by the interferometer reading
   bool within_count_true = false;  // by the simulated true position
+  bool within_count_fresh = false; // by a fresh reading 5 ms after done (what POS? after *OPC? sees)
+  bool within_count_fresh_true = false;  // by the true position then
+  bool not_ok = false;             // ours: MOVE:RESult? other than OK
   bool faulted = false;
   double time_s = 0;
   std::uint64_t cycles = 0;
@@ -116,7 +121,7 @@ struct MoveResult {
 };
 
 struct Summary {
-  std::vector<MoveResult> moves;
+  std::vector<MoveOutcome> moves;
   double wall_s = 0;
 };
 
@@ -131,10 +136,10 @@ double percentile(std::vector<double> v, double q) {
 
 // Runs one move to rest, tracking the true position after every tick (overshoot, soft limits).
 template <class Start>
-MoveResult run_move(daemon::SimAxis& axis, double start_m, double target_m, Start&& start) {
+MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m, Start&& start) {
   Positioner& p = *axis.positioner;
   drivers::sim::SimBackend& sim = *axis.sim;
-  MoveResult r;
+  MoveOutcome r;
   const double sign = target_m >= start_m ? 1.0 : -1.0;
   const double t0 = sim.now_s();
   const std::uint64_t cycles0 = p.status().cycles, bursts0 = p.status().bursts;
@@ -196,9 +201,16 @@ MoveResult run_move(daemon::SimAxis& axis, double start_m, double target_m, Star
   return r;
 }
 
-void finish(MoveResult& r, const Positioner& p, const drivers::sim::SimBackend& sim, double target_m) {
+void finish(MoveOutcome& r, daemon::SimAxis& rig, double target_m) {
+  const Positioner& p = *rig.positioner;
+  const drivers::sim::SimBackend& sim = *rig.sim;
   r.within_count = p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
   r.within_count_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
+  r.not_ok = p.status().kind == MotionKind::Move && p.status().result != control::MoveResult::Ok;
+  // A moment later, as a client's POS? after *OPC?: the latest single reading at rest.
+  rig.run_for(5e-3);
+  r.within_count_fresh = p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
+  r.within_count_fresh_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
 }
 
 Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map,
@@ -207,6 +219,8 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
   PositionerConfig pc;
   pc.soft_lower_m = -kSoftLimitM;
   pc.soft_upper_m = kSoftLimitM;
+  pc.dwell_s = g_dwell_s;
+  pc.tolerance_m = g_window_counts > 0 ? g_window_counts * 632.991e-9 / 64 : 0.0;
   daemon::SimAxis rig(map, realistic_device(seed), pc, &cal);
   Positioner& p = *rig.positioner;
   final_step_bound_m = std::max(p.finest_live_step_m(1), p.finest_live_step_m(-1));
@@ -217,11 +231,11 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
       rig.tick();
     }
     const double start = rig.sim->true_position_m();
-    MoveResult r = run_move(rig, start, target, [&] { p.move_absolute(target); });
+    MoveOutcome r = run_move(rig, start, target, [&] { p.move_absolute(target); });
     r.corrections = p.status().corrections;
     r.step_m = std::max(p.count_m(), std::fabs(p.last_plan().final_step_m));
     if (!r.faulted) r.time_s = p.status().last_move_time_s;
-    finish(r, p, *rig.sim, target);
+    finish(r, rig, target);
     if (g_trace)
       std::printf("move %3zu  %+11.4g um  %-8s %-12s err %+7.2f counts  t %.4f s  chunks %3llu  corr %2u  over %.1f nm\n",
                   s.moves.size(), (target - start) * 1e6, motion_state_name(p.status().state),
@@ -269,7 +283,7 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
   for (double target : targets) {
     const double start = rig.sim->true_position_m();
     std::uint32_t retries = 0;
-    MoveResult r = run_move(rig, start, target, [] {});
+    MoveOutcome r = run_move(rig, start, target, [] {});
     const double t0 = rig.sim->now_s();
     const std::uint64_t cycles0 = p.status().cycles, bursts0 = p.status().bursts;
     for (int attempt = 0; attempt <= 10; ++attempt) {
@@ -282,7 +296,7 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
       for (double left = n; left > 0;) {
         const double burst = std::min(left, 2000.0);
         left -= burst;
-        const MoveResult part = run_move(rig, start, target, [&] {
+        const MoveOutcome part = run_move(rig, start, target, [&] {
           p.step_open_loop(static_cast<std::int64_t>(dir * burst), duty_positive, freq, stroke);
         });
         r.overshoot_m = std::max(r.overshoot_m, part.overshoot_m);
@@ -302,7 +316,7 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
     r.bursts = p.status().bursts - bursts0;
     r.corrections = retries;
     r.step_m = std::max(step_m[0], step_m[1]);
-    finish(r, p, *rig.sim, target);
+    finish(r, rig, target);
     s.moves.push_back(r);
   }
   s.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
@@ -310,16 +324,87 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
   return s;
 }
 
+// A vendor-style closed loop: the same cell (200 Hz, duty 0.1 / 0.9), full amplitude while the
+// error is more than two full steps (bursts of floor(error / step) - 1 cycles), then one cycle
+// at a time with the amplitude lowered as the error falls: stroke = S_cut + error / slope, from
+// the step measured at full and at half stroke (the step is linear in the stroke above the
+// cut-off stroke S_cut, eq 22). Done within one count; at most 200 cycles of fine approach.
+Summary run_vendor(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map) {
+  Summary s;
+  PositionerConfig pc;
+  pc.max_chunk_s = 10.0;
+  drivers::sim::SimDeviceConfig device = realistic_device(seed);
+  device.stream_capacity = std::size_t{1} << 21;
+  daemon::SimAxis rig(map, device, pc);
+  Positioner& p = *rig.positioner;
+  const double freq = 200, duty_positive = 0.9, full = 20.35e-6;
+  const double min_stroke = map.config().limits.min_stroke_m;
+  double step_full[2] = {0, 0}, step_half[2] = {0, 0};
+  for (int dir : {1, -1})
+    for (double stroke : {full, 0.5 * full}) {
+      const double before = p.status().position_m;
+      p.step_open_loop(dir * 200, duty_positive, freq, stroke);
+      rig.run();
+      (stroke == full ? step_full : step_half)[dir > 0 ? 1 : 0] = std::fabs(p.status().position_m - before) / 200;
+    }
+  const auto w0 = std::chrono::steady_clock::now();
+  for (double target : targets) {
+    const double start = rig.sim->true_position_m();
+    MoveOutcome r = run_move(rig, start, target, [] {});
+    const double t0 = rig.sim->now_s();
+    const std::uint64_t cycles0 = p.status().cycles, bursts0 = p.status().bursts;
+    for (int fine = 0; fine < 200;) {
+      const double error = target - p.status().position_m;
+      if (std::fabs(error) <= p.count_m()) break;
+      const int dir = error > 0 ? 1 : -1;
+      const int d = dir > 0 ? 1 : 0;
+      const double slope = (step_full[d] - step_half[d]) / (0.5 * full);
+      const double s_cut = std::max(min_stroke, full - step_full[d] / std::max(slope, 1e-12));
+      double stroke = full;
+      std::int64_t n = 1;
+      if (std::fabs(error) > 2 * step_full[d]) {
+        n = static_cast<std::int64_t>(std::min(2000.0, std::floor(std::fabs(error) / step_full[d]) - 1));
+      } else {
+        stroke = std::clamp(s_cut + std::fabs(error) / std::max(slope, 1e-12), min_stroke, full);
+        ++fine;
+      }
+      const MoveOutcome part = run_move(rig, start, target, [&] {
+        p.step_open_loop(dir * n, duty_positive, freq, stroke);
+      });
+      r.overshoot_m = std::max(r.overshoot_m, part.overshoot_m);
+      r.overshot_by_more_than_step = r.overshot_by_more_than_step || part.overshot_by_more_than_step;
+      r.overshot_by_more_than_mean_step = r.overshot_by_more_than_mean_step || part.overshot_by_more_than_mean_step;
+      r.worst_pass_in_steps = std::max(r.worst_pass_in_steps, part.worst_pass_in_steps);
+      r.left_soft_limits = r.left_soft_limits || part.left_soft_limits;
+      if (part.faulted) {
+        r.faulted = true;
+        p.reset_fault();
+        rig.tick();
+      }
+    }
+    r.time_s = rig.sim->now_s() - t0;
+    r.cycles = p.status().cycles - cycles0;
+    r.bursts = p.status().bursts - bursts0;
+    r.step_m = std::max(step_full[0], step_full[1]);
+    finish(r, rig, target);
+    s.moves.push_back(r);
+  }
+  s.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
+  std::printf("vendor steps measured: full stroke +%.4g / -%.4g um, half stroke +%.4g / -%.4g um per cycle\n",
+              step_full[1] * 1e6, step_full[0] * 1e6, step_half[1] * 1e6, step_half[0] * 1e6);
+  return s;
+}
+
 // Time to target: the time a move takes to end within one count (by the reading); a move that
 // never gets there has no time to target (infinite). The median over all moves is infinite when
 // fewer than half arrive.
-double time_to_target_s(const MoveResult& m) {
+double time_to_target_s(const MoveOutcome& m) {
   return m.within_count ? m.time_s : std::numeric_limits<double>::infinity();
 }
 
 double median_time_to_target_s(const Summary& s) {
   std::vector<double> t;
-  for (const MoveResult& m : s.moves) t.push_back(time_to_target_s(m));
+  for (const MoveOutcome& m : s.moves) t.push_back(time_to_target_s(m));
   std::sort(t.begin(), t.end());
   return t.empty() ? 0 : t[(t.size() - 1) / 2];
 }
@@ -327,10 +412,14 @@ double median_time_to_target_s(const Summary& s) {
 void print_row(const char* name, const Summary& s) {
   std::vector<double> times, cycles, corrections;
   std::size_t within = 0, within_true = 0, faults = 0, over_step = 0, over_mean_step = 0, outside = 0;
+  std::size_t fresh = 0, fresh_true = 0, not_ok = 0;
   double max_overshoot = 0, worst_pass = 0;
-  for (const MoveResult& m : s.moves) {
+  for (const MoveOutcome& m : s.moves) {
     within += m.within_count;
     within_true += m.within_count_true;
+    fresh += m.within_count_fresh;
+    fresh_true += m.within_count_fresh_true;
+    not_ok += m.not_ok;
     faults += m.faulted;
     outside += m.left_soft_limits;
     times.push_back(m.time_s);
@@ -351,6 +440,74 @@ void print_row(const char* name, const Summary& s) {
               percentile(times, 0.95), percentile(cycles, 0.5), percentile(cycles, 0.95),
               percentile(corrections, 0.5), faults, max_overshoot * 1e9, over_step, over_mean_step, worst_pass,
               outside, s.wall_s);
+  std::printf("%-9s fresh reading 5 ms after done within one count %.1f %%, true position then %.1f %%; "
+              "results other than OK %zu\n", name, 100.0 * fresh / n, 100.0 * fresh_true / n, not_ok);
+}
+
+// The settling study: the same moves with in-position windows of 1, 2, 5 and 10 counts (dwell
+// g_dwell_s), the distribution of the time to done; a table on stdout and an SVG of the
+// cumulative distributions (log time axis, ticks at round numbers).
+void settling_study(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map,
+                    const std::string& svg_path) {
+  const double windows[] = {1, 2, 5, 10};
+  std::vector<std::vector<double>> times;
+  std::printf("settling study: %zu moves, dwell %g s; time to done [s]\n", targets.size(), g_dwell_s);
+  std::printf("%-8s %8s %8s %8s %8s %8s %8s %6s\n", "window", "p10", "p50", "p90", "p95", "p99", "max", "OK");
+  for (double w : windows) {
+    g_window_counts = w;
+    Calibration cal(map.config().stage);
+    double bound = 0;
+    const Summary s = run_ours(targets, seed, map, cal, bound);
+    std::vector<double> t;
+    std::size_t ok = 0;
+    for (const MoveOutcome& m : s.moves) {
+      t.push_back(m.time_s);
+      ok += !m.not_ok && !m.faulted;
+    }
+    std::printf("%5.0f ct %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %5.1f%%\n", w, percentile(t, 0.1), percentile(t, 0.5),
+                percentile(t, 0.9), percentile(t, 0.95), percentile(t, 0.99), percentile(t, 1.0),
+                100.0 * static_cast<double>(ok) / static_cast<double>(t.size()));
+    std::sort(t.begin(), t.end());
+    times.push_back(t);
+  }
+  g_window_counts = 0;
+  if (svg_path.empty()) return;
+  FILE* f = std::fopen(svg_path.c_str(), "w");
+  if (!f) {
+    std::printf("cannot write %s\n", svg_path.c_str());
+    return;
+  }
+  const double W = 640, H = 400, L = 70, R = 20, T = 30, B = 50;
+  const double lo = 1e-3, hi = 10;  // s, log axis
+  auto X = [&](double t) { return L + (W - L - R) * (std::log10(std::clamp(t, lo, hi)) - std::log10(lo)) / (std::log10(hi) - std::log10(lo)); };
+  auto Y = [&](double q) { return H - B - (H - T - B) * q; };
+  std::fprintf(f, "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%g\" height=\"%g\" font-family=\"sans-serif\" font-size=\"12\">\n", W, H);
+  std::fprintf(f, "<rect width=\"100%%\" height=\"100%%\" fill=\"white\"/>\n");
+  for (double t : {1e-3, 1e-2, 1e-1, 1.0, 10.0}) {
+    std::fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"#ddd\"/>\n", X(t), Y(0), X(t), Y(1));
+    std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"middle\">%g</text>\n", X(t), Y(0) + 18, t);
+  }
+  for (int q = 0; q <= 100; q += 25) {
+    std::fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"#ddd\"/>\n", X(lo), Y(q / 100.0), X(hi), Y(q / 100.0));
+    std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"end\">%d %%</text>\n", L - 6, Y(q / 100.0) + 4, q);
+  }
+  std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"middle\">time to done [s]</text>\n", (L + W - R) / 2, H - 12);
+  std::fprintf(f, "<text x=\"16\" y=\"%.1f\" transform=\"rotate(-90 16 %.1f)\" text-anchor=\"middle\">moves done</text>\n", (T + H - B) / 2, (T + H - B) / 2);
+  const char* colors[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728"};
+  for (std::size_t k = 0; k < times.size(); ++k) {
+    std::fprintf(f, "<polyline fill=\"none\" stroke=\"%s\" stroke-width=\"2\" points=\"", colors[k]);
+    const std::vector<double>& t = times[k];
+    for (std::size_t i = 0; i < t.size(); ++i) {
+      const double q0 = static_cast<double>(i) / static_cast<double>(t.size());
+      const double q1 = static_cast<double>(i + 1) / static_cast<double>(t.size());
+      std::fprintf(f, "%.1f,%.1f %.1f,%.1f ", X(t[i]), Y(q0), X(t[i]), Y(q1));
+    }
+    std::fprintf(f, "\"/>\n<text x=\"%.1f\" y=\"%.1f\" fill=\"%s\">window %g counts</text>\n", L + 10,
+                 T + 16 * static_cast<double>(k + 1), colors[k], windows[k]);
+  }
+  std::fprintf(f, "</svg>\n");
+  std::fclose(f);
+  std::printf("wrote %s\n", svg_path.c_str());
 }
 
 }  // namespace
@@ -358,6 +515,7 @@ void print_row(const char* name, const Summary& s) {
 int main(int argc, char** argv) {
   bool quick = false;
   int moves = 200;
+  std::string settling_svg;  // --settling FILE.svg: the settling study instead of the comparison
   std::uint64_t seed = 1;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--quick") == 0) quick = true;
@@ -365,6 +523,9 @@ int main(int argc, char** argv) {
     else if (std::strcmp(argv[i], "--max-freq") == 0 && i + 1 < argc) g_max_freq_hz = std::atof(argv[++i]);
     else if (std::strcmp(argv[i], "--uncertainty") == 0 && i + 1 < argc) g_uncertainty = std::atof(argv[++i]);
     else if (std::strcmp(argv[i], "--trace") == 0) g_trace = true;
+    else if (std::strcmp(argv[i], "--dwell") == 0 && i + 1 < argc) g_dwell_s = std::atof(argv[++i]);
+    else if (std::strcmp(argv[i], "--window") == 0 && i + 1 < argc) g_window_counts = std::atof(argv[++i]);
+    else if (std::strcmp(argv[i], "--settling") == 0 && i + 1 < argc) settling_svg = argv[++i];
     else if (std::strcmp(argv[i], "--seed") == 0 && i + 1 < argc) seed = std::strtoull(argv[++i], nullptr, 10);
     else {
       std::fprintf(stderr, "usage: positioning_bench [--quick] [--moves N] [--seed S] [--uncertainty U] [--max-freq HZ] [--trace]\n");
@@ -386,12 +547,17 @@ int main(int argc, char** argv) {
   }
   const StepMeasurement measured = measure_steps(seed);
   const RegionMap map(map_config(measured));
+  if (!settling_svg.empty()) {
+    settling_study(targets, seed, map, settling_svg);
+    return 0;
+  }
   std::printf("measured at 200 Hz / 0.9, 0.1 / 20.35 um: +%.4g um, -%.4g um per cycle -> alpha %.4f\n",
               measured.positive_m * 1e6, measured.negative_m * 1e6, map.config().stage.step_correction);
   Calibration cal(map.config().stage);
   double final_step_bound = 0;
   const Summary ours = run_ours(targets, seed, map, cal, final_step_bound);
   const Summary base = run_baseline(targets, seed, map);
+  const Summary vendor = run_vendor(targets, seed, map);
   std::printf("positioning: %d seeded moves (seed %llu), 10 nm .. 5 mm log-uniform, both directions\n", moves,
               static_cast<unsigned long long>(seed));
   std::printf("plant: mck (K 5.7e6, C 230) + amplifier 3 kHz + stribeck 1.15 + friction_spread 0.05; "
@@ -405,12 +571,13 @@ int main(int argc, char** argv) {
               "pass/st", "soft", "wall[s]");
   print_row("ours", ours);
   print_row("baseline", base);
+  print_row("vendor", vendor);
   std::vector<double> t_ours, t_base;
-  for (const MoveResult& m : ours.moves) t_ours.push_back(m.time_s);
-  for (const MoveResult& m : base.moves) t_base.push_back(m.time_s);
+  for (const MoveOutcome& m : ours.moves) t_ours.push_back(m.time_s);
+  for (const MoveOutcome& m : base.moves) t_base.push_back(m.time_s);
   {
     int by_fault[6] = {};
-    for (const MoveResult& m : ours.moves) ++by_fault[static_cast<int>(m.fault)];
+    for (const MoveOutcome& m : ours.moves) ++by_fault[static_cast<int>(m.fault)];
     std::printf("ours: faults by kind:");
     for (int f = 1; f < 6; ++f) std::printf(" %s %d", motion_fault_name(static_cast<MotionFault>(f)), by_fault[f]);
     std::printf("\n");
@@ -425,6 +592,26 @@ int main(int argc, char** argv) {
                 "within one count)\n");
   std::printf("median time-to-done ratio ours/baseline: %.3f (done = at rest, arrived or not)\n",
               percentile(t_ours, 0.5) / percentile(t_base, 0.5));
+  {
+    // Against the vendor-style loop: time to target (arrived within one count by the reading)
+    // over the moves both arrived at, median and p95, and the shares arriving.
+    std::vector<double> a, b;
+    std::size_t arrived_ours = 0, arrived_vendor = 0;
+    for (std::size_t i = 0; i < ours.moves.size(); ++i) {
+      arrived_ours += ours.moves[i].within_count_fresh;
+      arrived_vendor += vendor.moves[i].within_count_fresh;
+      if (ours.moves[i].within_count && vendor.moves[i].within_count) {
+        a.push_back(ours.moves[i].time_s);
+        b.push_back(vendor.moves[i].time_s);
+      }
+    }
+    const double n = static_cast<double>(ours.moves.size());
+    std::printf("vs vendor-style loop, over the %zu moves both arrived at: time to target median %.4f / %.4f s "
+                "(ratio %.3f), p95 %.4f / %.4f s (ratio %.3f); arriving (fresh reading) %.1f %% / %.1f %%\n",
+                a.size(), percentile(a, 0.5), percentile(b, 0.5), percentile(a, 0.5) / percentile(b, 0.5),
+                percentile(a, 0.95), percentile(b, 0.95), percentile(a, 0.95) / percentile(b, 0.95),
+                100.0 * arrived_ours / n, 100.0 * arrived_vendor / n);
+  }
   const CalibrationState cs = cal.state();
   std::printf("calibration after the run: %llu updates; one-step +: alpha %.4f mu %.4f; -: alpha %.4f mu %.4f\n",
               static_cast<unsigned long long>(cs.total_updates), cs.estimates[1][1].alpha,

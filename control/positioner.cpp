@@ -23,7 +23,7 @@ const model::ParamTable<PositionerConfig>& positioner_params() {
   using model::with_default;
   using P = PositionerConfig;
   static const model::ParamTable<P> table({
-      real<P>("tolerance_m", "m", {0, 1e-3}, "|target - position| that counts as arrived; 0: one count (RDBD)",
+      real<P>("tolerance_m", "m", {0, 1e-3}, "the in-position window (RDBD, MOVE:WINDow); 0: one count (the loop aims for half a count within it)",
               [](auto& c) -> auto& { return c.tolerance_m; }),
       integer<P>("max_retries", "count", 0, 1000, "correction rounds after the first plan (RTRY)",
                  [](auto& c) -> auto& { return c.max_retries; }),
@@ -57,6 +57,18 @@ const model::ParamTable<PositionerConfig>& positioner_params() {
                  [](auto& c) -> auto& { return c.dead_rung_moves; }),
       real<P>("chunk_overhead_s", "s", {0, 10}, "time a chunk costs beyond its cycles (planning weight)",
               [](auto& c) -> auto& { return c.chunk_overhead_s; }),
+      real<P>("dwell_s", "s", {0, 60}, "a move is done once fresh readings stayed in the window this long (MOVE:DWELl)",
+              [](auto& c) -> auto& { return c.dwell_s; }),
+      real<P>("move_timeout_s", "s", {0, 86400}, "a move not done after this long ends with TIMEOUT (0: no limit)",
+              [](auto& c) -> auto& { return c.move_timeout_s; }),
+      real<P>("eot_step_m", "m", {0, 1e-3}, "end of travel: mean step below this while driving stops the axis (0: off; EOT:STEP)",
+              [](auto& c) -> auto& { return c.eot_step_m; }),
+      integer<P>("eot_cycles", "count", 1, 100000, "end of travel: the cycles the mean step is taken over (EOT:CYCLes)",
+                 [](auto& c) -> auto& { return c.eot_cycles; }),
+      real<P>("hold_s", "s", {-1, 86400}, "after a move: keep the target this long (0: no hold, -1: until the next motion; HOLD)",
+              [](auto& c) -> auto& { return c.hold_s; }),
+      real<P>("hold_window_m", "m", {0, 1e-3}, "a hold corrects when a reading leaves this window (0: the move window; HOLD:WINDow)",
+              [](auto& c) -> auto& { return c.hold_window_m; }),
   });
   return table;
 }
@@ -71,6 +83,9 @@ void validate(const PositionerConfig& c, const std::string& where) {
     throw model::InputError(where + ".soft_lower_m/soft_upper_m: [" + model::format_number(c.soft_lower_m) +
                             ", " + model::format_number(c.soft_upper_m) +
                             "] is not an interval, allowed soft_lower_m < soft_upper_m");
+  if (c.hold_s < 0 && c.hold_s != -1)
+    throw model::InputError(where + ".hold_s: " + model::format_number(c.hold_s) +
+                            " is out of range, allowed -1 (until the next motion) or [0, 86400]");
   if (!(c.min_step_counts < c.final_step_counts))
     throw model::InputError(where + ".min_step_counts: " + model::format_number(c.min_step_counts) +
                             " must be below final_step_counts (" + model::format_number(c.final_step_counts) + ")");
@@ -100,6 +115,19 @@ const char* motion_fault_name(MotionFault f) {
   return "?";
 }
 
+const char* move_result_name(MoveResult r) {
+  switch (r) {
+    case MoveResult::None: return "NONE";
+    case MoveResult::Ok: return "OK";
+    case MoveResult::Stopped: return "STOPPED";
+    case MoveResult::Limit: return "LIMIT";
+    case MoveResult::EndOfTravel: return "END_OF_TRAVEL";
+    case MoveResult::Fault: return "FAULT";
+    case MoveResult::Timeout: return "TIMEOUT";
+  }
+  return "?";
+}
+
 const char* refusal_name(Refusal r) {
   switch (r) {
     case Refusal::None: return "none";
@@ -110,6 +138,7 @@ const char* refusal_name(Refusal r) {
     case Refusal::OutOfRange: return "out_of_range";
     case Refusal::NoPosition: return "no_position";
     case Refusal::NotReferenced: return "not_referenced";
+    case Refusal::EndOfTravel: return "end_of_travel";
   }
   return "?";
 }
@@ -189,10 +218,18 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
         "it above that, or narrow the map (limits.max_freq_hz, limits.max_stroke_m)");
   build_ladder();
   status_.state = MotionState::Idle;
+  status_.window_m = tolerance_m();
 }
 
 double Positioner::tolerance_m() const {
-  return config_.tolerance_m > 0 ? config_.tolerance_m : 0.5 * count_m_;
+  return config_.tolerance_m > 0 ? config_.tolerance_m : count_m_;
+}
+
+double Positioner::landing_m() const {
+  // Within a window of up to one count the loop aims for the reading nearest the target (half a
+  // count), so that the slider itself, read again later with noise, stays inside the window;
+  // a wider window is aimed at as it is.
+  return tolerance_m() > count_m_ * (1 + 1e-9) ? tolerance_m() : 0.5 * count_m_;
 }
 
 bool Positioner::at_rest() const {
@@ -201,29 +238,57 @@ bool Positioner::at_rest() const {
 
 // ---- commands ----
 
+void Positioner::start_motion(MotionKind kind) {
+  status_.kind = kind;
+  status_.result = MoveResult::None;
+  status_.corrections = 0;
+  status_.fault = MotionFault::None;
+  status_.in_window = false;
+  status_.holding = false;
+  hold_armed_ = false;
+  hold_correcting_ = false;
+  referencing_ = false;
+  stop_requested_ = false;
+  stop_result_ = MoveResult::Stopped;
+  last_try_done_ = false;
+  stall_count_ = 0;
+  streak_cycles_ = 0;
+  streak_along_m_ = 0;
+  move_chunks_ = 0;
+  move_cycles_ = 0;
+  move_started_ = false;
+  eot_count_ = 0;
+  eot_next_ = 0;
+  dwell_failures_ = 0;
+  phase_ = Phase::Pending;
+  status_.state = MotionState::Moving;
+}
+
+bool Positioner::toward_eot(double end_m) const {
+  // Beyond where the stop was met (the slider may have been thrown back from it since).
+  return status_.eot != 0 && (end_m - status_.eot_position_m) * status_.eot > -tolerance_m();
+}
+
 Refusal Positioner::move_absolute(double target_m) {
   requested_target_m_ = target_m;
   if (!std::isfinite(target_m)) return Refusal::NotFinite;
   if (phase_ == Phase::Fault) return Refusal::Faulted;
-  if (phase_ != Phase::Idle) return Refusal::Busy;
+  // A hold's correction in progress takes the new target at its chunk's end.
+  const bool retarget = hold_correcting_ && phase_ != Phase::Idle;
+  if (phase_ != Phase::Idle && !retarget) return Refusal::Busy;
   if (target_m < config_.soft_lower_m || target_m > config_.soft_upper_m)
     return Refusal::OutsideSoftLimits;
   if (!status_.position_valid) return Refusal::NoPosition;
+  if (toward_eot(target_m)) return Refusal::EndOfTravel;
+  status_.eot = 0;  // a move away from it
   load_rung_estimates();
   status_.target_m = target_m;
   target_known_ = true;
   status_.closed_loop = true;
-  status_.corrections = 0;
-  status_.fault = MotionFault::None;
   ++status_.moves;
-  stop_requested_ = false;
-  last_try_done_ = false;
-  stall_count_ = 0;
-  move_chunks_ = 0;
-  move_cycles_ = 0;
-  move_started_ = false;
-  phase_ = Phase::Pending;
-  status_.state = MotionState::Moving;
+  const Phase phase = phase_;
+  start_motion(MotionKind::Move);
+  if (retarget) phase_ = phase;  // the chunk in flight ends first
   return Refusal::None;
 }
 
@@ -231,7 +296,9 @@ Refusal Positioner::move_relative(double distance_m) {
   requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
   if (!std::isfinite(distance_m)) return Refusal::NotFinite;
   if (!status_.position_valid) return phase_ == Phase::Fault ? Refusal::Faulted : Refusal::NoPosition;
-  return move_absolute(status_.position_m + distance_m);
+  // From the target when in position (no creep of the error from move to move), else the reading.
+  const double base = status_.in_window ? status_.target_m : status_.position_m;
+  return move_absolute(base + distance_m);
 }
 
 double Positioner::nominal_open_loop_step_m(double freq_hz, double duty, double stroke_m) const {
@@ -290,6 +357,7 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
   const double step = nominal_open_loop_step_m(c.freq_hz, c.duty, c.stroke_m);
   const double end = status_.position_m + static_cast<double>(n) * step;
   requested_target_m_ = end;
+  if (toward_eot(end)) return Refusal::EndOfTravel;
   const double reach = static_cast<double>(n) * step * (1.0 + config_.approach_uncertainty);
   const double far_end = status_.position_m + reach;
   if (std::min(end, far_end) < config_.soft_lower_m || std::max(end, far_end) > config_.soft_upper_m)
@@ -301,19 +369,92 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
   status_.target_m = end;
   target_known_ = true;
   status_.closed_loop = false;
-  status_.corrections = 0;
-  status_.fault = MotionFault::None;
-  stop_requested_ = false;
-  stall_count_ = 0;
-  move_chunks_ = 0;
-  move_cycles_ = 0;
-  move_started_ = false;
-  phase_ = Phase::Pending;
-  status_.state = MotionState::Moving;
+  status_.eot = 0;
+  start_motion(MotionKind::Step);
   return Refusal::None;
 }
 
+Refusal Positioner::reference(int direction, double position_at_stop_m) {
+  requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
+  if (!std::isfinite(position_at_stop_m)) return Refusal::NotFinite;
+  if (phase_ == Phase::Fault) return Refusal::Faulted;
+  if (phase_ != Phase::Idle) return Refusal::Busy;
+  if (!status_.position_valid) return Refusal::NoPosition;
+  const int sign = direction > 0 ? 1 : -1;
+  const int d = direction_index(sign);
+  if (!has_largest_cell_[d]) return Refusal::OutOfRange;
+  const RegionCell& cell = map_.cells()[largest_cell_[d]];
+  Chunk c;
+  c.freq_hz = cell.freq_hz;
+  c.duty = cell.duty;
+  c.stroke_m = cell.stroke_m;
+  c.period_samples = cell.period_samples;
+  c.extension_samples = cell.extension_samples;
+  const double step = nominal_open_loop_step_m(c.freq_hz, c.duty, c.stroke_m);
+  if (!(std::fabs(step) > 0)) return Refusal::OutOfRange;
+  // Enough cycles to cross the soft range four times at the nominal step (a real stage steps
+  // less); the end stop ends it long before.
+  const double span = std::isfinite(config_.soft_upper_m - config_.soft_lower_m)
+                          ? config_.soft_upper_m - config_.soft_lower_m
+                          : 0.02;
+  const double n = std::ceil(4.0 * span / std::fabs(step));
+  c.predicted_m = step;
+  c.cell = nullptr;
+  open_loop_ = c;
+  open_loop_remaining_ = static_cast<std::uint64_t>(std::clamp(n, 1.0, 1e9));
+  status_.closed_loop = false;
+  status_.eot = 0;
+  start_motion(MotionKind::Reference);
+  referencing_ = true;
+  reference_position_m_ = position_at_stop_m;
+  status_.target_m = position_at_stop_m;
+  target_known_ = true;
+  return Refusal::None;
+}
+
+Refusal Positioner::set_window(double window_m) {
+  if (!std::isfinite(window_m)) return Refusal::NotFinite;
+  if (window_m < 0 || window_m > 1e-3) return Refusal::OutOfRange;
+  config_.tolerance_m = window_m;
+  status_.window_m = tolerance_m();
+  return Refusal::None;
+}
+
+Refusal Positioner::set_dwell(double dwell_s) {
+  if (!std::isfinite(dwell_s)) return Refusal::NotFinite;
+  if (dwell_s < 0 || dwell_s > 60) return Refusal::OutOfRange;
+  config_.dwell_s = dwell_s;
+  return Refusal::None;
+}
+
+Refusal Positioner::set_eot(double step_m, int cycles) {
+  if (!std::isfinite(step_m)) return Refusal::NotFinite;
+  if (step_m < 0 || step_m > 1e-3 || cycles < 1 || cycles > 100000) return Refusal::OutOfRange;
+  config_.eot_step_m = step_m;
+  config_.eot_cycles = cycles;
+  return Refusal::None;
+}
+
+Refusal Positioner::set_hold(double hold_s, double window_m) {
+  if (!std::isfinite(hold_s) || !std::isfinite(window_m)) return Refusal::NotFinite;
+  if (!(hold_s == -1 || (hold_s >= 0 && hold_s <= 86400)) || window_m < 0 || window_m > 1e-3)
+    return Refusal::OutOfRange;
+  config_.hold_s = hold_s;
+  config_.hold_window_m = window_m;
+  return Refusal::None;
+}
+
+void Positioner::end_hold() {
+  hold_armed_ = false;
+  status_.holding = false;
+  if (hold_correcting_) {
+    hold_correcting_ = false;
+    if (phase_ != Phase::Idle && phase_ != Phase::Fault) stop_requested_ = true;
+  }
+}
+
 void Positioner::stop() {
+  end_hold();
   if (phase_ == Phase::Idle || phase_ == Phase::Fault) return;
   stop_requested_ = true;
 }
@@ -349,6 +490,15 @@ void Positioner::continue_from(const MotionStatus& previous) {
   status_.bursts = previous.bursts;
   status_.cycles = previous.cycles;
   status_.last_move_time_s = previous.last_move_time_s;
+  status_.kind = previous.kind;
+  status_.result = previous.result;
+  status_.result_distance_m = previous.result_distance_m;
+  status_.eot = previous.eot;
+  status_.eot_position_m = previous.eot_position_m;
+  status_.moved_dirs = previous.moved_dirs;
+  status_.references = previous.references;
+  status_.offset_m = previous.offset_m;
+  offset_m_ = previous.offset_m;
 }
 
 // ---- faults ----
@@ -359,10 +509,19 @@ void Positioner::enter_fault(MotionFault fault) {
   request_.kind = model::OutputRequest::Kind::Stop;
   request_.seq = seq_;
   request_due_ = true;
+  const bool moving = phase_ != Phase::Idle && phase_ != Phase::Fault;
   phase_ = Phase::Fault;
   status_.state = MotionState::Fault;
   status_.fault = fault;
   stop_requested_ = false;
+  hold_armed_ = hold_correcting_ = false;
+  status_.holding = false;
+  status_.in_window = false;
+  referencing_ = false;
+  if (moving || status_.result == MoveResult::None) {
+    status_.result = MoveResult::Fault;
+    status_.result_distance_m = status_.target_m - status_.position_m;
+  }
 }
 
 // ---- readings ----
@@ -410,16 +569,32 @@ void Positioner::on_reading(const model::AxisEvent& e) {
       enter_fault(e.overrun ? MotionFault::CaptureOverrun : MotionFault::InvalidSample);
     return;
   }
-  status_.position_m = e.position_m;
+  const double position = e.position_m + offset_m_;
+  status_.position_m = position;
+  chunk_lo_m_ = std::min(chunk_lo_m_, position);
+  chunk_hi_m_ = std::max(chunk_hi_m_, position);
   status_.position_valid = true;
   if (!target_known_) {  // before the first motion the target is where the slider is (VAL = RBV)
-    status_.target_m = e.position_m;
+    status_.target_m = position;
     target_known_ = true;
   }
-  if ((phase_ == Phase::Pending || phase_ == Phase::Settling) && !e.in_segment &&
-      e.t_s >= fresh_.after_s && fresh_.count < config_.latch_words) {
-    fresh_.sum_m += e.position_m;
+  if ((phase_ == Phase::Pending || phase_ == Phase::Settling || phase_ == Phase::Dwell) &&
+      !e.in_segment && e.t_s >= fresh_.after_s && fresh_.count < config_.latch_words) {
+    fresh_.sum_m += position;
     ++fresh_.count;
+    fresh_.worst_m = std::max(fresh_.worst_m, std::fabs(status_.target_m - position));
+  }
+  if (hold_armed_ && phase_ == Phase::Idle && !e.in_segment) {
+    // Holding: the mean of latch_words readings at rest against the hold window.
+    hold_sum_m_ += position;
+    if (++hold_n_ >= config_.latch_words) {
+      const double mean = hold_sum_m_ / hold_n_;
+      hold_sum_m_ = 0;
+      hold_n_ = 0;
+      const double window = config_.hold_window_m > 0 ? config_.hold_window_m : tolerance_m();
+      status_.in_window = std::fabs(status_.target_m - mean) <= window;
+      if (!status_.in_window) hold_correction_due_ = true;
+    }
   }
 }
 
@@ -483,6 +658,7 @@ void Positioner::start_chunk() {
   request_.segment = seg;
   request_due_ = true;
   chunk_start_position_m_ = status_.position_m;
+  chunk_lo_m_ = chunk_hi_m_ = status_.position_m;
   ++status_.bursts;
   ++move_chunks_;
   status_.cycles += c.cycles;
@@ -491,16 +667,163 @@ void Positioner::start_chunk() {
   status_.state = MotionState::Moving;
 }
 
-void Positioner::finish(double now_s) {
+void Positioner::finish(double now_s, MoveResult result) {
   phase_ = Phase::Idle;
   status_.state = MotionState::Idle;
-  status_.last_move_time_s = now_s - move_start_s_;
   stop_requested_ = false;
+  if (hold_correcting_) {
+    hold_correcting_ = false;
+    if (result == MoveResult::Ok) {  // back in the window: holding on
+      hold_armed_ = true;
+      status_.in_window = true;
+      return;
+    }
+    status_.holding = false;
+  }
+  status_.last_move_time_s = now_s - move_start_s_;
+  status_.result = result;
+  status_.result_distance_m = status_.target_m - status_.position_m;
+  status_.in_window = status_.kind == MotionKind::Move && result == MoveResult::Ok;
+  referencing_ = false;
+  if (status_.in_window && config_.hold_s != 0) {
+    hold_armed_ = true;
+    status_.holding = true;
+    hold_until_s_ = config_.hold_s < 0 ? std::numeric_limits<double>::infinity() : now_s + config_.hold_s;
+    hold_sum_m_ = 0;
+    hold_n_ = 0;
+    hold_correction_due_ = false;
+  }
+}
+
+void Positioner::arrived(double now_s) {
+  if (config_.dwell_s > 0 && !hold_correcting_) {
+    if (phase_ != Phase::Dwell) {
+      phase_ = Phase::Dwell;
+      status_.state = MotionState::Settling;
+      dwell_until_s_ = now_s + config_.dwell_s;
+    }
+    want_fresh(now_s);
+    return;
+  }
+  finish(now_s, MoveResult::Ok);
+}
+
+void Positioner::dwell_tick(double now_s) {
+  if (stop_requested_) {
+    finish(now_s, stop_result_);
+    return;
+  }
+  double p = 0;
+  const double worst = fresh_.worst_m;
+  if (!fresh_position(p)) return;
+  // Every reading of the dwell, not only their mean: a slider near the window's edge that the
+  // noise reads outside now and then is read outside by a client too.
+  if (worst > tolerance_m()) {
+    // It left the window during the dwell: correct again. Counted on its own (the mean may still
+    // say arrived, and then nothing is played before the next dwell): five times max_retries.
+    if (++dwell_failures_ > 5 * std::max(config_.max_retries, 1)) {
+      enter_fault(MotionFault::RetryLimit);
+      return;
+    }
+    last_try_done_ = false;
+    phase_ = Phase::Settling;
+    plan_next_chunk(now_s);
+    return;
+  }
+  if (now_s >= dwell_until_s_)
+    finish(now_s, MoveResult::Ok);
+  else
+    want_fresh(now_s);
+}
+
+void Positioner::hold_tick(double now_s) {
+  if (!hold_armed_) return;
+  if (now_s >= hold_until_s_) {
+    hold_armed_ = false;
+    status_.holding = false;
+    return;
+  }
+  if (!hold_correction_due_ || !status_.position_valid) return;
+  hold_correction_due_ = false;
+  // A correction back to the target: a move of its own, the hold carrying on after it.
+  load_rung_estimates();
+  const std::uint64_t moves = status_.moves;
+  start_motion(MotionKind::Move);
+  status_.moves = moves;
+  status_.holding = true;
+  hold_correcting_ = true;
+  status_.closed_loop = true;
+}
+
+bool Positioner::end_of_travel_seen(double moved_m) {
+  const double eot_step = config_.eot_step_m > 0 ? config_.eot_step_m : (referencing_ ? 0.25 * count_m_ : 0.0);
+  if (!(eot_step > 0) || chunk_.cycles == 0) return false;
+  const int sign = chunk_.direction != 0 ? chunk_.direction : (chunk_.predicted_m >= 0 ? 1 : -1);
+  // Only chunks that were expected to move well above the threshold say anything: open-loop
+  // chunks at their nominal step; closed-loop chunks of a rung not of the final class that has
+  // moved as predicted before (on a compliant stage whole groups of cells stand still on some
+  // stretches of the guide, and a fine rung near cut-off often does).
+  bool expected = false, proven = true;
+  if (chunk_.rung < 0) {
+    expected = std::fabs(open_loop_.predicted_m) >= 5.0 * eot_step;
+  } else {
+    const Rung& r = ladder_[direction_index(sign)][static_cast<std::size_t>(chunk_.rung)];
+    expected = r.est.step_m >= std::max(5.0 * eot_step, config_.final_step_counts * count_m_);
+    proven = r.proven;
+  }
+  if (!expected) return false;
+  // A collapse needs steps before it: a slider that has never moved this way is stuck (a stall
+  // fault), not at the end of its travel. A reference looks for the stop, wherever it starts.
+  const double expected_along = chunk_.rung < 0 ? std::fabs(open_loop_.predicted_m) * static_cast<double>(chunk_.cycles)
+                                                : std::max(chunk_.predicted_along_m, 0.0);
+  const std::uint8_t bit = static_cast<std::uint8_t>(1u << direction_index(sign));
+  const bool had_moved = (status_.moved_dirs & bit) != 0 || referencing_;
+  const double along = sign * moved_m;
+  if (along >= std::max(0.5 * expected_along, 3.0 * count_m_)) status_.moved_dirs |= bit;
+  if (!had_moved) return false;
+  // Thrown back farther than the chunk could step: at a hard stop the step's momentum goes into
+  // the stop and the return stroke's does not.
+  // (A compliant stage moves a cell the wrong way by a few steps at times: far beyond that only.)
+  if (-along > std::max(5.0 * expected_along, 1000.0 * count_m_)) return true;
+  // Closed loop: the run of non-moving chunks that makes a stall (judge_and_learn) decides; one
+  // rung standing still on a stretch of the guide is the ladder's business.
+  if (!proven || chunk_.rung >= 0) return false;
+  eot_chunks_[eot_next_] = EotChunk{chunk_.cycles, along};
+  eot_next_ = (eot_next_ + 1) % kEotChunks;
+  eot_count_ = std::min(eot_count_ + 1, kEotChunks);
+  std::uint64_t cycles = 0;
+  double sum = 0;
+  for (int k = 1; k <= eot_count_ && cycles < static_cast<std::uint64_t>(config_.eot_cycles); ++k) {
+    const EotChunk& c = eot_chunks_[(eot_next_ - k + kEotChunks) % kEotChunks];
+    cycles += c.cycles;
+    sum += c.along_m;
+  }
+  if (cycles < static_cast<std::uint64_t>(config_.eot_cycles)) return false;
+  return sum / static_cast<double>(cycles) < eot_step;
+}
+
+void Positioner::end_of_travel(double now_s, int sign) {
+  status_.eot = static_cast<std::int8_t>(sign);
+  status_.eot_position_m = sign < 0 ? std::min(chunk_lo_m_, status_.position_m) : std::max(chunk_hi_m_, status_.position_m);
+  if (referencing_) {
+    // At the stop: this is where the reference lies.
+    const double shift = reference_position_m_ - status_.position_m;
+    offset_m_ += shift;
+    status_.eot_position_m += shift;
+    status_.offset_m = offset_m_;
+    status_.position_m = reference_position_m_;
+    status_.target_m = reference_position_m_;
+    ++status_.references;
+    finish(now_s, MoveResult::Ok);
+    return;
+  }
+  finish(now_s, MoveResult::EndOfTravel);
 }
 
 void Positioner::next_open_loop_chunk(double now_s) {
   if (open_loop_remaining_ == 0) {
-    finish(now_s);
+    // A reference that met no end stop within its cycles did not find it.
+    finish(now_s, referencing_ ? MoveResult::Timeout : MoveResult::Ok);
     return;
   }
   chunk_ = open_loop_;
@@ -515,6 +838,10 @@ void Positioner::next_open_loop_chunk(double now_s) {
 
 void Positioner::after_chunk(double now_s, double position) {
   const double moved = position - chunk_start_position_m_;
+  if (end_of_travel_seen(moved)) {
+    end_of_travel(now_s, chunk_.direction != 0 ? chunk_.direction : (open_loop_.predicted_m >= 0 ? 1 : -1));
+    return;
+  }
   if (status_.closed_loop && chunk_.rung >= 0) {
     if (!judge_and_learn(moved)) return;
   } else if (chunk_.predicted_m != 0) {
@@ -530,7 +857,12 @@ void Positioner::after_chunk(double now_s, double position) {
     }
   }
   if (stop_requested_) {
-    finish(now_s);
+    finish(now_s, stop_result_);
+    return;
+  }
+  if (!referencing_ && (position < config_.soft_lower_m - tolerance_m() ||
+                        position > config_.soft_upper_m + tolerance_m())) {
+    finish(now_s, MoveResult::Limit);  // outside the soft limits: nothing more is played
     return;
   }
   if (status_.closed_loop) {
@@ -548,10 +880,21 @@ void Positioner::after_chunk(double now_s, double position) {
 
 bool Positioner::tick(double now_s, model::OutputRequest& request) {
   now_s_ = now_s;
+  if (phase_ != Phase::Idle && phase_ != Phase::Fault && move_started_ && !stop_requested_ &&
+      config_.move_timeout_s > 0 && status_.kind != MotionKind::Step &&
+      now_s - move_start_s_ > config_.move_timeout_s) {
+    stop_requested_ = true;  // ends at the playing chunk's end
+    stop_result_ = MoveResult::Timeout;
+  }
   switch (phase_) {
-    case Phase::Fault:
     case Phase::Idle:
+      hold_tick(now_s);
+      break;
+    case Phase::Fault:
     case Phase::Playing:  // the link's events move it on
+      break;
+    case Phase::Dwell:
+      dwell_tick(now_s);
       break;
     case Phase::Pending: {
       if (!move_started_) {
@@ -560,7 +903,7 @@ bool Positioner::tick(double now_s, model::OutputRequest& request) {
         want_fresh(now_s);  // the position the move starts from: read after the command
       }
       if (stop_requested_) {
-        finish(now_s);
+        finish(now_s, stop_result_);
         break;
       }
       double p = 0;

@@ -35,7 +35,8 @@
 namespace idm::control {
 
 struct PositionerConfig {
-  // |target - position| that counts as arrived; 0: one interferometer count.
+  // The in-position window (MOVE:WINDow): |target - reading| that counts as arrived; 0: one
+  // interferometer count (the loop then aims for half a count: the reading nearest the target).
   double tolerance_m = 0.0;
   // Correction rounds after the first plan (the motor record's RTRY); one more -> FAULT.
   int max_retries = 10;
@@ -72,6 +73,20 @@ struct PositionerConfig {
   // Time a chunk costs beyond its cycles (device settle, the positioner's settle, the reading),
   // used to weigh fewer, longer chunks against more, shorter ones.
   double chunk_overhead_s = 5e-3;
+  // ---- in position, end of travel, hold (the protocol's MOVE:DWELl, EOT:, HOLD) ----
+  // A move is done once fresh readings have stayed within the window (tolerance_m) of the target
+  // for this long (0: the first fresh reading inside).
+  double dwell_s = 0.0;
+  // A move still not done after this long ends with result TIMEOUT (0: no limit).
+  double move_timeout_s = 120.0;
+  // End of travel: while driving, the mean step over the last eot_cycles cycles below eot_step_m
+  // stops the axis (0: detection off).
+  double eot_step_m = 2e-9;
+  int eot_cycles = 20;
+  // After a move that arrived: keep the target for hold_s (0: no hold; -1: until the next motion
+  // command or STOP), correcting whenever a reading leaves hold_window_m (0: the move's window).
+  double hold_s = 0.0;
+  double hold_window_m = 0.0;
 };
 
 // The keys of PositionerConfig, and the check of values set in code (model::InputError naming the
@@ -104,7 +119,23 @@ enum class Refusal : std::uint8_t {
   OutOfRange,         // an open-loop step's cycles/duty/frequency/stroke outside the device limits
   NoPosition,         // the position is not known (no valid word yet)
   NotReferenced,      // an absolute move on an axis that must be referenced first (the daemon's)
+  EndOfTravel,        // a motion further into the end of travel the axis stopped at
 };
+
+// Why the last motion ended (MOVE:RESult?).
+enum class MoveResult : std::uint8_t {
+  None,         // no motion yet
+  Ok,           // a move: in its window for the dwell; a STEP: every cycle played; a reference: found
+  Stopped,      // STOP (or a new command) ended it
+  Limit,        // a reading left the soft limits
+  EndOfTravel,  // the mean step collapsed while driving (eot_step_m over eot_cycles)
+  Fault,        // it ended in a fault (MotionStatus::fault)
+  Timeout,      // not done within move_timeout_s
+};
+const char* move_result_name(MoveResult result);  // "NONE", "OK", "STOPPED", ...
+
+// What the last motion was.
+enum class MotionKind : std::uint8_t { None, Move, Step, Reference };
 const char* refusal_name(Refusal refusal);  // "none", "not_finite", ...
 
 // A plain snapshot (trivially copyable) for the daemon to publish through a latest-value buffer.
@@ -120,6 +151,17 @@ struct MotionStatus {
   std::uint64_t cycles = 0;          // cycles played since construction
   std::uint32_t corrections = 0;     // correction rounds of the current/last move
   double last_move_time_s = 0.0;     // time the last finished move took
+  MotionKind kind = MotionKind::None;  // the current/last motion
+  MoveResult result = MoveResult::None;  // why the last motion ended (None while one runs)
+  double result_distance_m = 0.0;    // target - position when it ended
+  std::int8_t eot = 0;               // -1 / +1: stopped at the end of travel that way; 0: not
+  double eot_position_m = 0.0;       // where it met it (motion beyond is refused)
+  std::uint8_t moved_dirs = 0;       // bit 0 negative, bit 1 positive: the slider has stepped that way
+  bool holding = false;              // keeping the last move's target (HOLD)
+  bool in_window = false;            // at rest within the window of the target
+  std::uint64_t references = 0;      // references found since construction
+  double window_m = 0.0;             // the move window in force (MOVE:WINDow)
+  double offset_m = 0.0;             // readings are the device's plus this (set by a reference)
 };
 
 // What the positioner knows of its device: plain numbers the daemon takes from the drivers'
@@ -158,6 +200,17 @@ class Positioner {
   // Leaves FAULT for IDLE (the output is already at zero); re-reads the position.
   void reset_fault();
   Refusal set_soft_limits(double lower_m, double upper_m);
+  // Settings for the motions that follow (checked by the caller; NaN/negative where not allowed
+  // is refused with OutOfRange). window_m 0: half a count.
+  Refusal set_window(double window_m);
+  Refusal set_dwell(double dwell_s);
+  Refusal set_eot(double step_m, int cycles);
+  Refusal set_hold(double hold_s, double window_m);
+  // Finds the end stop toward `direction` (+1/-1) open loop at the largest step, then sets the
+  // position there to position_at_stop_m. Soft limits do not apply to it.
+  Refusal reference(int direction, double position_at_stop_m);
+  // Ends a hold (any motion command does).
+  void end_hold();
   // After a rebuild at rest (new settings): carry on from the previous positioner's status (the
   // target, the position read at rest, the counters), so that a reset does not show target 0.
   void continue_from(const MotionStatus& previous);
@@ -174,8 +227,11 @@ class Positioner {
   // a non-finite argument): what a refusal's message names.
   double requested_target_m() const { return requested_target_m_; }
   bool at_rest() const;  // IDLE or FAULT (the motor record's DMOV = 1)
+  // At rest, or holding (a hold's corrections do not make a move undone).
+  bool done() const { return at_rest() || status_.holding; }
   const PositionerConfig& config() const { return config_; }
-  double tolerance_m() const;
+  double tolerance_m() const;  // the in-position window
+  double landing_m() const;    // what a move aims for inside it
 
   // ---- for tests, tools and benchmarks ----
   const RegionMap& map() const { return map_; }
@@ -208,13 +264,14 @@ class Positioner {
   double finest_live_step_m(int direction) const;
 
  private:
-  enum class Phase : std::uint8_t { Idle, Pending, Playing, Settling, Fault };
+  enum class Phase : std::uint8_t { Idle, Pending, Playing, Settling, Fault, Dwell };
   // Fresh readings: the average of latch_words valid readings taken at or after fresh_after_s_.
   struct Fresh {
     double after_s = 0;
     int count = 0;
     double sum_m = 0;
     bool requested = false;  // a Read request went out for them
+    double worst_m = 0;      // the largest |target - reading| among them
   };
   struct Chunk {
     double freq_hz = 0, duty = 0, stroke_m = 0;
@@ -276,7 +333,14 @@ class Positioner {
   void play_rung(const std::vector<Rung>& ladder, int chosen, int sign, std::uint64_t cycles,
                  bool final_chunk, bool capped, double b_final, double error);
   void next_open_loop_chunk(double now_s);
-  void finish(double now_s);
+  void finish(double now_s, MoveResult result);
+  void arrived(double now_s);
+  bool end_of_travel_seen(double moved_m);  // after a chunk: the mean step collapsed
+  void end_of_travel(double now_s, int sign);
+  void start_motion(MotionKind kind);
+  void hold_tick(double now_s);
+  void dwell_tick(double now_s);
+  bool toward_eot(double end_m) const;
   std::uint64_t chunk_cycle_limit(double freq_hz, std::uint32_t period_samples,
                                   std::uint64_t max_cycles) const;
   double nominal_open_loop_step_m(double freq_hz, double duty, double stroke_m) const;
@@ -325,6 +389,30 @@ class Positioner {
   // Open loop: the whole step and what is left of it.
   Chunk open_loop_;
   std::uint64_t open_loop_remaining_ = 0;
+  // Readings are reported as the device's plus this (set by a reference).
+  double offset_m_ = 0;
+  // End of travel: the last chunks that were expected to move (cycles, displacement along).
+  struct EotChunk {
+    std::uint64_t cycles = 0;
+    double along_m = 0;
+  };
+  static constexpr int kEotChunks = 16;
+  EotChunk eot_chunks_[kEotChunks];
+  int eot_count_ = 0, eot_next_ = 0;
+  bool referencing_ = false;
+  double reference_position_m_ = 0;
+  double dwell_until_s_ = 0;
+  bool hold_armed_ = false;       // holding: at rest, watching the readings
+  double hold_until_s_ = 0;       // +inf: until the next command
+  bool hold_correcting_ = false;  // a correction of a hold is playing
+  double chunk_lo_m_ = 0, chunk_hi_m_ = 0;  // the readings' extent during the chunk
+  double hold_sum_m_ = 0;
+  int hold_n_ = 0;
+  bool hold_correction_due_ = false;
+  MoveResult stop_result_ = MoveResult::Stopped;  // what a requested stop ends as
+  std::uint64_t streak_cycles_ = 0;  // the chunks of the current run of non-moving chunks
+  double streak_along_m_ = 0;
+  int dwell_failures_ = 0;  // dwells of this move that saw a reading outside the window
 };
 
 }  // namespace idm::control

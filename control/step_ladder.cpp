@@ -177,9 +177,9 @@ double Positioner::finest_live_step_m(int direction) const {
 
 void Positioner::plan_next_chunk(double now_s) {
   const double error = status_.target_m - status_.position_m;
-  const double tolerance = tolerance_m();
+  const double tolerance = landing_m();
   if (std::fabs(error) <= tolerance) {
-    finish(now_s);
+    arrived(now_s);
     return;
   }
   if (last_try_done_) {
@@ -382,6 +382,10 @@ bool Positioner::judge_and_learn(double moved_m) {
     const bool counts = (r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
     kill_rung(r);
     r.killed_in_streak = true;
+    if (counts) {
+      streak_cycles_ += chunk_.cycles;
+      streak_along_m_ += along;
+    }
     if (counts && ++stall_count_ >= config_.stall_bursts) {
       // The slider is stuck: the rungs are not to blame.
       for (std::vector<Rung>& l : ladder_)
@@ -390,6 +394,12 @@ bool Positioner::judge_and_learn(double moved_m) {
             x.dead = false;
             x.killed_in_streak = false;
           }
+      // Driven and not moving: at an end stop when the mean step over the run collapsed.
+      if (config_.eot_step_m > 0 && streak_cycles_ > 0 && (status_.moved_dirs & (1u << direction_index(sign))) &&
+          streak_along_m_ / static_cast<double>(streak_cycles_) < config_.eot_step_m) {
+        end_of_travel(now_s_, sign);
+        return false;
+      }
       enter_fault(MotionFault::Stall);
       return false;
     }
@@ -397,6 +407,8 @@ bool Positioner::judge_and_learn(double moved_m) {
   }
   if (judged) {
     stall_count_ = 0;
+    streak_cycles_ = 0;
+    streak_along_m_ = 0;
     r.proven = true;
     for (std::vector<Rung>& l : ladder_)
       for (Rung& x : l) x.killed_in_streak = false;

@@ -127,6 +127,20 @@ control::Refusal Axis::apply(const AxisCommand& c) {
     case AxisCommand::Kind::Step:
       if (busy) return Refusal::Busy;
       return positioner_->step_open_loop(c.n, c.a, c.b, c.c);
+    case AxisCommand::Kind::SetWindow:
+      return positioner_->set_window(c.a);
+    case AxisCommand::Kind::SetDwell:
+      return positioner_->set_dwell(c.a);
+    case AxisCommand::Kind::SetEot:
+      return positioner_->set_eot(c.a, static_cast<int>(c.n));
+    case AxisCommand::Kind::SetHold:
+      return positioner_->set_hold(c.a, c.b);
+    case AxisCommand::Kind::Reference: {
+      if (busy) return Refusal::Busy;
+      const Refusal r = positioner_->reference(c.n > 0 ? 1 : -1, c.a);
+      if (r == Refusal::None) referenced_ = false;  // until it is found
+      return r;
+    }
     case AxisCommand::Kind::SetLimits: {
       const Refusal r = positioner_->set_soft_limits(c.a, c.b);
       if (r == Refusal::None) {
@@ -178,6 +192,7 @@ void Axis::observe(const model::AxisEvent& e, TrialNotices& notices) {
 }
 
 bool Axis::start_trial(const TrialRequest& t, TrialNotices& notices) {
+  positioner_->end_hold();
   if (trial_phase_ != TrialPhase::Idle || !positioner_->at_rest()) {
     TrialNotice n;  // the trial in progress stays as it is
     n.kind = TrialNotice::Kind::Failed;
@@ -249,6 +264,19 @@ void Axis::fail_trial(TrialFailure why, TrialNotices& notices) {
 
 void Axis::publish(bool parked) {
   pub_.motion = positioner_->status();
+  if (pub_.motion.references != references_seen_) {  // a reference was found
+    references_seen_ = pub_.motion.references;
+    referenced_ = true;
+  }
+  pub_.referencing = pub_.motion.kind == control::MotionKind::Reference && !positioner_->at_rest();
+  const control::PositionerConfig& pc = positioner_->config();
+  pub_.settings.window_m = positioner_->tolerance_m();
+  pub_.settings.dwell_s = pc.dwell_s;
+  pub_.settings.eot_step_m = pc.eot_step_m;
+  pub_.settings.eot_cycles = pc.eot_cycles;
+  pub_.settings.hold_s = pc.hold_s;
+  pub_.settings.hold_window_set_m = pc.hold_window_m;
+  pub_.settings.hold_window_m = pc.hold_window_m > 0 ? pc.hold_window_m : positioner_->tolerance_m();
   pub_.trial_active = trial_phase_ != TrialPhase::Idle;
   pub_.referenced = referenced_;
   pub_.parked = parked;

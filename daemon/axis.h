@@ -25,7 +25,10 @@ using drivers::SpscRing;
 
 // server -> loop. Stop with axis -1 stops every axis.
 struct AxisCommand {
-  enum class Kind : std::uint8_t { MoveAbsolute, MoveRelative, Step, Stop, SetLimits };
+  enum class Kind : std::uint8_t {
+    MoveAbsolute, MoveRelative, Step, Stop, SetLimits,
+    SetWindow, SetDwell, SetEot, SetHold, Reference,  // settings: a (and b, n); Reference: n = direction
+  };
   Kind kind = Kind::Stop;
   std::int32_t axis = -1;
   std::uint64_t seq = 0;
@@ -34,8 +37,17 @@ struct AxisCommand {
 };
 
 // Published by the loop after every tick, per axis (seqlock).
+// The settings in force for the motions that follow (MOVE:WINDow?, HOLD?, ...).
+struct MotionSettings {
+  double window_m = 0, dwell_s = 0, eot_step_m = 0, hold_s = 0, hold_window_m = 0;
+  double hold_window_set_m = 0;  // as set (0: the move window)
+  int eot_cycles = 0;
+};
+
 struct AxisPublished {
   control::MotionStatus motion;
+  MotionSettings settings;
+  bool referencing = false;
   double soft_lower_m = 0, soft_upper_m = 0;
   bool trial_active = false;
   bool referenced = false;
@@ -97,6 +109,8 @@ class Axis {
   // A trial's segment has been handed to the link and its end not yet seen: the next trial waits.
   bool trial_finishing() const { return trial_phase_ == TrialPhase::Playing; }
   bool at_rest() const { return positioner_->at_rest() && trial_phase_ == TrialPhase::Idle; }
+  // Done (MOVE:DONE? 1, *OPC?): at rest, or holding the target of a move that arrived.
+  bool done() const { return positioner_->done() && trial_phase_ == TrialPhase::Idle; }
   void publish(bool parked);
   // The target of the last command (refused or accepted), NaN when none.
   double requested_target_m() const { return positioner_->requested_target_m(); }
@@ -139,6 +153,7 @@ class Axis {
   // Loop thread.
   PendingRequest pending_;
   bool referenced_ = false;
+  std::uint64_t references_seen_ = 0;
   control::MotionFault noted_fault_ = control::MotionFault::None;
   std::uint64_t calibration_published_ = 0;
   double now_s_ = 0;

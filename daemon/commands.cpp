@@ -66,9 +66,15 @@ CommandError Daemon::refusal_error(int axis, control::Refusal r, double target, 
         return {error_code::kSettingsConflict, "a sweep is running: STOP it first"};
       return {error_code::kSettingsConflict, "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
     case control::Refusal::OutOfRange:
+      if (kind == AxisCommand::Kind::Reference)
+        return {error_code::kSettingsConflict, "REFerence: no cell of the map moves that way"};
       return {error_code::kDataOutOfRange, "outside the device limits (cycles, duty, frequency or stroke)"};
     case control::Refusal::NoPosition:
       return {error_code::kDataCorruptOrStale, "the position is not known (no valid interferometer reading)"};
+    case control::Refusal::EndOfTravel:
+      return {error_code::kSettingsConflict,
+              std::string("the axis stopped at its end of travel (") + (p.motion.eot < 0 ? "low" : "high") +
+                  "): only motion away from it is allowed (or REFerence)"};
     case control::Refusal::NotReferenced:
       return {error_code::kSettingsConflict,
               "the axis is not referenced (require_reference): REFerence it first, or MOVE:RELative"};
@@ -164,6 +170,90 @@ CommandError Daemon::set_soft_limits(int axis, double lower_m, double upper_m) {
   return submit(c);
 }
 
+CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double value) {
+  static const struct {
+    const char* name;
+    double lo, hi;
+    const char* unit;
+  } kRange[] = {{"MOVE:WINDow", 0, 1e-3, "m (0: half a count)"},
+                {"MOVE:DWELl", 0, 60, "s"},
+                {"EOT:STEP", 0, 1e-3, "m (0: detection off)"},
+                {"EOT:CYCLes", 1, 100000, "cycles"},
+                {"HOLD", -1, 86400, "s (0: no hold, -1: until the next motion)"},
+                {"HOLD:WINDow", 0, 1e-3, "m (0: the move window)"}};
+  const auto& r = kRange[static_cast<std::size_t>(which)];
+  if (!std::isfinite(value)) return {error_code::kNumericDataError, std::string(r.name) + ": not a finite number"};
+  const bool integral = which == MotionSetting::EotCycles;
+  const bool hold_gap = which == MotionSetting::Hold && value < 0 && value != -1;
+  if (value < r.lo || value > r.hi || hold_gap || (integral && value != std::floor(value)))
+    return {error_code::kDataOutOfRange, std::string(r.name) + ": " + num(value) + " is out of range, allowed " +
+                                             (which == MotionSetting::Hold ? std::string("-1 or [0, 86400]")
+                                                                           : "[" + num(r.lo) + ", " + num(r.hi) + "]") +
+                                             (integral ? " (an integer)" : "") + " " + r.unit};
+  const AxisPublished p = axes_.at(static_cast<std::size_t>(axis))->published();
+  AxisCommand c;
+  c.axis = axis;
+  switch (which) {
+    case MotionSetting::Window: c.kind = AxisCommand::Kind::SetWindow; c.a = value; break;
+    case MotionSetting::Dwell: c.kind = AxisCommand::Kind::SetDwell; c.a = value; break;
+    case MotionSetting::EotStep:
+      c.kind = AxisCommand::Kind::SetEot;
+      c.a = value;
+      c.n = p.settings.eot_cycles;
+      break;
+    case MotionSetting::EotCycles:
+      c.kind = AxisCommand::Kind::SetEot;
+      c.a = p.settings.eot_step_m;
+      c.n = static_cast<std::int64_t>(value);
+      break;
+    case MotionSetting::Hold:
+      c.kind = AxisCommand::Kind::SetHold;
+      c.a = value;
+      c.b = p.settings.hold_window_set_m;
+      break;
+    case MotionSetting::HoldWindow:
+      c.kind = AxisCommand::Kind::SetHold;
+      c.a = p.settings.hold_s;
+      c.b = value;
+      break;
+  }
+  return submit(c);
+}
+
+double Daemon::motion_setting(int axis, MotionSetting which) {
+  const MotionSettings s = axes_.at(static_cast<std::size_t>(axis))->published().settings;
+  switch (which) {
+    case MotionSetting::Window: return s.window_m;
+    case MotionSetting::Dwell: return s.dwell_s;
+    case MotionSetting::EotStep: return s.eot_step_m;
+    case MotionSetting::EotCycles: return s.eot_cycles;
+    case MotionSetting::Hold: return s.hold_s;
+    case MotionSetting::HoldWindow: return s.hold_window_m;
+  }
+  return kNaN;
+}
+
+CommandError Daemon::reference(int axis, ReferenceMethod method) {
+  const Axis& a = *axes_.at(static_cast<std::size_t>(axis));
+  const AxisConfig& cfg = a.config();
+  if (method == ReferenceMethod::Default)
+    method = cfg.reference == AxisConfig::Reference::Positive ? ReferenceMethod::Positive
+             : cfg.reference == AxisConfig::Reference::Mark   ? ReferenceMethod::Mark
+                                                              : ReferenceMethod::Negative;
+  if (method == ReferenceMethod::Mark)
+    return {error_code::kSettingsConflict, "REFerence MARK: axis " + cfg.name +
+                                               "'s interferometer reports no reference mark; use NEGative or POSitive"};
+  const bool negative = method == ReferenceMethod::Negative;
+  double at = cfg.reference_position_m;
+  if (std::isnan(at)) at = negative ? cfg.stage.travel_lower_m : cfg.stage.travel_upper_m;
+  AxisCommand c;
+  c.kind = AxisCommand::Kind::Reference;
+  c.axis = axis;
+  c.n = negative ? -1 : 1;
+  c.a = at;
+  return submit(c);
+}
+
 CommandError Daemon::reset() {
   if (CommandError e = stop(); !e.ok()) return e;
   errors_cleared_s_ = drivers::monotonic_s();  // after the stop: what it stopped is cleared too
@@ -192,7 +282,8 @@ bool Daemon::motion_done(int axis) {
   if (housekeeping_->reset_pending()) return false;
   if (sweeps_->active() && sweeps_->status().axis == axis) return false;
   const AxisPublished p = axes_.at(static_cast<std::size_t>(axis))->published();
-  return (p.motion.state == control::MotionState::Idle || p.motion.state == control::MotionState::Fault) &&
+  return (p.motion.state == control::MotionState::Idle || p.motion.state == control::MotionState::Fault ||
+          p.motion.holding) &&
          !p.trial_active;
 }
 
@@ -227,6 +318,16 @@ InstrumentStatus Daemon::status(int axis) {
   s.moves = p.motion.moves;
   s.bursts = p.motion.bursts;
   s.cycles = p.motion.cycles;
+  s.result = control::move_result_name(p.motion.result);
+  s.result_distance_m = p.motion.result_distance_m;
+  s.motion = p.motion.kind == control::MotionKind::Move        ? "move"
+             : p.motion.kind == control::MotionKind::Step      ? "step"
+             : p.motion.kind == control::MotionKind::Reference ? "reference"
+                                                               : "";
+  s.eot = p.motion.eot;
+  s.in_position = p.motion.in_window && s.motion_done && p.motion.state != control::MotionState::Fault;
+  s.holding = p.motion.holding;
+  s.referencing = p.referencing;
   const ErrorNote fault = a.fault_note();
   const ErrorNote other = housekeeping_->error(static_cast<std::size_t>(axis));
   const ErrorNote& last = fault.t_s >= other.t_s ? fault : other;

@@ -12,6 +12,7 @@
 namespace idm::daemon {
 
 using model::boolean;
+using model::choice;
 using model::custom;
 using model::InputError;
 using model::integer;
@@ -41,6 +42,8 @@ struct AxisSections {
   std::string device;
   int channel = -1;
   bool require_reference = false;
+  AxisConfig::Reference reference = AxisConfig::Reference::Negative;
+  double reference_position_m = std::numeric_limits<double>::quiet_NaN();
   Node stage, interferometer, sim, control;
 };
 
@@ -63,6 +66,17 @@ const model::ParamTable<AxisSections>& axis_params() {
                    "its place among the device's axes"),
       boolean<AxisSections>("require_reference", "MOVE:ABS is refused (-221) until the axis is referenced",
                             [](auto& a) -> auto& { return a.require_reference; }),
+      choice<AxisSections, AxisConfig::Reference>(
+          "reference",
+          {{"negative", AxisConfig::Reference::Negative},
+           {"positive", AxisConfig::Reference::Positive},
+           {"mark", AxisConfig::Reference::Mark}},
+          "what REFerence without an argument finds: an end stop or the reference mark",
+          [](auto& a) -> auto& { return a.reference; }),
+      with_default(real<AxisSections>("reference_position_m", "m", {-10, 10},
+                                      "the position REFerence sets where it finds the reference",
+                                      [](auto& a) -> auto& { return a.reference_position_m; }),
+                   "the end of stage.travel_m it lies at (the mark: 0)"),
       section<AxisSections>("stage", "the stage (below), travel_m required", &AxisSections::stage),
       section<AxisSections>("interferometer", "the position words (below)", &AxisSections::interferometer),
       section<AxisSections>("sim", "this axis's simulated stage (below)", &AxisSections::sim),
@@ -167,6 +181,8 @@ AxisConfig parse_axis(const AxisSections& a, const std::string& name, std::size_
   axis.name = name;
   axis.device = device;
   axis.require_reference = a.require_reference;
+  axis.reference = a.reference;
+  axis.reference_position_m = a.reference_position_m;
   axis.document = axis_document(a, c.devices[device]);
   axis.stage = model::parse_stage_yaml(axis.document, f, {.strict = true, .require_dataset_keys = false});
   try {
@@ -216,6 +232,10 @@ void parse_single_axis(const Node& root, DaemonConfig& c) {
   a.sim = child(root, "sim");
   a.control = child(root, "control");
   a.channel = 0;
+  // The axis's own keys, at the top in this form.
+  for (const model::Param<AxisSections>& p : axis_params().params())
+    if (p.name == "require_reference" || p.name == "reference" || p.name == "reference_position_m")
+      if (const Node v = child(root, p.name.c_str()); present(v)) p.read(a, v, c.file, p.name);
   c.axes.push_back(parse_axis(a, "x", 0, c, root, ""));
   c.axes.back().channel = 0;
 }
@@ -415,7 +435,8 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
   model::require_unique_keys(root, f);
   const bool multi = present(child(root, "axes")) || present(child(root, "devices"));
   static const char* const kCommon[] = {"server", "realtime", "logging", "recording"};
-  static const char* const kSingle[] = {"stage", "interferometer", "daq", "control", "sim"};
+  static const char* const kSingle[] = {"stage", "interferometer", "daq", "control", "sim",
+                                        "require_reference", "reference", "reference_position_m"};
   for (const auto& kv : root) {
     const std::string name = kv.first.as<std::string>();
     const bool common = std::find(std::begin(kCommon), std::end(kCommon), name) != std::end(kCommon);
@@ -429,6 +450,7 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
     throw InputError(located(f, kv.first, name,
                              multi ? "unknown section, allowed devices, axes, server, realtime, logging, recording"
                                    : "unknown section, allowed stage, interferometer, daq, control, sim, "
+                                     "require_reference, reference, reference_position_m, "
                                      "server, realtime, logging, recording (or devices: and axes:)"));
   }
   DaemonConfig c;

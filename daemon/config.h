@@ -27,6 +27,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -127,6 +128,11 @@ struct AxisConfig {
   model::SimConfig sim;             // sim: (the simulated stage of this axis)
   ControlConfig control;
   bool require_reference = false;
+  // REFerence without an argument: which end stop (or the mark); and the position the reference
+  // sets there (NaN: the end of the travel it lies at, stage.travel_m).
+  enum class Reference : std::uint8_t { Negative, Positive, Mark };
+  Reference reference = Reference::Negative;
+  double reference_position_m = std::numeric_limits<double>::quiet_NaN();
   // The axis's sections as one document (stage, interferometer, sim, daq.<driver>) for the
   // backend's factory (drivers::make_backend).
   YAML::Node document;

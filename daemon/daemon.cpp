@@ -46,6 +46,17 @@ void Daemon::build_devices() {
     const DeviceConfig& d = config_.devices[a.device];
     YAML::Node doc = a.document;
     doc["channel"] = a.channel;
+    // The simulated stage's hard stops: the file's, or the ends of the travel (AxisConfig::sim).
+    if (d.driver == "sim" && std::isfinite(a.sim.end_stop_low_m)) {
+      YAML::Node sim = doc["sim"] ? YAML::Clone(doc["sim"]) : YAML::Node(YAML::NodeType::Map);
+      if (!sim["end_stops_m"]) {
+        YAML::Node stops(YAML::NodeType::Sequence);
+        stops.push_back(a.sim.end_stop_low_m);
+        stops.push_back(a.sim.end_stop_high_m);
+        sim["end_stops_m"] = stops;
+      }
+      doc["sim"] = sim;
+    }
     drivers::Device device;
     try {
       device = drivers::make_backend(d.driver, doc, config_.file);

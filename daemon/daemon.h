@@ -101,6 +101,9 @@ class Daemon final : public Instrument {
   CommandError stop() override;
   CommandError stop(int axis) override;
   CommandError set_soft_limits(int axis, double lower_m, double upper_m) override;
+  CommandError set_motion_setting(int axis, MotionSetting which, double value) override;
+  double motion_setting(int axis, MotionSetting which) override;
+  CommandError reference(int axis, ReferenceMethod method) override;
   CommandError region(int axis, double freq_hz, double duty, double stroke_m, std::string& region,
                       double& step_m) override;
   CommandError sweep(int axis, const std::string& dir, const std::vector<double>& freqs_hz,

@@ -46,7 +46,26 @@ inline constexpr int kFaultDriver = 104;
 inline constexpr int kFaultNoPlan = 105;
 inline constexpr int kFaultCaptureOverrun = 106;
 inline constexpr int kFaultDeviceLost = 107;
+// A move (or a STEP) that ended without reaching its window, without a fault or a STOP: see
+// kMoveResults.
+inline constexpr int kMoveLimit = 111;
+inline constexpr int kMoveEndOfTravel = 112;
+inline constexpr int kMoveTimeout = 113;
 }  // namespace error_code
+
+// MOVE:RESult?'s words other than OK/NONE/FAULT/STOPPED, and the error a move that ended so
+// queues for the client that started it (a FAULT queues the fault's code, kDeviceFaults; a move
+// the client stopped queues nothing: MOVE:RESult? says STOPPED).
+struct MoveResultCode {
+  const char* word;
+  int code;
+  const char* text;
+};
+inline constexpr MoveResultCode kMoveResults[] = {
+    {"LIMIT", error_code::kMoveLimit, "Move ended at a soft limit"},
+    {"END_OF_TRAVEL", error_code::kMoveEndOfTravel, "End of travel"},
+    {"TIMEOUT", error_code::kMoveTimeout, "Move timed out"},
+};
 
 // The one table of device faults: the name a status reports (control::motion_fault_name), the
 // positive code a motion that ended in it queues, and the code's standard text.
@@ -97,7 +116,22 @@ struct InstrumentStatus {
   // failures, a deferred *RST that could not reload the settings, a device lost or back. *RST
   // clears it.
   std::string last_error;
+  // Why the last motion ended: NONE, OK, STOPPED, LIMIT, END_OF_TRAVEL, FAULT, TIMEOUT, and the
+  // final distance to its target; the motion: "move", "step", "reference", "" before any.
+  std::string result = "NONE";
+  double result_distance_m = 0;
+  std::string motion;
+  int eot = 0;              // -1 / +1: stopped at the end of travel that way
+  bool in_position = false; // at rest within the window of the target
+  bool holding = false;
+  bool referencing = false;
 };
+
+// Settings of the motions that follow, per axis (MOVE:WINDow, MOVE:DWELl, EOT:STEP, EOT:CYCLes,
+// HOLD, HOLD:WINDow).
+enum class MotionSetting : std::uint8_t { Window, Dwell, EotStep, EotCycles, Hold, HoldWindow };
+// REFerence's argument (Default: the axis's configured one).
+enum class ReferenceMethod : std::uint8_t { Default, Negative, Positive, Mark };
 
 // The last (or running) sweep: SWEEP?.
 struct SweepStatus {
@@ -152,6 +186,12 @@ class Instrument {
   virtual CommandError stop(int axis) = 0;
 
   virtual CommandError set_soft_limits(int axis, double lower_m, double upper_m) = 0;
+
+  // A setting out of its range is -222 naming the command and the range.
+  virtual CommandError set_motion_setting(int axis, MotionSetting which, double value) = 0;
+  virtual double motion_setting(int axis, MotionSetting which) = 0;
+  // REFerence: finds the end stop or mark and sets the position there (in the background).
+  virtual CommandError reference(int axis, ReferenceMethod method) = 0;
 
   // REGion? f,duty[,stroke]: region name ("CUTOFF", "ONESTEP", "MULTISTEP") and predicted step.
   // stroke_m NaN: the largest stroke.

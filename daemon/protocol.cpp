@@ -104,6 +104,8 @@ const char* standard_error_text(int code) {
     default:
       for (const DeviceFault& f : kDeviceFaults)
         if (f.code == code) return f.text;
+      for (const MoveResultCode& r : kMoveResults)
+        if (r.code == code) return r.text;
       return "Error";
   }
 }

@@ -226,6 +226,30 @@ class Session {
   CommandError sweep(const Args&, std::string& reply);
   CommandError sim_push(const Args&, std::string& reply);
   CommandError sim_fault(const Args&, std::string& reply);
+  CommandError stb(const Args&, std::string& reply);
+  CommandError esr(const Args&, std::string& reply);
+  CommandError ese(const Args&, std::string& reply);
+  CommandError ese_query(const Args&, std::string& reply);
+  CommandError operation(const Args&, std::string& reply);
+  CommandError move_result(const Args&, std::string& reply);
+  CommandError set_setting(MotionSetting which, const Args&, const char* what);
+  CommandError window(const Args& a, std::string&) { return set_setting(MotionSetting::Window, a, "MOVE:WINDow"); }
+  CommandError dwell(const Args& a, std::string&) { return set_setting(MotionSetting::Dwell, a, "MOVE:DWELl"); }
+  CommandError eot_step(const Args& a, std::string&) { return set_setting(MotionSetting::EotStep, a, "EOT:STEP"); }
+  CommandError eot_cycles(const Args& a, std::string&) { return set_setting(MotionSetting::EotCycles, a, "EOT:CYCLes"); }
+  CommandError hold(const Args& a, std::string&) { return set_setting(MotionSetting::Hold, a, "HOLD"); }
+  CommandError hold_window(const Args& a, std::string&) { return set_setting(MotionSetting::HoldWindow, a, "HOLD:WINDow"); }
+  CommandError window_query(const Args&, std::string& r) { return setting_query(MotionSetting::Window, r); }
+  CommandError dwell_query(const Args&, std::string& r) { return setting_query(MotionSetting::Dwell, r); }
+  CommandError eot_step_query(const Args&, std::string& r) { return setting_query(MotionSetting::EotStep, r); }
+  CommandError eot_cycles_query(const Args&, std::string& r) { return setting_query(MotionSetting::EotCycles, r); }
+  CommandError hold_query(const Args&, std::string& r) { return setting_query(MotionSetting::Hold, r); }
+  CommandError hold_window_query(const Args&, std::string& r) { return setting_query(MotionSetting::HoldWindow, r); }
+  CommandError setting_query(MotionSetting which, std::string& reply);
+  CommandError reference(const Args&, std::string& reply);
+  CommandError reference_query(const Args&, std::string& reply);
+  // STATus:OPERation? of one axis (bits: the spec's extension).
+  int operation_bits(int axis);
 
   static const std::vector<Command>& commands();
   friend const std::vector<CommandInfo>& command_table();
@@ -241,6 +265,9 @@ class Session {
   bool axis_given_ = false;      // it came with an AXIS<n>: prefix
   std::uint64_t started_axes_ = 0;  // axes (bits) whose motion this session started, not yet seen end
   bool stop_only_ = false;
+  // IEEE 488.2 standard event status register and its enable mask (*ESR?, *ESE).
+  std::uint8_t esr_ = 0;
+  std::uint8_t ese_ = 0xFF;
 };
 
 // The device fault a status reports ("stall", ...) as an error with its positive code

@@ -30,6 +30,26 @@ CommandError untrusted_position(const std::string& name) {
                     "axis " + name + ": no trustworthy position (no valid reading yet, beam or device lost)");
 }
 
+// A fault in words, for people reading STAT?.
+std::string fault_reason(const std::string& fault) {
+  static const struct {
+    const char* name;
+    const char* words;
+  } kReasons[] = {
+      {"none", "none"},
+      {"invalid_sample", "the interferometer gave an invalid reading (beam lost, glitch or count continuity lost)"},
+      {"stall", "the slider did not move although driven"},
+      {"retry_limit", "the target was not reached within the allowed corrections"},
+      {"driver", "the output device refused or failed a command"},
+      {"no_plan", "no cell of the map moves toward the target"},
+      {"capture_overrun", "the interferometer capture overflowed during a burst"},
+      {"device_lost", "the device stopped answering"},
+  };
+  for (const auto& r : kReasons)
+    if (fault == r.name) return r.words;
+  return fault;
+}
+
 char upper(char c) { return (c >= 'a' && c <= 'z') ? static_cast<char>(c - 'a' + 'A') : c; }
 
 }  // namespace
@@ -67,6 +87,10 @@ const std::vector<Session::Command>& Session::commands() {
       {{"*OPC", true, 0, 0, "", S::Instrument}, &Session::opc_query},
       {{"*WAI", false, 0, 0, "", S::Instrument}, &Session::wai},
       {{"*TST", true, 0, 0, "", S::Instrument}, &Session::tst},
+      {{"*STB", true, 0, 0, "", S::Instrument}, &Session::stb},
+      {{"*ESR", true, 0, 0, "", S::Instrument}, &Session::esr},
+      {{"*ESE", false, 1, 1, "<mask 0-255>", S::Instrument}, &Session::ese},
+      {{"*ESE", true, 0, 0, "", S::Instrument}, &Session::ese_query},
       {{"SYSTem:ERRor[:NEXT]", true, 0, 0, "", S::Instrument}, &Session::error_next},
       {{"SYSTem:ERRor:COUNt", true, 0, 0, "", S::Instrument}, &Session::error_count},
       {{"SYSTem:ERRor:ALL", true, 0, 0, "", S::Instrument}, &Session::error_all},
@@ -84,6 +108,22 @@ const std::vector<Session::Command>& Session::commands() {
       {{"MOVE[:ABSolute]", true, 0, 0, "", S::Axis}, &Session::move_target},
       {{"MOVE:RELative", false, 1, 1, "<m>", S::Axis}, &Session::move_relative},
       {{"MOVE:DONE", true, 0, 0, "", S::Axis}, &Session::move_done},
+      {{"MOVE:RESult", true, 0, 0, "", S::Axis}, &Session::move_result},
+      {{"MOVE:WINDow", false, 1, 1, "<m>", S::Axis}, &Session::window},
+      {{"MOVE:WINDow", true, 0, 0, "", S::Axis}, &Session::window_query},
+      {{"MOVE:DWELl", false, 1, 1, "<s>", S::Axis}, &Session::dwell},
+      {{"MOVE:DWELl", true, 0, 0, "", S::Axis}, &Session::dwell_query},
+      {{"HOLD", false, 1, 1, "<s>", S::Axis}, &Session::hold},
+      {{"HOLD", true, 0, 0, "", S::Axis}, &Session::hold_query},
+      {{"HOLD:WINDow", false, 1, 1, "<m>", S::Axis}, &Session::hold_window},
+      {{"HOLD:WINDow", true, 0, 0, "", S::Axis}, &Session::hold_window_query},
+      {{"EOT:STEP", false, 1, 1, "<m>", S::Axis}, &Session::eot_step},
+      {{"EOT:STEP", true, 0, 0, "", S::Axis}, &Session::eot_step_query},
+      {{"EOT:CYCLes", false, 1, 1, "<n>", S::Axis}, &Session::eot_cycles},
+      {{"EOT:CYCLes", true, 0, 0, "", S::Axis}, &Session::eot_cycles_query},
+      {{"REFerence[:STARt]", false, 0, 1, "[NEGative|POSitive|MARK]", S::Axis}, &Session::reference},
+      {{"REFerence", true, 0, 0, "", S::Axis}, &Session::reference_query},
+      {{"STATus:OPERation[:CONDition]", true, 0, 0, "", S::Axis}, &Session::operation},
       {{"STEP", false, 1, 4, "<n>[,<duty>,<freq_hz>[,<stroke_m>]]", S::Axis}, &Session::step},
       {{"REGion", true, 2, 3, "<freq_hz>,<duty>[,<stroke_m>]", S::Axis}, &Session::region},
       {{"LIMit:LOWer", false, 1, 1, "<m>", S::Axis}, &Session::limit_lower},
@@ -180,7 +220,17 @@ void Session::line_too_long(std::string_view start, std::string& replies) {
   if (looks_like_query(start)) replies += "\n";
 }
 
-void Session::push(CommandError error) { errors_.push(std::move(error)); }
+void Session::push(CommandError error) {
+  // The standard event status register (IEEE 488.2): command errors (-100..-199) bit 5,
+  // execution errors (-200..-299) bit 4, device-dependent errors (-300..-399 and the device's
+  // positive codes) bit 3, query errors (-400..-499) bit 2.
+  const int c = error.code;
+  if (c <= -100 && c > -200) esr_ |= 1u << 5;
+  else if (c <= -200 && c > -300) esr_ |= 1u << 4;
+  else if ((c <= -300 && c > -400) || c > 0) esr_ |= 1u << 3;
+  else if (c <= -400 && c > -500) esr_ |= 1u << 2;
+  errors_.push(std::move(error));
+}
 
 void Session::started_motion(const CommandError& result) {
   if (result.ok() && axis_ < 64) started_axes_ |= std::uint64_t{1} << axis_;
@@ -192,7 +242,20 @@ void Session::notice_motion_end() {
     const std::uint64_t bit = std::uint64_t{1} << a;
     if (!(started_axes_ & bit) || !instrument_.motion_done(a)) continue;
     started_axes_ &= ~bit;
-    push(fault_error(instrument_.status(a).fault));
+    const InstrumentStatus s = instrument_.status(a);
+    if (s.fault != "none" && !s.fault.empty()) {
+      push(fault_error(s.fault));
+      continue;
+    }
+    // Not in its window: never reported as success. A STEP has no window: only where it was cut
+    // short by the travel or the limits.
+    const bool step = s.motion == "step";
+    for (const MoveResultCode& r : kMoveResults) {
+      if (s.result != r.word) continue;
+      if (step && r.code != ec::kMoveEndOfTravel && r.code != ec::kMoveLimit) continue;
+      push(make_error(r.code, "axis " + s.name + ": " + s.motion + " ended " + s.result + ", " +
+                                  format_value(s.result_distance_m) + " m from its target"));
+    }
   }
 }
 
@@ -305,6 +368,100 @@ CommandError Session::rst(const Args&, std::string&) {
 
 CommandError Session::cls(const Args&, std::string&) {
   errors_.clear();
+  esr_ = 0;
+  return {};
+}
+
+int Session::operation_bits(int axis) {
+  const InstrumentStatus s = instrument_.status(axis);
+  const double window = instrument_.motion_setting(axis, MotionSetting::Window);
+  int bits = 0;
+  if (!s.motion_done) bits |= 1 << 0;
+  if (s.in_position) bits |= 1 << 1;
+  if (s.holding) bits |= 1 << 2;
+  if (s.referenced) bits |= 1 << 3;
+  if (s.position_valid && s.position_m <= s.soft_lower_m + window) bits |= 1 << 4;
+  if (s.position_valid && s.position_m >= s.soft_upper_m - window) bits |= 1 << 5;
+  if (s.eot != 0) bits |= 1 << 6;
+  if (!s.fault.empty() && s.fault != "none") bits |= 1 << 7;
+  if (s.position_valid) bits |= 1 << 8;
+  if (s.referencing) bits |= 1 << 9;
+  return bits;
+}
+
+CommandError Session::stb(const Args&, std::string& reply) {
+  int stb = 0;
+  if (!errors_.empty()) stb |= 1 << 2;        // error/event queue not empty
+  if (esr_ & ese_) stb |= 1 << 5;             // event status summary
+  bool operating = false;                      // operation summary: an axis moving or referencing
+  for (int a = 0; a < instrument_.axis_count(); ++a)
+    operating = operating || (operation_bits(a) & ((1 << 0) | (1 << 9))) != 0;
+  if (operating) stb |= 1 << 7;
+  reply = std::to_string(stb);
+  return {};
+}
+
+CommandError Session::esr(const Args&, std::string& reply) {
+  reply = std::to_string(esr_);
+  esr_ = 0;  // reading clears it
+  return {};
+}
+
+CommandError Session::ese(const Args& args, std::string&) {
+  std::int64_t mask = 0;
+  if (CommandError e = integer_arg(args, 0, "*ESE mask", 0, 255, mask); !e.ok()) return e;
+  ese_ = static_cast<std::uint8_t>(mask);
+  return {};
+}
+
+CommandError Session::ese_query(const Args&, std::string& reply) {
+  reply = std::to_string(ese_);
+  return {};
+}
+
+CommandError Session::operation(const Args&, std::string& reply) {
+  reply = std::to_string(operation_bits(axis_));
+  return {};
+}
+
+CommandError Session::move_result(const Args&, std::string& reply) {
+  const InstrumentStatus s = instrument_.status(axis_);
+  reply = s.result + "," + format_value(s.result == "NONE" ? 0.0 : s.result_distance_m);
+  return {};
+}
+
+CommandError Session::set_setting(MotionSetting which, const Args& args, const char* what) {
+  double value = 0;
+  if (CommandError e = number_arg(args, 0, what, value); !e.ok()) return e;
+  return instrument_error(instrument_.set_motion_setting(axis_, which, value));
+}
+
+CommandError Session::setting_query(MotionSetting which, std::string& reply) {
+  reply = format_value(instrument_.motion_setting(axis_, which));
+  return {};
+}
+
+CommandError Session::reference(const Args& args, std::string&) {
+  ReferenceMethod method = ReferenceMethod::Default;
+  if (args.size() == 1) {
+    if (args.quoted[0]) return make_error(ec::kDataTypeError, "REFerence: a keyword, not a string");
+    if (header_matches("NEGative", args[0]))
+      method = ReferenceMethod::Negative;
+    else if (header_matches("POSitive", args[0]))
+      method = ReferenceMethod::Positive;
+    else if (header_matches("MARK", args[0]))
+      method = ReferenceMethod::Mark;
+    else
+      return make_error(ec::kDataOutOfRange, "REFerence: '" + std::string(args[0]) +
+                                                 "' is not allowed, allowed NEGative, POSitive, MARK");
+  }
+  CommandError e = instrument_error(instrument_.reference(axis_, method));
+  started_motion(e);
+  return e;
+}
+
+CommandError Session::reference_query(const Args&, std::string& reply) {
+  reply = instrument_.status(axis_).referenced ? "1" : "0";
   return {};
 }
 
@@ -538,7 +695,10 @@ CommandError Session::status(const Args&, std::string& reply) {
           " cycles=" + std::to_string(s.cycles) + " errors=" + std::to_string(errors_.size()) +
           " last_error=" + std::to_string(errors_.last_code()) +
           " daemon_error=" + word(replace_controls(s.last_error)) + " axis=" + word(s.name) +
-          " referenced=" + (s.referenced ? "1" : "0") + " device=" + word(s.device);
+          " referenced=" + (s.referenced ? "1" : "0") + " device=" + word(s.device) +
+          " result=" + s.result + " eot=" + (s.eot < 0 ? "low" : s.eot > 0 ? "high" : "none") +
+          " in_position=" + (s.in_position ? "1" : "0") + " holding=" + (s.holding ? "1" : "0") +
+          " referencing=" + (s.referencing ? "1" : "0") + " fault_reason=" + word(fault_reason(s.fault));
   return {};
 }
 

@@ -35,7 +35,7 @@ bool MotionSupervisor::at_rest() const {
   for (const Axis* a : axes_) {
     const AxisPublished p = a->published();
     const bool rest = p.motion.state == control::MotionState::Idle ||
-                      p.motion.state == control::MotionState::Fault;
+                      p.motion.state == control::MotionState::Fault || p.motion.holding;
     if (!rest || p.trial_active) return false;
   }
   return true;
@@ -53,7 +53,9 @@ void MotionSupervisor::tick(double now_s) {
   AxisCommand cmd;
   std::uint64_t ack = 0;
   if (commands_.pop(cmd)) {
-    const bool motion = cmd.kind != AxisCommand::Kind::Stop && cmd.kind != AxisCommand::Kind::SetLimits;
+    const bool motion = cmd.kind == AxisCommand::Kind::MoveAbsolute ||
+                        cmd.kind == AxisCommand::Kind::MoveRelative || cmd.kind == AxisCommand::Kind::Step ||
+                        cmd.kind == AxisCommand::Kind::Reference;
     if ((stopping || park) && motion) {
       acked_refusal_.store(static_cast<std::uint8_t>(control::Refusal::Busy), std::memory_order_relaxed);
       acked_target_m_.store(std::numeric_limits<double>::quiet_NaN(), std::memory_order_relaxed);
@@ -103,7 +105,9 @@ void MotionSupervisor::apply(const AxisCommand& c) {
       a.stop(notices_);
     } else {
       r = a.apply(c);
-      if (c.kind != AxisCommand::Kind::SetLimits) target = a.requested_target_m();
+      if (c.kind == AxisCommand::Kind::MoveAbsolute || c.kind == AxisCommand::Kind::MoveRelative ||
+          c.kind == AxisCommand::Kind::Step)
+        target = a.requested_target_m();
     }
   }
   acked_target_m_.store(target, std::memory_order_relaxed);

@@ -18,6 +18,8 @@
 #include <cstring>
 #include <iostream>
 #include <stdexcept>
+#include <map>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -45,6 +47,9 @@ const char* kUsage =
     "  stop                        stop now\n"
     "  wait                        wait until the motion is done\n"
     "  status                      state, position, target, fault, errors (key=value)\n"
+    "  show                        the axis's status in words: state, result of the last move,\n"
+    "                              operation bits, status byte, fault reason, end of travel\n"
+    "  ref [NEG|POS|MARK]          find the reference (end stop or mark); waits\n"
     "  region FREQ DUTY [STROKE]   CUTOFF, ONESTEP or MULTISTEP and the predicted step\n"
     "  limits [LOWER UPPER]        show or set the soft limits\n"
     "  loop                        real-time loop statistics\n"
@@ -129,6 +134,8 @@ const Verb kVerbs[] = {
     {"stop", 0, 0, "stop"},
     {"wait", 0, 0, "wait"},
     {"status", 0, 0, "status"},
+    {"show", 0, 0, "show"},
+    {"ref", 0, 1, "ref [NEG|POS|MARK]"},
     {"region", 2, 3, "region FREQ DUTY [STROKE]"},
     {"limits", 0, 2, "limits [LOWER UPPER]"},
     {"loop", 0, 0, "loop"},
@@ -159,6 +166,51 @@ int print_query(Connection& c, const std::string& line) {
   const int errors = drain_errors(c);
   if (!reply.empty()) std::printf("%s\n", reply.c_str());
   return errors > 0 || reply.empty() ? 1 : 0;
+}
+
+// STAT?, STAT:OPER?, *STB? and MOVE:RES? in words, one line each.
+int show_status(Connection& c) {
+  const std::string stat = c.query(g_axis + "STAT?");
+  const std::string oper = c.query(g_axis + "STAT:OPER?");
+  const std::string result = c.query(g_axis + "MOVE:RES?");
+  const std::string stb = c.query("*STB?");
+  if (stat.empty() || oper.empty() || result.empty() || stb.empty()) {
+    drain_errors(c);
+    return 1;
+  }
+  std::map<std::string, std::string> kv;
+  std::istringstream words(stat);
+  for (std::string w; words >> w;)
+    if (const std::size_t eq = w.find('='); eq != std::string::npos) kv[w.substr(0, eq)] = w.substr(eq + 1);
+  const auto spaced = [](std::string t) {
+    for (char& ch : t)
+      if (ch == '_') ch = ' ';
+    return t;
+  };
+  static const char* const kOper[] = {"moving", "in position", "holding", "referenced",
+                                      "at the lower soft limit", "at the upper soft limit",
+                                      "end of travel", "fault", "position valid", "referencing"};
+  const long bits = std::strtol(oper.c_str(), nullptr, 10);
+  std::string on;
+  for (int b = 0; b < 10; ++b)
+    if (bits & (1L << b)) on += (on.empty() ? "" : ", ") + std::string(kOper[b]);
+  const long sb = std::strtol(stb.c_str(), nullptr, 10);
+  std::string sbw;
+  if (sb & (1 << 2)) sbw += "errors queued";
+  if (sb & (1 << 5)) sbw += std::string(sbw.empty() ? "" : ", ") + "standard event (*ESR?)";
+  if (sb & (1 << 7)) sbw += std::string(sbw.empty() ? "" : ", ") + "an axis is moving";
+  const std::size_t comma = result.find(',');
+  std::printf("axis:        %s (%s)\n", kv["axis"].c_str(), kv["state"].c_str());
+  std::printf("position:    %s m, target %s m\n", kv["position"].c_str(), kv["target"].c_str());
+  std::printf("last motion: %s, %s m from its target\n", result.substr(0, comma).c_str(),
+              comma == std::string::npos ? "?" : result.substr(comma + 1).c_str());
+  std::printf("operation:   %ld: %s\n", bits, on.empty() ? "nothing set" : on.c_str());
+  std::printf("status byte: %ld: %s\n", sb, sbw.empty() ? "nothing to report" : sbw.c_str());
+  std::printf("fault:       %s\n", kv["fault"] == "none" ? "none" : (kv["fault"] + ": " + spaced(kv["fault_reason"])).c_str());
+  std::printf("end travel:  %s\n", kv["eot"].c_str());
+  std::printf("referenced:  %s\n", kv["referenced"] == "1" ? "yes" : "no");
+  if (kv["daemon_error"] != "none") std::printf("last error:  %s\n", spaced(kv["daemon_error"]).c_str());
+  return drain_errors(c) > 0 ? 1 : 0;
 }
 
 int command(Connection& c, const std::string& line) {
@@ -234,6 +286,8 @@ int run(const std::vector<std::string>& a, Connection& c, bool wait) {
   if (verb == "status") {
     return print_query(c, g_axis + "STAT?");
   }
+  if (verb == "show") return show_status(c);
+  if (verb == "ref") return motion(c, g_axis + "REF" + (a.size() > 1 ? " " + a[1] : std::string()), wait, true);
   if (verb == "region") {
     return print_query(c, g_axis + "REG? " + join(a, 1, ","));
   }

@@ -26,8 +26,10 @@ TEST(Positioner, ConvergesOnTheIdealPlantBothDirections) {
   Positioner& p = *rig.positioner;
   ASSERT_TRUE(p.status().position_valid);
   const double count = p.count_m();
-  // Arrived: the reading nearest the target (half a count), so the slider is within one count.
-  EXPECT_NEAR(p.tolerance_m(), 0.5 * count, 1e-18);
+  // The window is one count; a move aims for the reading nearest the target (half a count), so
+  // that the slider is within one count.
+  EXPECT_NEAR(p.tolerance_m(), count, 1e-18);
+  EXPECT_NEAR(p.landing_m(), 0.5 * count, 1e-18);
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> log_distance(std::log(20e-9), std::log(1e-3));
   for (int i = 0; i < 12; ++i) {
@@ -443,7 +445,8 @@ TEST(PositionerRealistic, ConvergesWithinOneCount) {
     const double target = p.status().position_m + d;
     ASSERT_EQ(p.move_absolute(target), Refusal::None);
     ASSERT_EQ(rig.run(), MotionState::Idle) << d << ": " << motion_fault_name(p.status().fault);
-    EXPECT_LE(std::fabs(p.status().position_m - target), p.count_m()) << d;
+    EXPECT_LE(std::fabs(p.status().position_m - target), p.count_m())
+        << d << ": " << move_result_name(p.status().result);
     EXPECT_LE(std::fabs(rig.sim->true_position_m() - target), 3 * p.count_m()) << d;
     EXPECT_EQ(rig.sim->commanded_elongation_m(), 0.0);
   }

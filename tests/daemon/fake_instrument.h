@@ -191,6 +191,22 @@ class FakeInstrument : public Instrument {
                                    "," + std::to_string(cycles) + ")",
                          at(axis).position_m);
   }
+  CommandError set_motion_setting(int axis, MotionSetting which, double value) override {
+    std::lock_guard l(m_);
+    calls_.push_back(prefix(axis) + "set_motion_setting(" + std::to_string(static_cast<int>(which)) + "," +
+                     format_value(value) + ")");
+    if (static_cast<std::size_t>(which) < std::size(settings_)) settings_[static_cast<std::size_t>(which)] = value;
+    return {};
+  }
+  double motion_setting(int, MotionSetting which) override {
+    std::lock_guard l(m_);
+    return settings_[static_cast<std::size_t>(which)];
+  }
+  CommandError reference(int axis, ReferenceMethod method) override {
+    std::lock_guard l(m_);
+    return motion_locked(axis, "reference(" + std::to_string(static_cast<int>(method)) + ")",
+                         at(axis).position_m);
+  }
   CommandError sim_push(int axis, double distance_m) override {
     std::lock_guard l(m_);
     calls_.push_back(prefix(axis) + "sim_push(" + format_value(distance_m) + ")");
@@ -223,6 +239,7 @@ class FakeInstrument : public Instrument {
   }
 
  private:
+  double settings_[6] = {};
   InstrumentStatus& at(int axis) {
     if (axis < 0 || static_cast<std::size_t>(axis) >= statuses_.size())
       throw std::out_of_range("FakeInstrument: no axis " + std::to_string(axis));

@@ -75,8 +75,10 @@ def test_tasks_share_a_client_and_stop_from_another_task(idmd):
             readings = await asyncio.gather(*[x.position() for _ in range(10)])
             assert all(isinstance(r, float) for r in readings)
             await x.stop()
-            arrived = await mover  # the move's wait ends at rest (no MOVE:RESult? check here)
-            assert abs(arrived - 4e-3) > 1e-4
+            with pytest.raises(idm.MoveError) as e:  # the move's wait ends at rest: STOPPED
+                await mover
+            assert e.value.result == "STOPPED" and abs(e.value.distance) > 1e-4
+            assert abs(await x.position() - 4e-3) > 1e-4
             assert await x.done()
     run(main())
 
@@ -132,7 +134,9 @@ def test_two_axes_move_together_and_a_missing_axis_is_114(idmd_xy):
             while await y.done():  # until y's move shows
                 await asyncio.sleep(0.005)
             await y.stop()
-            assert abs(await far_y + 3e-3) > 1e-4
+            with pytest.raises(idm.MoveError) as e:
+                await far_y
+            assert e.value.result == "STOPPED" and abs(await y.position() + 3e-3) > 1e-4
             assert await far_x == pytest.approx(2e-3, abs=2 * COUNT)
             await asyncio.gather(x.move(0), y.move(0))
     run(main())

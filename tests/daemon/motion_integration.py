@@ -1,0 +1,313 @@
+#!/usr/bin/python3
+"""Motion a client can rely on, through idmd's sockets on the simulated stage: status bytes and
+operation bits, the in-position window and dwell, why a move ended (and the error when it did not
+arrive), end of travel open and closed loop against the simulated end stop, referencing and the
+referenced flag, hold against pushes.
+
+usage: motion_integration.py BUILD_DIR SOURCE_DIR CASE
+"""
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import fault_matrix as fm  # noqa: E402  (the same argv: BUILD_DIR SOURCE_DIR CASE)
+from fault_matrix import Client, Daemon, check, fail, wait_state, bursts_stay  # noqa: E402
+
+CASE = sys.argv[3]
+COUNT_M = 632.991e-9 / 64
+# A stage whose zero lies off-centre: the low end stop comes before the soft limit (-5 mm).
+STOPS = ("  noise_m: 1e-9\n", "  noise_m: 1e-9\n  end_stops_m: [-0.3e-3, 5e-3]\n")
+
+
+def config(edits=()):
+    return fm.config(replace=edits)
+
+
+def oper(c, axis=""):
+    return int(c.ask(axis + "STAT:OPER?"))
+
+
+def result(c):
+    word, dist = c.ask("MOVE:RES?").split(",")
+    return word, float(dist)
+
+
+def mean_pos(c, n=8):
+    return sum(float(c.ask("POS?")) for _ in range(n)) / n
+
+
+def errors(c):
+    out = []
+    while True:
+        e = c.error()
+        if e.startswith("0,"):
+            return out
+        out.append(e)
+
+
+def case_status_bits():
+    with Daemon(config()) as d:
+        c = Client(d)
+        check(c.ask("*STB?") == "0" and c.ask("*ESR?") == "0", "*STB? and *ESR? 0 at start")
+        bits = oper(c)
+        check(bits & (1 << 8) and not bits & 1, "STAT:OPER? bit 8 (position valid), not moving: %d" % bits)
+        c.send("FOO:BAR 1\n")  # a command error
+        stb = int(c.ask("*STB?"))
+        check(stb & (1 << 2) and stb & (1 << 5), "*STB? bit 2 (error queued) and bit 5 (event): %d" % stb)
+        esr = int(c.ask("*ESR?"))
+        check(esr & (1 << 5), "*ESR? bit 5 (command error): %d" % esr)
+        check(c.ask("*ESR?") == "0", "*ESR? is cleared by reading it")
+        check(c.error().startswith("-113,"), "the -113 is in the queue")
+        check(c.ask("*STB?") == "0", "*STB? 0 once the queue is read")
+        c.send("MOVE:ABS 1\n")  # an execution error (-222)
+        check(int(c.ask("*ESR?")) & (1 << 4), "*ESR? bit 4 after -222")
+        c.send("*CLS\n")
+        c.send("MOVE:REL 2e-3\n")
+        time.sleep(0.05)
+        bits, stb = oper(c), int(c.ask("*STB?"))
+        check(bits & 1 and not bits & 2, "moving: bit 0 set, bit 1 clear (%d)" % bits)
+        check(stb & (1 << 7), "*STB? bit 7 (operation) while moving: %d" % stb)
+        check(c.ask("*OPC?") == "1", "the move ends")
+        bits = oper(c)
+        check(bits & 2 and not bits & 1, "in position: bit 1 set, bit 0 clear (%d)" % bits)
+        check(not int(c.ask("*STB?")) & (1 << 7), "*STB? bit 7 clear at rest")
+        check(not bits & (1 << 3), "not referenced: bit 3 clear")
+        c.send("LIM %s,5e-3\n" % c.ask("POS?"))
+        check(oper(c) & (1 << 4), "at the lower soft limit: bit 4")
+    with Daemon(config()) as d:  # a slider stuck from the start: a stall, not an end of travel
+        c = Client(d)
+        c.send("SIM:FAULT stalled,1\nMOVE:REL 50e-6\n")
+        st = wait_state(c, {"state": "FAULT"}, timeout=20)
+        check(st["fault"] == "stall" and "not_move" in st["fault_reason"],
+              "STAT? names the fault in words: %s" % st["fault_reason"])
+        check(oper(c) & (1 << 7), "bit 7: fault")
+        check(c.ask("MOVE:RES?").startswith("FAULT,"), "MOVE:RES? FAULT")
+        check(any(e.startswith("102,") for e in errors(c)), "the stall (102) is queued for the mover")
+
+
+def case_bad_settings():
+    with Daemon(config()) as d:
+        c = Client(d)
+        for line, words in (("MOVE:WIND -1e-9", "MOVE:WINDow"), ("MOVE:WIND 1", "MOVE:WINDow"),
+                            ("MOVE:DWEL 100", "MOVE:DWELl"), ("EOT:STEP -1", "EOT:STEP"),
+                            ("EOT:CYCL 2.5", "EOT:CYCLes"), ("EOT:CYCL 0", "EOT:CYCLes"),
+                            ("HOLD -2", "HOLD"), ("HOLD:WIND 1", "HOLD:WINDow"),
+                            ("REF SIDEWAYS", "REFerence")):
+            c.send(line + "\n")
+            e = c.error()
+            check(e.startswith("-222,") and words in e and "allowed" in e, "%s: %s" % (line, e))
+        c.send("MOVE:WIND nan\n")
+        check(c.error().startswith("-120,"), "MOVE:WIND nan is -120")
+        c.send("MOVE:WIND 50e-9\nMOVE:DWEL 0.02\nEOT:STEP 5e-9\nEOT:CYCL 30\nHOLD 2\nHOLD:WIND 80e-9\n")
+        got = [float(c.ask(q)) for q in ("MOVE:WIND?", "MOVE:DWEL?", "EOT:STEP?", "EOT:CYCL?",
+                                          "HOLD?", "HOLD:WIND?")]
+        check(got == [50e-9, 0.02, 5e-9, 30, 2, 80e-9], "settings read back: %s" % got)
+        c.send("*RST\n")
+        check(c.ask("*OPC?") == "1" and float(c.ask("MOVE:DWEL?")) == 0, "*RST restores the config's")
+
+
+def case_window_and_dwell():
+    with Daemon(config()) as d:
+        c = Client(d)
+        check(c.ask("MOVE:RES?") == "NONE,0", "MOVE:RES? NONE before any move")
+        window = 3 * COUNT_M
+        c.send("MOVE:WIND %g\nMOVE:DWEL 0.2\n" % window)
+        for target in (1.234567e-4, -2.5e-5, 3.1e-6):
+            t0 = time.time()
+            c.send("MOVE:ABS %r\n" % target)
+            check(c.ask("*OPC?") == "1", "move to %g done" % target)
+            took = time.time() - t0
+            word, dist = result(c)
+            check(word == "OK" and abs(dist) <= window, "MOVE:RES? OK within the window (%g m)" % dist)
+            check(took >= 0.2, "done only after the 0.2 s dwell (%.3f s)" % took)
+            p = float(c.ask("POS?"))
+            check(abs(p - target) <= window + COUNT_M, "a fresh reading is in the window (%g m)" % (p - target))
+            check(oper(c) & 2, "in position (bit 1)")
+        check(errors(c) == [], "no error for moves that arrived")
+        # MOVE:REL from the target when in position
+        c.send("MOVE:DWEL 0\nMOVE:REL 1e-6\n")
+        check(c.ask("*OPC?") == "1" and float(c.ask("MOVE?")) == 3.1e-6 + 1e-6,
+              "MOVE:REL is relative to the target when in position")
+
+
+def case_not_arrived():
+    with Daemon(config([("  max_chunk_s: 0.05\n", "  max_chunk_s: 0.05\n  move_timeout_s: 0.15\n")])) as d:
+        c = Client(d)
+        c.send("MOVE:REL 4e-3\n")
+        check(c.ask("*OPC?") == "1", "the long move ends")
+        word, dist = result(c)
+        check(word == "TIMEOUT" and abs(dist) > 1e-4, "MOVE:RES? TIMEOUT, far off (%g m)" % dist)
+        e = errors(c)
+        check(len(e) == 1 and e[0].startswith("113,"), "113 queued for the mover: %s" % e)
+        c.send("MOVE:REL -2e-3\n")
+        time.sleep(0.05)
+        c.send("STOP\n")
+        check(c.ask("*OPC?") == "1", "stopped")
+        word, dist = result(c)
+        check(word == "STOPPED" and abs(dist) > 1e-5, "MOVE:RES? STOPPED (%g m)" % dist)
+        check(errors(c) == [], "a STOP the client asked for queues nothing")
+        check(not oper(c) & 2, "not in position")
+
+
+def case_eot_open_loop():
+    with Daemon(config([STOPS])) as d:
+        c = Client(d)
+        for _ in range(40):
+            c.send("STEP -200\n")
+            check(c.ask("*OPC?") == "1", "STEP -200 done")
+            if result(c)[0] != "OK":
+                break
+        check(result(c)[0] == "END_OF_TRAVEL", "MOVE:RES? END_OF_TRAVEL")
+        st = c.status()
+        check(st["eot"] == "low" and st["state"] == "IDLE", "STAT? eot=low, IDLE: %s" % st["eot"])
+        check(float(st["position"]) > -0.3e-3 - 2 * COUNT_M, "the slider is at the stop, not past it")
+        check(oper(c) & (1 << 6), "bit 6: end of travel")
+        check(bursts_stay(c), "the output is at rest")
+        e = errors(c)
+        check(any(x.startswith("112,") for x in e), "112 queued: %s" % e)
+        c.send("STEP -50\n")
+        check(c.error().startswith("-221,"), "a STEP further into the stop is refused")
+        c.send("STEP 100\n")
+        check(c.ask("*OPC?") == "1" and result(c)[0] == "OK", "a STEP away is allowed")
+        check(c.status()["eot"] == "none", "eot cleared by moving away")
+
+
+def case_eot_closed_loop():
+    with Daemon(config([STOPS])) as d:
+        c = Client(d)
+        c.send("MOVE:ABS -1e-3\n")
+        check(c.ask("*OPC?") == "1", "the move into the stop ends")
+        word, dist = result(c)
+        check(word == "END_OF_TRAVEL" and dist < -1e-4, "MOVE:RES? END_OF_TRAVEL (%g m)" % dist)
+        check(c.status()["eot"] == "low", "eot=low")
+        check(bursts_stay(c), "the output is at rest")
+        check(any(x.startswith("112,") for x in errors(c)), "112 queued for the mover")
+        c.send("MOVE:ABS -0.5e-3\n")
+        e = c.error()
+        check(e.startswith("-221,") and "end of travel" in e, "a move beyond the stop is refused: %s" % e)
+        c.send("MOVE:ABS 1e-4\n")
+        check(c.ask("*OPC?") == "1", "a move away is allowed")
+        word, dist = result(c)
+        check(word == "OK" and abs(dist) <= COUNT_M, "and arrives (%g m)" % dist)
+        check(abs(mean_pos(c) - 1e-4) <= COUNT_M, "at the target by a fresh reading")
+
+
+def case_reference():
+    cfg = config([STOPS, ("  max_retries: 10\n", "  max_retries: 10\n"),
+                  ("stage:                          # Table 1",
+                   "require_reference: true\nstage:                          # Table 1")])
+    with Daemon(cfg) as d:
+        c = Client(d)
+        check(c.ask("REF?") == "0" and not oper(c) & (1 << 3), "not referenced at start")
+        c.send("MOVE:ABS 1e-4\n")
+        e = c.error()
+        check(e.startswith("-221,") and "referenced" in e, "MOVE:ABS refused unreferenced: %s" % e)
+        c.send("MOVE:REL 1e-4\n")
+        check(c.ask("*OPC?") == "1" and result(c)[0] == "OK", "MOVE:REL is allowed")
+        c.send("REF MARK\n")
+        check(c.error().startswith("-221,"), "REF MARK without a mark signal is refused")
+        c.send("REF NEG\n")
+        time.sleep(0.05)
+        check(oper(c) & (1 << 9), "bit 9 while referencing")
+        check(c.ask("*OPC?") == "1", "REF NEG ends")
+        check(c.ask("REF?") == "1" and oper(c) & (1 << 3), "referenced")
+        check(result(c)[0] == "OK", "MOVE:RES? OK after the reference")
+        # the stop is at -0.3 mm on the stage; the reference puts it at the travel's end (-5 mm)
+        p = mean_pos(c)
+        check(abs(p - (-5e-3)) < 1e-6, "the position at the stop is the travel's lower end (%g)" % p)
+        c.send("MOVE:ABS -4.9e-3\n")
+        check(c.ask("*OPC?") == "1" and result(c)[0] == "OK" and errors(c) == [],
+              "absolute moves allowed once referenced")
+        p = mean_pos(c)
+        check(abs(p + 4.9e-3) <= COUNT_M, "at -4.9 mm (%g)" % p)
+        c.send("SIM:FAULT beam_lost,1\n")
+        wait_state(c, {"position_valid": "0"})
+        check(c.ask("REF?") == "0", "beam loss clears the referenced flag")
+        c.send("SIM:FAULT beam_lost,0\n*RST\n")
+        check(c.ask("*OPC?") == "1", "*RST")
+        wait_state(c, {"position_valid": "1"})
+        check(c.ask("REF?") == "0", "still not referenced after the beam is back")
+        c.send("REF\n")
+        check(c.ask("*OPC?") == "1" and c.ask("REF?") == "1", "REF (the config's default, negative)")
+        c.send("SIM:FAULT power_cycle,1\n")
+        wait_state(c, {"device": "lost"})
+        c.send("SIM:FAULT power_cycle,0\n")
+        wait_state(c, {"device": "up"}, timeout=20)
+        check(c.ask("REF?") == "0", "a power cycle (count started over) clears it")
+        c.send("*RST\n")
+        check(c.ask("*OPC?") == "1", "*RST")
+        c.send("MOVE:ABS 1e-4\n")
+        check(c.error().startswith("-221,"), "MOVE:ABS refused again")
+    with Daemon(cfg) as d:
+        c = Client(d)
+        check(c.ask("REF?") == "0", "a restarted daemon is not referenced")
+
+
+def case_reference_positive():
+    with Daemon(config([("  noise_m: 1e-9\n", "  noise_m: 1e-9\n  end_stops_m: [-5e-3, 0.4e-3]\n")])) as d:
+        c = Client(d)
+        c.send("REF POS\n")
+        check(c.ask("*OPC?") == "1" and c.ask("REF?") == "1", "REF POS found the high stop")
+        p = mean_pos(c)
+        check(abs(p - 5e-3) < 1e-6, "the position there is the travel's upper end (%g)" % p)
+        check(c.status()["eot"] == "high", "and it is at the end of travel (high)")
+
+
+def case_hold():
+    with Daemon(config()) as d:
+        c = Client(d)
+        window = 4 * COUNT_M
+        c.send("HOLD -1\nHOLD:WIND %g\n" % window)
+        c.send("MOVE:ABS 2e-4\n")
+        check(c.ask("*OPC?") == "1", "the move is done (the hold does not keep *OPC? waiting)")
+        check(oper(c) & (1 << 2) and oper(c) & 2, "holding (bit 2) and in position (bit 1)")
+        check(c.ask("MOVE:DONE?") == "1", "MOVE:DONE? 1 while holding")
+        check(bursts_stay(c, 0.3), "output at rest inside the window")
+        for push in (3e-6, -0.5e-6, 60e-9):
+            before = int(c.status()["bursts"])
+            c.send("SIM:PUSH %g\n" % push)
+            end = time.time() + 10
+            while time.time() < end:
+                time.sleep(0.05)
+                if int(c.status()["bursts"]) > before and c.status()["state"] == "IDLE" and \
+                        abs(mean_pos(c, 4) - 2e-4) <= window:
+                    break
+            p = mean_pos(c)
+            check(abs(p - 2e-4) <= window, "pushed by %g m: back within the hold window (%g m)" % (push, p - 2e-4))
+            check(int(c.status()["bursts"]) > before, "it corrected")
+            check(bursts_stay(c, 0.2), "and rests again")
+        check(errors(c) == [], "no error while holding")
+        c.send("STOP\n")
+        time.sleep(0.05)
+        check(not oper(c) & (1 << 2), "STOP ends the hold")
+        before = c.status()["bursts"]
+        c.send("SIM:PUSH 2e-6\n")
+        time.sleep(0.3)
+        check(c.status()["bursts"] == before and abs(mean_pos(c) - 2e-4 - 2e-6) < 3 * COUNT_M,
+              "no correction after the hold ended")
+        c.send("HOLD 0.3\nMOVE:ABS 1e-4\n")
+        check(c.ask("*OPC?") == "1", "a move with a 0.3 s hold")
+        check(oper(c) & (1 << 2), "holding")
+        time.sleep(0.5)
+        check(not oper(c) & (1 << 2), "the hold ended after 0.3 s")
+
+
+CASES = {
+    "status_bits": case_status_bits,
+    "bad_settings": case_bad_settings,
+    "window_and_dwell": case_window_and_dwell,
+    "not_arrived": case_not_arrived,
+    "eot_open_loop": case_eot_open_loop,
+    "eot_closed_loop": case_eot_closed_loop,
+    "reference": case_reference,
+    "reference_positive": case_reference_positive,
+    "hold": case_hold,
+}
+
+if __name__ == "__main__":
+    if CASE == "--list":
+        print(" ".join(CASES))
+        sys.exit(0)
+    CASES[CASE]()
+    print("PASS", CASE)
