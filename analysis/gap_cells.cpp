@@ -10,11 +10,14 @@ namespace idm::analysis {
 SweepCells collect_cells(const Dataset& ds, int min_trials) {
   std::vector<TrialSeries> series(ds.trials.size());
   for (std::size_t i = 0; i < ds.trials.size(); ++i) series[i] = read_trial(ds, i);
-  return collect_cells(ds.stage, ds.trials, series, ds.path, min_trials);
+  SweepCells out = collect_cells(ds.stage, ds.trials, series, ds.path, min_trials, ds.progress.marked());
+  out.progress = ds.progress;
+  return out;
 }
 
 SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
-                         const std::vector<TrialSeries>& series, const std::string& name, int min_trials) {
+                         const std::vector<TrialSeries>& series, const std::string& name, int min_trials,
+                         bool skip_small) {
   if (infos.size() != series.size()) throw std::invalid_argument("collect_cells: infos and trials differ in size");
   if (infos.empty()) throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
   SweepCells out;
@@ -50,6 +53,23 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
     }
     members[c].push_back(i);
   }
+  if (skip_small) {
+    std::vector<Cell> kept;
+    std::vector<std::vector<std::size_t>> kept_members;
+    for (std::size_t c = 0; c < out.cells.size(); ++c) {
+      if (static_cast<int>(members[c].size()) < min_trials) {
+        out.skipped.push_back(out.cells[c].key);
+        continue;
+      }
+      kept.push_back(out.cells[c]);
+      kept_members.push_back(members[c]);
+    }
+    if (kept.empty())
+      throw InputError(name + ": the sweep is too small to diagnose: no cell has " + std::to_string(min_trials) +
+                       " trials (the recording was cut off after " + std::to_string(infos.size()) + " trials)");
+    out.cells = std::move(kept);
+    members = std::move(kept_members);
+  }
   for (std::size_t c = 0; c < out.cells.size(); ++c) {
     Cell& cell = out.cells[c];
     if (static_cast<int>(members[c].size()) < min_trials) {
@@ -72,6 +92,30 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
     cell.test_region = majority_region(test_votes);
   }
   return out;
+}
+
+std::string progress_summary(const SweepCells& sweep) {
+  const recording::SweepProgress& p = sweep.progress;
+  if (!p.marked() || (!p.interrupted() && p.missing.empty())) return "";
+  std::ostringstream s;
+  int empty = 0;
+  for (const recording::MissingCell& m : p.missing) empty += m.recorded == 0 ? 1 : 0;
+  s << (p.interrupted() ? "interrupted sweep" : "sweep") << " (plan.yaml: " << recording::status_name(p.status)
+    << (p.note.empty() ? "" : ", " + p.note) << "): " << p.planned.size() - p.missing.size() << " of "
+    << p.planned.size() << " planned cells complete, " << empty << " missing, " << p.missing.size() - empty
+    << " short of trials; diagnosed on the " << sweep.cells.size() << " cells with enough trials";
+  if (!sweep.skipped.empty()) s << " (" << sweep.skipped.size() << " left out with too few)";
+  s << "\n";
+  constexpr std::size_t kListed = 8;
+  s << "missing or short:";
+  for (std::size_t i = 0; i < p.missing.size() && i < kListed; ++i) {
+    const recording::MissingCell& m = p.missing[i];
+    s << (i ? "," : "") << " " << m.planned.freq_hz << " Hz duty " << m.planned.duty << " stroke "
+      << m.planned.stroke_m * 1e6 << " um (" << m.recorded << "/" << m.planned.trials << ")";
+  }
+  if (p.missing.size() > kListed) s << " and " << p.missing.size() - kListed << " more (all in the JSON)";
+  s << "\n";
+  return s.str();
 }
 
 TrialFeatures predict_cell(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,

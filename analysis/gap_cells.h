@@ -34,17 +34,30 @@ struct SweepCells {
   double noise_m = 0;       // the sensor's noise without quantization (reading_sd_m less one count's)
   std::string name;         // the dataset's path as given (messages, the report)
   model::StageFile stage;
+  // The recorder's mark (recording/sweep_plan.h): Unmarked for data from elsewhere. A marked sweep
+  // that was cut off is diagnosed on the cells it has (`skipped`: cells with fewer trials than a
+  // diagnosis needs, left out); progress.missing lists every planned cell short of its trials.
+  recording::SweepProgress progress;
+  std::vector<CellKey> skipped;
 };
 
 // Reads every trial (each error names its file) and groups them. Throws InputError when a cell has
-// fewer than `min_trials` trials ("the sweep is too small to diagnose: ...").
+// fewer than `min_trials` trials ("the sweep is too small to diagnose: ..."), except in a sweep the
+// recorder marked (dataset.progress): there such a cell is left out and listed in `skipped`, and
+// only a sweep with no cell left is refused.
 SweepCells collect_cells(const Dataset& dataset, int min_trials = 3);
 
 // The same from a sweep held in memory (validate, tests): trials[i] is the time series of infos[i].
-// `name` stands for the dataset's path in messages.
+// `name` stands for the dataset's path in messages; `skip_small` leaves out cells with fewer than
+// `min_trials` trials instead of refusing the sweep.
 SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
                          const std::vector<TrialSeries>& trials, const std::string& name,
-                         int min_trials = 3);
+                         int min_trials = 3, bool skip_small = false);
+
+// For a sweep the recorder marked: whether it was cut off, which planned cells are missing or
+// short of trials, and which cells the diagnosis left out (a few lines, each ending in a newline).
+// "" for an unmarked sweep and for a complete one with every planned trial.
+std::string progress_summary(const SweepCells& sweep);
 
 // What a model predicts for a cell: a burst from rest on the simulated stage (no noise), read by
 // the same feature extraction as the measurement.

@@ -1,14 +1,10 @@
 #include "analysis/report_json.h"
 
-#include <fcntl.h>
-#include <unistd.h>
-
-#include <cerrno>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <sstream>
-#include <system_error>
+
+#include "recording/durable_file.h"
 
 namespace idm::analysis {
 
@@ -47,6 +43,32 @@ std::string params_json(const std::map<std::string, double>& p) {
   return out + "}";
 }
 std::string region(model::Region r) { return json_string(model::region_name(r)); }
+
+// The recorder's mark: status, whether the sweep was cut off, the planned cells short of trials
+// and the cells the diagnosis left out.
+std::string dataset_status_json(const SweepCells& sweep) {
+  const recording::SweepProgress& p = sweep.progress;
+  std::ostringstream s;
+  s << "{\"status\": " << json_string(recording::status_name(p.status))
+    << ", \"interrupted\": " << (p.interrupted() ? "true" : "false");
+  if (!p.note.empty()) s << ", \"note\": " << json_string(p.note);
+  if (p.marked()) {
+    s << ", \"planned_cells\": " << p.planned.size() << ", \"missing_cells\": [";
+    for (std::size_t i = 0; i < p.missing.size(); ++i) {
+      const recording::MissingCell& m = p.missing[i];
+      s << (i ? ", " : "") << "{\"freq_hz\": " << json_number(m.planned.freq_hz)
+        << ", \"duty\": " << json_number(m.planned.duty) << ", \"stroke_m\": " << json_number(m.planned.stroke_m)
+        << ", \"trials\": " << m.recorded << ", \"planned_trials\": " << m.planned.trials << "}";
+    }
+    s << "]";
+  }
+  s << ", \"cells_used\": " << sweep.cells.size() << ", \"cells_left_out\": [";
+  for (std::size_t i = 0; i < sweep.skipped.size(); ++i)
+    s << (i ? ", " : "") << "[" << json_number(sweep.skipped[i].freq_hz) << ", " << json_number(sweep.skipped[i].duty)
+      << ", " << json_number(sweep.skipped[i].stroke_m) << "]";
+  s << "]}";
+  return s.str();
+}
 }  // namespace
 
 std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const std::string& dataset) {
@@ -56,6 +78,7 @@ std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const s
     << json_number(d.baseline.step_scale * sweep.stage.stage.step_correction) << ", \"alpha\": "
     << json_number(d.baseline.step_scale) << ", \"friction_coefficient\": "
     << json_number(sweep.stage.stage.friction_coefficient) << "}, \"gap\": " << json_number(d.gap_before) << "},\n";
+  s << "  \"dataset_status\": " << dataset_status_json(sweep) << ",\n";
   s << "  \"cells\": [\n";
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     const Cell& cell = sweep.cells[c];
@@ -125,39 +148,7 @@ std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const s
 }
 
 void write_file_atomic(const std::string& path, const std::string& content) {
-  namespace fs = std::filesystem;
-  const fs::path final_path(path);
-  const fs::path dir = final_path.has_parent_path() ? final_path.parent_path() : fs::path(".");
-  const fs::path tmp = dir / ("." + final_path.filename().string() + ".tmp." + std::to_string(getpid()));
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) throw std::system_error(errno, std::generic_category(), path);
-  std::size_t done = 0;
-  while (done < content.size()) {
-    const ssize_t n = ::write(fd, content.data() + done, content.size() - done);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      const int err = errno;
-      ::close(fd);
-      ::unlink(tmp.c_str());
-      throw std::system_error(err, std::generic_category(), path);
-    }
-    done += static_cast<std::size_t>(n);
-  }
-  if (::fsync(fd) != 0 || ::close(fd) != 0) {
-    const int err = errno;
-    ::unlink(tmp.c_str());
-    throw std::system_error(err, std::generic_category(), path);
-  }
-  if (::rename(tmp.c_str(), final_path.c_str()) != 0) {
-    const int err = errno;
-    ::unlink(tmp.c_str());
-    throw std::system_error(err, std::generic_category(), path);
-  }
-  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
+  recording::write_file_durably(path, content);
 }
 
 }  // namespace idm::analysis

@@ -97,7 +97,7 @@ std::string text_summary(const SweepCells& sweep, const Diagnosis& d) {
   for (const Cell& c : sweep.cells) trials += static_cast<int>(c.train.size() + c.test.size());
   std::snprintf(buf, sizeof buf, "%s: %zu cells, %d trials; reading noise %.2g m (one count %.4g m)\n",
                 sweep.name.c_str(), sweep.cells.size(), trials, sweep.reading_sd_m, sweep.resolution_m);
-  s << buf;
+  s << buf << progress_summary(sweep);
   std::snprintf(buf, sizeof buf, "baseline (impulse model, alpha %.3f fitted on training trials): held-out gap %.3g\n",
                 d.baseline.step_scale, d.gap_before);
   s << buf << "where: " << d.where << "\n";

@@ -5,6 +5,7 @@
 
 #include "tests/tools/run_tool.h"
 
+#include <signal.h>
 #include <sys/wait.h>
 
 #include <unistd.h>
@@ -123,6 +124,67 @@ TEST(IdmGap, AFormatErrorNamesFileLineAndColumn) {
   EXPECT_NE(s.out.find("too small to diagnose"), std::string::npos) << s.out;
   std::filesystem::remove_all(dir);
   std::filesystem::remove_all(small);
+}
+
+TEST(IdmGap, AnInterruptedSweepIsDiagnosedOnItsCompleteCellsAndSaysWhichAreMissing) {
+  // The recorder plans 4 x 3 cells of 3 trials and is killed after 26 trials: 8 cells whole, the
+  // ninth with 2 trials (too few: left out), 3 never started.
+  const auto dir = temp("idm_gap_cut");
+  idm::analysis::SweepPlan plan;
+  plan.freqs_hz = {200, 400, 600, 800};
+  plan.duties = {0.05, 0.25, 0.45};
+  plan.trials = 3;
+  plan.cycles = 8;
+  plan.sample_rate_hz = 50e3;
+  std::vector<idm::recording::PlannedCell> planned;
+  for (double f : plan.freqs_hz)
+    for (double d : plan.duties) planned.push_back({f, d, idm::model::StageParams{}.stroke_m, plan.trials});
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    idm::model::SimConfig sim;
+    sim.noise_m = 2e-9;
+    idm::recording::DatasetWriter writer(dir.string(), idm::model::StageFile{}, planned);
+    int written = 0;
+    idm::analysis::simulate_sweep(idm::model::StageFile{}, sim, plan,
+                                  [&](const idm::recording::TrialInfo& info, idm::recording::TrialSeries&& s) {
+                                    idm::recording::TrialInfo row = info;
+                                    row.id.clear();
+                                    writer.add_trial(row, s);
+                                    if (++written == 26) ::kill(::getpid(), SIGKILL);
+                                  });
+    ::_exit(1);
+  }
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFSIGNALED(status));
+  const auto json = temp("idm_gap_cut_json") += ".json";
+  const Result r = run("diagnose " + dir.string() + " --effects amplifier --json " + json.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("interrupted sweep (plan.yaml: in_progress): 8 of 12 planned cells complete, 3 missing, "
+                       "1 short of trials; diagnosed on the 8 cells with enough trials (1 left out with too few)"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("missing or short: 600 Hz duty 0.45 stroke 20.35 um (2/3), 800 Hz duty 0.05"),
+            std::string::npos)
+      << r.out;
+  const std::string j = slurp(json);
+  EXPECT_NE(j.find("\"dataset_status\": {\"status\": \"in_progress\", \"interrupted\": true, \"planned_cells\": 12"),
+            std::string::npos)
+      << j;
+  EXPECT_NE(j.find("{\"freq_hz\": 800, \"duty\": 0.45, \"stroke_m\": 2.035e-05, \"trials\": 0, "
+                   "\"planned_trials\": 3}"),
+            std::string::npos)
+      << j;
+  EXPECT_NE(j.find("\"cells_used\": 8, \"cells_left_out\": [[600, 0.45, 2.035e-05]]"), std::string::npos) << j;
+
+  // Without the mark (data from elsewhere) nothing changes: the short cell makes the sweep too small.
+  std::filesystem::remove(dir / "plan.yaml");
+  const Result unmarked = run("diagnose " + dir.string() + " --effects amplifier");
+  EXPECT_EQ(unmarked.status, 2) << unmarked.out;
+  EXPECT_NE(unmarked.out.find("too small to diagnose: cell (600 Hz, duty 0.45"), std::string::npos) << unmarked.out;
+  std::filesystem::remove_all(dir);
+  std::filesystem::remove(json);
 }
 
 TEST(IdmGap, SmallValidateNamesNothingOnAnIdealStage) {
