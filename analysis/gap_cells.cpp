@@ -23,17 +23,24 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
   SweepCells out;
   out.stage = stage;
   out.resolution_m = stage.interferometer.resolution_m;
-  // noise: the spread of the readings while the slider rests before each burst
+  // noise: the spread of the readings while the slider rests before each burst, and after it once
+  // the slider has settled (a period after the last cycle, the command at rest)
   std::vector<double> rest_sd;
-  for (std::size_t i = 0; i < infos.size(); ++i) {
+  auto add_rest = [&](const TrialSeries& s, double from_s, double to_s) {
     double sum = 0, sum2 = 0;
     int n = 0;
-    for (std::size_t k = 0; k < series[i].size() && series[i].t_s[k] < 0; ++k) {
-      sum += series[i].x_m[k];
-      sum2 += series[i].x_m[k] * series[i].x_m[k];
-      ++n;
-    }
+    for (std::size_t k = 0; k < s.size(); ++k)
+      if (s.t_s[k] >= from_s && s.t_s[k] < to_s) {
+        sum += s.x_m[k];
+        sum2 += s.x_m[k] * s.x_m[k];
+        ++n;
+      }
     if (n >= 4) rest_sd.push_back(std::sqrt(std::max(0.0, sum2 / n - (sum / n) * (sum / n))));
+  };
+  for (std::size_t i = 0; i < infos.size(); ++i) {
+    if (series[i].size() == 0) continue;
+    add_rest(series[i], -1e300, 0.0);
+    add_rest(series[i], (infos[i].cycles + 1) / infos[i].freq_hz, 1e300);
   }
   const double quant_sd = out.resolution_m / std::sqrt(12.0);
   out.reading_sd_m = std::max(quant_sd, rest_sd.empty() ? quant_sd : median(rest_sd));
@@ -48,7 +55,11 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
     std::size_t c = 0;
     while (c < out.cells.size() && !(out.cells[c].key == key)) ++c;
     if (c == out.cells.size()) {
-      out.cells.push_back({key, t.cycles, t.sample_rate_hz, {}, {}, model::Region::Cutoff});
+      Cell cell;
+      cell.key = key;
+      cell.cycles = t.cycles;
+      cell.sample_rate_hz = t.sample_rate_hz;
+      out.cells.push_back(std::move(cell));
       members.emplace_back();
     }
     members[c].push_back(i);
@@ -87,6 +98,7 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
       (j % 2 == 0 ? train_votes : test_votes).push_back(f.region);
       (j % 2 == 0 ? cell.train : cell.test).push_back(std::move(f));
     }
+    cell.read_t_s = read_instants(infos[members[c].front()], series[members[c].front()]);
     cell.measured_region = majority_region(votes);
     cell.train_region = majority_region(train_votes);
     cell.test_region = majority_region(test_votes);
@@ -116,26 +128,6 @@ std::string progress_summary(const SweepCells& sweep) {
   if (p.missing.size() > kListed) s << " and " << p.missing.size() - kListed << " more (all in the JSON)";
   s << "\n";
   return s.str();
-}
-
-TrialFeatures predict_cell(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,
-                           double guide_pos_m) {
-  model::InterferometerParams exact;
-  exact.resolution_m = 1e-12;
-  model::SimConfig quiet = sim;
-  quiet.noise_m = 0;
-  model::SimulatedStage s(stage, exact, quiet);
-  s.reset(guide_pos_m, 1);
-  const model::TriangleWave w{cell.key.freq_hz, cell.key.duty, cell.key.stroke_m, cell.cycles};
-  model::TrialSamples out;
-  const double rate = std::max(cell.sample_rate_hz, 20.0 * cell.key.freq_hz);
-  s.run_burst(w, rate, 0.0, w.period_s(), out);
-  TrialInfo info{"model", cell.key.freq_hz, cell.key.duty, cell.key.stroke_m, cell.cycles, rate, guide_pos_m, ""};
-  TrialSeries series;
-  series.t_s = std::move(out.t_s);
-  series.xi_cmd_m = std::move(out.xi_cmd_m);
-  series.x_m = std::move(out.x_m);
-  return trial_features(info, series, exact.resolution_m, 0.0);
 }
 
 }  // namespace idm::analysis

@@ -1,14 +1,14 @@
 // The sweep as cells of the (frequency, duty, stroke) map: the features of every trial, a split into
-// training and held-out trials, the sensor's noise read from the data, and the same features of a
-// model's simulated burst, so that measurement and model are compared by one procedure.
+// training and held-out trials, the sensor's noise read from the data, and the sample instants a
+// model is read at (forward_model.h), so that measurement and model are compared by one procedure.
 #pragma once
 
 #include <string>
 #include <vector>
 
-#include "recording/dataset.h"
 #include "analysis/trial_features.h"
-#include "model/simulation.h"
+#include "model/stage.h"
+#include "recording/dataset.h"
 
 namespace idm::analysis {
 
@@ -21,6 +21,7 @@ struct Cell {
   CellKey key;
   int cycles = 0;
   double sample_rate_hz = 0;
+  std::vector<double> read_t_s;  // sample instants of the rest readings (read_instants, 1st trial)
   std::vector<TrialFeatures> train, test;  // even trials train, odd trials are held out
   model::Region measured_region = model::Region::Cutoff;  // committee vote over all trials
   model::Region train_region = model::Region::Cutoff;     // vote of the training trials
@@ -58,10 +59,5 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
 // short of trials, and which cells the diagnosis left out (a few lines, each ending in a newline).
 // "" for an unmarked sweep and for a complete one with every planned trial.
 std::string progress_summary(const SweepCells& sweep);
-
-// What a model predicts for a cell: a burst from rest on the simulated stage (no noise), read by
-// the same feature extraction as the measurement.
-TrialFeatures predict_cell(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,
-                           double guide_pos_m = 0.0);
 
 }  // namespace idm::analysis

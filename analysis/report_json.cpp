@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <sstream>
 
 #include "recording/durable_file.h"
@@ -71,32 +72,62 @@ std::string dataset_status_json(const SweepCells& sweep) {
 }
 }  // namespace
 
-std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const std::string& dataset) {
+namespace {
+
+std::string cell_pairs(const std::vector<CellKey>& cells, bool with_stroke) {
+  std::string out = "[";
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    out += (i ? ", [" : "[") + json_number(cells[i].freq_hz) + ", " + json_number(cells[i].duty);
+    if (with_stroke) out += ", " + json_number(cells[i].stroke_m);
+    out += "]";
+  }
+  return out + "]";
+}
+
+std::string names_json(const std::vector<std::string>& names) {
+  std::string out = "[";
+  for (std::size_t i = 0; i < names.size(); ++i) out += (i ? ", " : "") + json_string(names[i]);
+  return out + "]";
+}
+
+// The fitted parameters as reported: the effect's own, without the library's fixed extras.
+std::string effect_params_json(const model::EffectSpec& e) {
+  std::map<std::string, double> p;
+  for (const auto& [k, v] : e.params)
+    if (k != "correlation_m" && k != "mean_shift" && !(k == "slew_rate_m_s" && v == 0)) p[k] = v;
+  return params_json(p);
+}
+
+std::string intervals_json(const ParameterIntervals& pi) {
+  std::string out = "{";
+  for (std::size_t i = 0; i < pi.params.size(); ++i)
+    out += (i ? ", " : "") + json_string(pi.params[i].param) + ": [" + json_number(pi.params[i].lo) + ", " +
+           json_number(pi.params[i].hi) + "]";
+  return out + "}";
+}
+
+std::string cells_json(const SweepCells& sweep, const Diagnosis& d) {
   std::ostringstream s;
-  s << "{\n  \"dataset\": " << json_string(dataset) << ",\n";
-  s << "  \"baseline\": {\"model\": \"impulse\", \"params\": {\"step_correction\": "
-    << json_number(d.baseline.step_scale * sweep.stage.stage.step_correction) << ", \"alpha\": "
-    << json_number(d.baseline.step_scale) << ", \"friction_coefficient\": "
-    << json_number(sweep.stage.stage.friction_coefficient) << "}, \"gap\": " << json_number(d.gap_before) << "},\n";
-  s << "  \"dataset_status\": " << dataset_status_json(sweep) << ",\n";
   s << "  \"cells\": [\n";
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     const Cell& cell = sweep.cells[c];
-    const CellResidual& r = d.baseline.cells[c];
-    const CellResidual& a = d.after.cells[c];
+    const CellResidual& r = d.baseline.test.cells[c];
+    const CellResidual& a = d.after.test.cells[c];
+    const CellWhere& w = d.where.cells[c];
     std::vector<const TrialFeatures*> all;
     for (const TrialFeatures& t : cell.train) all.push_back(&t);
     for (const TrialFeatures& t : cell.test) all.push_back(&t);
+    const double n = static_cast<double>(all.size());
     double mean = 0, first = 0, reverse = 0, transient = 0;
     for (const TrialFeatures* t : all) {
-      mean += t->steady_step_m / all.size();
-      first += t->first_step_m / all.size();
-      reverse += t->reverse_m / all.size();
-      transient += static_cast<double>(t->transient_cycles) / all.size();
+      mean += t->steady_step_m / n;
+      first += t->first_step_m / n;
+      reverse += t->reverse_m / n;
+      transient += static_cast<double>(t->transient_cycles) / n;
     }
     double ss = 0;
     for (const TrialFeatures* t : all) ss += (t->steady_step_m - mean) * (t->steady_step_m - mean);
-    const double sd = all.size() > 1 ? std::sqrt(ss / (all.size() - 1)) : 0.0;
+    const double sd = all.size() > 1 ? std::sqrt(ss / (n - 1)) : 0.0;
     s << "    {\"freq_hz\": " << json_number(cell.key.freq_hz) << ", \"duty\": " << json_number(cell.key.duty)
       << ", \"stroke_m\": " << json_number(cell.key.stroke_m) << ", \"trials\": " << all.size()
       << ", \"held_out_trials\": " << cell.test.size() << ", \"measured_step_m\": " << json_number(mean)
@@ -105,23 +136,72 @@ std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const s
       << ", \"reverse_m\": " << json_number(reverse) << ", \"measured_region\": " << region(cell.measured_region)
       << ", \"model_region\": " << region(r.model_region) << ", \"residual\": " << json_number(r.residual)
       << ", \"significant\": " << (r.significant ? "true" : "false")
+      << ", \"effect_gap\": " << json_number(w.effect_gap) << ", \"spread_excess\": " << json_number(w.spread_excess)
+      << ", \"model_step_after_m\": " << json_number(a.model_step_m)
       << ", \"model_region_after\": " << region(a.model_region) << ", \"residual_after\": " << json_number(a.residual)
       << "}" << (c + 1 < sweep.cells.size() ? "," : "") << "\n";
   }
   s << "  ],\n";
-  s << "  \"where\": {\"significant_cells\": [";
-  bool first_cell = true;
-  for (const CellResidual& r : d.baseline.cells)
-    if (r.significant) {
-      s << (first_cell ? "" : ", ") << "[" << json_number(r.key.freq_hz) << ", " << json_number(r.key.duty) << "]";
-      first_cell = false;
-    }
-  s << "],\n            \"summary\": " << json_string(d.where)
-    << ",\n            \"summary_after\": " << json_string(where_summary(d.after)) << "},\n";
+  return s.str();
+}
+
+std::string diagnosis_json(const Diagnosis& d) {
+  std::ostringstream s;
+  s << "  \"diagnosis\": {\"effects\": [";
+  for (std::size_t i = 0; i < d.chosen.size(); ++i) s << (i ? ", " : "") << json_string(d.chosen[i].name);
+  s << "], \"params\": {";
+  for (std::size_t i = 0; i < d.chosen.size(); ++i)
+    s << (i ? ", " : "") << json_string(d.chosen[i].name) << ": " << effect_params_json(d.chosen[i]);
+  s << "}, \"intervals\": {";
+  for (std::size_t i = 0; i < d.chosen_intervals.size(); ++i)
+    s << (i ? ", " : "") << json_string(d.chosen_intervals[i].effect) << ": " << intervals_json(d.chosen_intervals[i]);
+  s << "}, \"step_correction\": " << json_number(d.after.calibration.alpha)
+    << ", \"friction_coefficient\": " << json_number(d.after.calibration.mu)
+    << ",\n                \"gap_before\": " << json_number(d.gap_before)
+    << ", \"gap_after\": " << json_number(d.gap_after) << ", \"shrink\": " << json_number(d.shrink) << ",\n";
+  const Unexplained& u = d.unexplained;
+  s << "                \"unexplained\": {\"significant\": " << (u.significant ? "true" : "false")
+    << ", \"gap\": " << json_number(u.gap) << ", \"systematic_gap\": " << json_number(u.systematic_gap)
+    << ", \"cells\": " << cell_pairs(u.cells, false) << ", \"cells_with_stroke\": " << cell_pairs(u.cells, true)
+    << ", \"summary\": " << json_string(u.summary);
+  if (!u.closest.empty()) s << ", \"closest\": " << json_string(u.closest);
+  s << "},\n                \"ambiguous\": [";
+  for (std::size_t i = 0; i < d.ambiguous.size(); ++i) {
+    const Ambiguity& a = d.ambiguous[i];
+    s << (i ? ",\n                  " : "") << "{\"effects\": " << names_json(a.effects)
+      << ", \"chosen\": " << names_json(a.chosen) << ", \"alternative\": " << names_json(a.alternative)
+      << ", \"gap_chosen\": " << json_number(a.gap_chosen) << ", \"gap_alternative\": " << json_number(a.gap_alternative)
+      << ", \"why\": " << json_string(a.why) << ", \"next_sweep\": " << json_string(a.next_sweep) << "}";
+  }
+  s << "],\n                \"not_identifiable\": [";
+  for (std::size_t i = 0; i < d.not_identifiable.size(); ++i)
+    s << (i ? ", " : "") << "{\"effect\": " << json_string(d.not_identifiable[i].effect)
+      << ", \"why\": " << json_string("needs " + d.not_identifiable[i].needs) << "}";
+  s << "]}\n";
+  return s.str();
+}
+
+}  // namespace
+
+std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const std::string& dataset) {
+  std::ostringstream s;
+  s << "{\n  \"dataset\": " << json_string(dataset) << ",\n";
+  s << "  \"dataset_status\": " << dataset_status_json(sweep) << ",\n";
+  s << "  \"baseline\": {\"model\": \"impulse\", \"params\": {\"step_correction\": "
+    << json_number(d.baseline.calibration.alpha) << ", \"friction_coefficient\": "
+    << json_number(d.baseline.calibration.mu) << "}, \"gap\": " << json_number(d.gap_before)
+    << ", \"systematic_gap\": " << json_number(systematic_gap(d.baseline)) << "},\n";
+  s << cells_json(sweep, d);
+  s << "  \"where\": {\"significant_cells\": " << cell_pairs(d.where.significant_cells, false)
+    << ",\n            \"significant_cells_with_stroke\": " << cell_pairs(d.where.significant_cells, true)
+    << ",\n            \"summary\": " << json_string(d.where.summary)
+    << ",\n            \"summary_after\": " << json_string(d.where.summary_after) << "},\n";
   s << "  \"candidates\": [\n";
   for (std::size_t i = 0; i < d.candidates.size(); ++i) {
-    const CandidateResult& c = d.candidates[i];
-    s << "    {\"effect\": " << json_string(c.effect) << ", \"params\": " << params_json(c.params)
+    const SetFit& c = d.candidates[i];
+    s << "    {\"effect\": " << json_string(c.effects.front().name) << ", \"params\": "
+      << effect_params_json(c.effects.front()) << ", \"intervals\": "
+      << (i < d.intervals.size() && !d.intervals[i].empty() ? intervals_json(d.intervals[i].front()) : "{}")
       << ", \"gap\": " << json_number(c.gap) << ", \"shrink\": " << json_number(c.shrink)
       << ", \"plausible\": " << (c.plausible ? "true" : "false") << ", \"train_gap\": " << json_number(c.train_gap);
     if (!c.plausible) s << ", \"why\": " << json_string(c.note);
@@ -132,18 +212,11 @@ std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const s
     s << (i ? ", " : "") << "{\"effect\": " << json_string(d.not_identifiable[i].effect)
       << ", \"needs\": " << json_string(d.not_identifiable[i].needs) << "}";
   s << "],\n  \"selection\": [";
-  for (std::size_t i = 0; i < d.steps.size(); ++i) {
-    s << (i ? ", " : "") << "{\"effects\": [";
-    for (std::size_t k = 0; k < d.steps[i].effects.size(); ++k) s << (k ? ", " : "") << json_string(d.steps[i].effects[k]);
-    s << "], \"gap\": " << json_number(d.steps[i].gap) << "}";
-  }
-  s << "],\n  \"diagnosis\": {\"effects\": [";
-  for (std::size_t i = 0; i < d.chosen.size(); ++i) s << (i ? ", " : "") << json_string(d.chosen[i].name);
-  s << "], \"params\": {";
-  for (std::size_t i = 0; i < d.chosen.size(); ++i)
-    s << (i ? ", " : "") << json_string(d.chosen[i].name) << ": " << params_json(d.chosen[i].params);
-  s << "}, \"gap_before\": " << json_number(d.gap_before) << ", \"gap_after\": " << json_number(d.gap_after)
-    << ", \"shrink\": " << json_number(d.shrink) << "}\n}\n";
+  for (std::size_t i = 0; i < d.steps.size(); ++i)
+    s << (i ? ", " : "") << "{\"action\": " << json_string(d.steps[i].action)
+      << ", \"effects\": " << names_json(d.steps[i].effects) << ", \"gap\": " << json_number(d.steps[i].gap) << "}";
+  s << "],\n";
+  s << diagnosis_json(d) << "}\n";
   return s.str();
 }
 

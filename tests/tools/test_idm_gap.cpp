@@ -85,7 +85,8 @@ TEST(IdmGap, BadInputIsOneLineWithStatus2AndNothingWritten) {
       {"diagnose . --effects amplifier,warp", "unknown effect 'warp'"},
       {"diagnose . --json /nonexistent/dir/x.json", "does not exist"},
       {"validate --seeds 0", "--seeds"},
-      {"validate --effects creep", "validate cannot hide 'creep'"},
+      {"validate --cases creep", "--cases: validate case 'creep': allowed none"},
+      {"validate --cases amplifier+warp", "validate case 'amplifier+warp'"},
       {"frobnicate", "unknown command"},
   };
   for (const Case& c : cases) {
@@ -187,14 +188,21 @@ TEST(IdmGap, AnInterruptedSweepIsDiagnosedOnItsCompleteCellsAndSaysWhichAreMissi
   std::filesystem::remove(json);
 }
 
-TEST(IdmGap, SmallValidateNamesNothingOnAnIdealStage) {
+TEST(IdmGap, QuickValidateNamesEachHiddenSetAndCallsTheUnknownUnexplained) {
+  // The quick validate CI runs: nothing hidden, one effect, two at once, and an effect outside the
+  // library, each on a random stage with a lab's sampling.
   const auto json = temp("idm_gap_validate") += ".json";
-  const Result r = run("validate --seeds 1 --effects none --quick 1 --json " + json.string());
+  const Result r = run("validate --quick 1 --threads 2 --json " + json.string());
   ASSERT_EQ(r.status, 0) << r.out;
-  EXPECT_NE(r.out.find("accuracy 1.000"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("accuracy 1.000 (4 runs)"), std::string::npos) << r.out;
   const std::string j = slurp(json);
-  EXPECT_NE(j.find("\"hidden\": \"none\""), std::string::npos) << j;
-  EXPECT_NE(j.find("\"named\": []"), std::string::npos) << j;
-  EXPECT_NE(j.find("\"by_effect\": {\"none\": {\"runs\": 1, \"correct\": 1}}"), std::string::npos) << j;
+  EXPECT_NE(j.find("\"hidden\": \"none\", \"class\": \"none\""), std::string::npos) << j;
+  EXPECT_NE(j.find("\"named\": [], \"expected\": [], \"correct\": true, \"unexplained\": true, "
+                   "\"expect_unexplained\": true"),
+            std::string::npos)
+      << j;
+  for (const char* key : {"\"by_class\": {", "\"pair\": {\"runs\": 1, \"correct\": 1", "\"mean_where_rank\": ",
+                          "\"by_effect\": {"})
+    EXPECT_NE(j.find(key), std::string::npos) << key << "\n" << j;
   std::filesystem::remove(json);
 }
