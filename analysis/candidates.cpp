@@ -110,17 +110,24 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
   creep.params = [](const std::vector<double>& x) { return Params{{"per_decade", x[0]}}; };
   creep.physics = "relative drift per decade of time";
   lib.push_back(creep);
-  // stribeck: static over kinetic friction, and the Stribeck velocity against the slider's speeds.
+  // stribeck: what a slider loses to it is about (mu_s / mu_k - 1) v_s (the bump of friction at
+  // low speed times its width): the gap runs along a valley of that product. The coordinates are
+  // the product ("impulse") and where the Stribeck velocity sits among the velocities that give it
+  // within the ranges (0 to 1): the valley lies along the first.
   CandidateSpec str;
   str.effect = "stribeck";
-  str.axes = {{"static_excess", 0.01, 1.5, true},
-              {"stribeck_velocity_m_s", std::max(1e-6, sc.speed_m_s / 300), std::min(1.0, 3 * sc.speed_m_s), true}};
+  const double v_lo = std::max(1e-6, sc.speed_m_s / 300), v_hi = std::min(1.0, 3 * sc.speed_m_s);
+  const double kExcessLo = 0.01, kExcessHi = 1.5;
+  str.axes = {{"stribeck_impulse_m_s", kExcessLo * v_lo, kExcessHi * v_hi, true}, {"velocity_share", 0.0, 1.0, false}};
   str.variants = {{}};
-  str.params = [](const std::vector<double>& x) {
-    return Params{{"static_over_kinetic", 1.0 + x[0]},
-                  {"stribeck_velocity_m_s", clamp_to_library("stribeck", "stribeck_velocity_m_s", x[1])}};
+  str.params = [v_lo, v_hi, kExcessLo, kExcessHi](const std::vector<double>& x) {
+    const double a = x[0];
+    const double lo = std::max(v_lo, a / kExcessHi), hi = std::min(v_hi, a / kExcessLo);
+    const double v = hi > lo ? std::exp(std::log(lo) + x[1] * (std::log(hi) - std::log(lo))) : std::sqrt(lo * hi);
+    return Params{{"static_over_kinetic", 1.0 + std::clamp(a / v, kExcessLo, kExcessHi)},
+                  {"stribeck_velocity_m_s", clamp_to_library("stribeck", "stribeck_velocity_m_s", v)}};
   };
-  str.physics = "static friction above kinetic (mu_s / mu_k - 1), Stribeck velocity against the slider's speed";
+  str.physics = "(mu_s / mu_k - 1) times the Stribeck velocity, and that velocity's place in its range";
   lib.push_back(str);
   // friction_spread: only the spread; an offset of the mean friction is the baseline's mu.
   CandidateSpec spread;

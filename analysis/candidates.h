@@ -99,6 +99,12 @@ std::vector<model::EffectSpec> effects_of(const std::vector<CandidateSpec>& libr
 SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                   const CandidateSpec& spec, const FittedModel& baseline, const FitOptions& options);
 
+// `spec` added to the set `base`: its coarse search with the set held, then the whole set's joint
+// search (JointStage::Search: to be finished with fit_joint).
+SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                  const std::vector<MemberFit>& base, const CandidateSpec& spec, const FittedModel& baseline,
+                  const FitOptions& options);
+
 // A set of effects fitted jointly from `start` (one member per effect, e.g. the single fits).
 // Search: the Subplex at the search rate only (train_gap is its objective; no held-out score, gap
 // is infinite), to screen sets; Finish: the polish and the score from `start` (a screened set);

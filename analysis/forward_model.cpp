@@ -45,8 +45,9 @@ const std::array<double, kSpreadTrials>& spread_quadrature() {
   return z;
 }
 
-// A sliding slider's speed changes by at most this share of the Stribeck velocity in a step.
-constexpr double kStribeckStep = 0.005;
+// A sliding slider's speed changes by at most this share of the Stribeck velocity in a step
+// (within 0.5 nm of 0.2 us steps; a search takes 2 %).
+constexpr double kStribeckStep = 0.005, kStribeckSearchStep = 0.02;
 
 // Advances the stage from t to t_end along the triangle. With velocity-dependent friction the
 // rigid plant takes the friction at the start of a step for the whole step, so a sliding slider is
@@ -54,8 +55,10 @@ constexpr double kStribeckStep = 0.005;
 // velocity each), and in one step while it is far faster than that (friction is then kinetic).
 class BurstStepper {
  public:
-  BurstStepper(model::SimulatedStage& stage, const model::TriangleWave& wave, const model::SimConfig& sim)
-      : stage_(stage), wave_(wave), min_step_s_(1e-9 * wave.period_s()) {
+  BurstStepper(model::SimulatedStage& stage, const model::TriangleWave& wave, const model::SimConfig& sim,
+               bool search)
+      : stage_(stage), wave_(wave), min_step_s_(1e-9 * wave.period_s()),
+        stribeck_step_(search ? kStribeckSearchStep : kStribeckStep) {
     if (const model::EffectSpec* s = sim.find("stribeck")) {
       stribeck_m_s_ = s->params.at("stribeck_velocity_m_s");
       const model::StageParams& p = stage.stage();
@@ -65,6 +68,9 @@ class BurstStepper {
     }
   }
   void corner_reached() { rate_changed_ = true; }
+  // Steps that end where a piecewise-linear chain (hysteresis) kinks: the plant sees its output
+  // exactly, at no internal rate.
+  void step_to_kinks() { kinks_ = true; }
   // Instants closer than a billionth of a period are one (a step over a rounding error would make
   // up an actuator rate from it).
   void advance(double t_end) {
@@ -75,17 +81,25 @@ class BurstStepper {
       // the rigid plant sees the rate change as one (over a long step it would spread it into a
       // force that friction might hold). Behind an actuator chain the corner is smoothed and the
       // chain's own steps carry it.
-      if (rate_changed_ && !stage_.smooths_command()) h = std::min(h, 10 * min_step_s_);
+      if (rate_changed_ && (!stage_.smooths_command() || kinks_)) h = std::min(h, 10 * min_step_s_);
+      bool at_kink = false;
+      if (kinks_) {
+        const double kink = stage_.next_kink_s(wave_.rate_m_s(t_));
+        if (kink > 0 && kink < h) {
+          h = std::max(kink, min_step_s_);
+          at_kink = true;
+        }
+      }
       if (stribeck_m_s_ > 0 && (rate_changed_ || stage_.velocity_m_s() != 0.0)) {
         const double speed = std::fabs(stage_.velocity_m_s());
-        const double fine = kStribeckStep * stribeck_m_s_ / max_decel_m_s2_;
+        const double fine = stribeck_step_ * stribeck_m_s_ / max_decel_m_s2_;
         h = std::min(h, speed > 4 * stribeck_m_s_ ? std::max(fine, (speed - 3.5 * stribeck_m_s_) / max_decel_m_s2_)
                                                    : fine);
       }
       const double t_next = t_end - t_ - h < min_step_s_ ? t_end : t_ + h;
       stage_.step(t_next - t_, wave_.xi_m(t_next));
       t_ = t_next;
-      rate_changed_ = false;
+      rate_changed_ = at_kink;  // a kink of the chain is a velocity corner as well
     }
   }
   double t() const { return t_; }
@@ -94,10 +108,18 @@ class BurstStepper {
   model::SimulatedStage& stage_;
   const model::TriangleWave& wave_;
   double t_ = 0;
-  bool rate_changed_ = true;
-  double min_step_s_;
+  bool rate_changed_ = true, kinks_ = false;
+  double min_step_s_, stribeck_step_;
   double stribeck_m_s_ = 0, max_decel_m_s2_ = 1;
 };
+
+// A chain of hysteresis alone is piecewise linear in the command: stepped from kink to kink it
+// needs no internal rate (1 Hz: a step is never subdivided).
+bool piecewise_linear_chain(const model::SimConfig& sim) {
+  int chain = 0;
+  for (const model::EffectSpec& e : sim.effects) chain += in_chain(e.name) ? 1 : 0;
+  return chain == 1 && sim.has("hysteresis");
+}
 
 model::SimConfig config_of(const std::vector<model::EffectSpec>& effects, double rate_hz) {
   model::SimConfig sim;
@@ -108,6 +130,7 @@ model::SimConfig config_of(const std::vector<model::EffectSpec>& effects, double
   sim.internal_rate_hz = rate_hz;
   if (const model::EffectSpec* q = sim.find("quantization"))
     sim.internal_rate_hz = std::max(rate_hz, 2.0 * q->params.at("update_rate_hz"));
+  if (piecewise_linear_chain(sim)) sim.internal_rate_hz = 1.0;
   return sim;
 }
 
@@ -118,7 +141,7 @@ TrialFeatures features(const SweepCells& sweep, const std::vector<double>& marks
 }  // namespace
 
 std::vector<double> simulate_marks(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,
-                                   double tolerance_m) {
+                                   double tolerance_m, bool search) {
   model::InterferometerParams exact;
   exact.resolution_m = 1e-12;
   model::SimulatedStage s(stage, exact, sim);
@@ -129,7 +152,8 @@ std::vector<double> simulate_marks(const model::StageParams& stage, const model:
   // The slider's speed and the actuator's deflection from its command at each reading: with the
   // steps, the state the next cycle starts from (a ringing counter mass is part of it).
   std::vector<double> marks(reads.size(), 0.0), speed(reads.size(), 0.0), lag(reads.size(), 0.0);
-  BurstStepper stepper(s, w, sim);
+  BurstStepper stepper(s, w, sim, search);
+  if (piecewise_linear_chain(sim)) stepper.step_to_kinks();
   std::size_t next = 1;  // corners[0] = 0
   const double eps = 1e-3 * tolerance_m;
   for (std::size_t k = 1; k < reads.size(); ++k) {
@@ -161,20 +185,23 @@ std::vector<double> simulate_marks(const model::StageParams& stage, const model:
 double search_rate_hz(const std::vector<model::EffectSpec>& effects) {
   double rate = 0;
   for (const model::EffectSpec& e : effects) {
-    if (e.name == "amplifier") rate = std::max(rate, std::clamp(20.0 * e.params.at("cutoff_hz"), 1e5, kScoreRateHz));
-    if (e.name == "hysteresis") rate = std::max(rate, 5e5);
+    // a cutoff far above the sweep's phases barely shows: 500 kHz is enough to see that
+    if (e.name == "amplifier") rate = std::max(rate, std::clamp(20.0 * e.params.at("cutoff_hz"), 1e5, 5e5));
+    if (e.name == "hysteresis") rate = std::max(rate, 1e5);  // alone it is stepped kink to kink
     if (e.name == "creep" || e.name == "quantization") rate = std::max(rate, 1e5);
   }
   return std::min(rate > 0 ? rate : kScoreRateHz, score_rate_hz(effects));
 }
 
 double score_rate_hz(const std::vector<model::EffectSpec>& effects) {
-  bool breaks_loose = false, creep = false;
+  bool breaks_loose = false, creep = false, hysteresis = false;
   for (const model::EffectSpec& e : effects) {
-    breaks_loose = breaks_loose || e.name == "amplifier" || e.name == "hysteresis" || e.name == "quantization";
+    breaks_loose = breaks_loose || e.name == "amplifier" || e.name == "quantization";
     creep = creep || e.name == "creep";
+    hysteresis = hysteresis || e.name == "hysteresis";
   }
-  return breaks_loose || !creep ? kScoreRateHz : 2e5;
+  if (breaks_loose || (hysteresis && creep)) return kScoreRateHz;
+  return creep ? 2e5 : (hysteresis ? 1e5 : kScoreRateHz);  // hysteresis alone: kink to kink
 }
 
 CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, const Cell& cell) {
@@ -186,7 +213,7 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
     if (e.name == "friction_spread") spread = &e;
   std::vector<TrialFeatures> trials;
   if (spread == nullptr) {
-    trials.push_back(features(sweep, simulate_marks(model.stage, sim, cell, tol)));
+    trials.push_back(features(sweep, simulate_marks(model.stage, sim, cell, tol, model.search)));
   } else {
     const double sd = spread->params.at("relative_sd");
     const double shift = spread->params.count("mean_shift") ? spread->params.at("mean_shift") : 0.0;
@@ -196,14 +223,14 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
     std::erase_if(cheap.effects, [](const model::EffectSpec& e) { return expensive(e.name); });
     std::vector<double> full, base;
     if (costly) {
-      full = simulate_marks(model.stage, sim, cell, tol);
-      base = simulate_marks(model.stage, cheap, cell, tol);
+      full = simulate_marks(model.stage, sim, cell, tol, model.search);
+      base = simulate_marks(model.stage, cheap, cell, tol, model.search);
     }
     for (double z : spread_quadrature()) {
       model::StageParams stage = model.stage;
       // as model::GuideProfile bounds it: friction never below 5 % of the nominal
       stage.friction_coefficient *= std::max(0.05, 1.0 + shift + sd * z);
-      std::vector<double> marks = simulate_marks(stage, costly ? cheap : sim, cell, tol);
+      std::vector<double> marks = simulate_marks(stage, costly ? cheap : sim, cell, tol, model.search);
       if (costly)
         for (std::size_t k = 0; k < marks.size(); ++k) marks[k] += full[k] - base[k];
       trials.push_back(features(sweep, marks));

@@ -27,6 +27,7 @@ struct ModelConfig {
   model::StageParams stage;                // stage.yaml, with the friction coefficient in use
   std::vector<model::EffectSpec> effects;  // completed (model::complete_effect)
   double chain_rate_hz = 0;                // plant rate under an actuator chain; 0: score_rate_hz
+  bool search = false;  // the cheaper numerics of a search (Stribeck: 2 % of its velocity a step, not 0.5 %)
 };
 
 struct CellPrediction {
@@ -64,6 +65,6 @@ std::vector<CellPrediction> predict_sweep(const SweepCells& sweep, const ModelCo
 // The positions of one burst at the cell's reading instants (marks[0] = 0 at the start), from rest
 // at x = 0 on the plant of `stage` with `sim` (noise-free). Exposed for tests.
 std::vector<double> simulate_marks(const model::StageParams& stage, const model::SimConfig& sim,
-                                   const Cell& cell, double tolerance_m);
+                                   const Cell& cell, double tolerance_m, bool search = false);
 
 }  // namespace idm::analysis

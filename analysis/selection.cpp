@@ -68,6 +68,32 @@ class SetFits {
     return out;
   }
 
+  // Each effect of `specs` added to `base` (fit_on_top), screened; cached like screen().
+  std::vector<SetFit> screen_on_top(const std::vector<MemberFit>& base, const std::vector<const CandidateSpec*>& specs) {
+    std::vector<std::vector<MemberFit>> sets;
+    for (const CandidateSpec* spec : specs) {
+      std::vector<MemberFit> m = base;
+      m.push_back({spec->effect, {}, {}, {}});
+      sets.push_back(m);
+    }
+    std::vector<std::size_t> todo;
+    for (std::size_t i = 0; i < sets.size(); ++i)
+      if (!screened_.count(key_of(sets[i])) && !finished_.count(key_of(sets[i]))) todo.push_back(i);
+    std::vector<SetFit> done(todo.size());
+    FitOptions one = options_;
+    one.threads = 1;
+    parallel_for(todo.size(), options_.threads, [&](std::size_t i) {
+      done[i] = fit_on_top(sweep_, library_, base, *specs[todo[i]], baseline_, one);
+    });
+    for (SetFit& f : done) screened_[key_of(f.members)] = std::move(f);
+    std::vector<SetFit> out;
+    for (const auto& m : sets) {
+      const std::string k = key_of(m);
+      out.push_back(finished_.count(k) ? finished_.at(k) : screened_.at(k));
+    }
+    return out;
+  }
+
   // The finished fit of a set (from its screened optimum when there is one).
   const SetFit& finish(const std::vector<MemberFit>& members) {
     const std::string k = key_of(members);
@@ -126,6 +152,44 @@ std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
   return s.str();
 }
 
+// Forward from `first`: every plausible candidate joins the set in a joint fit (screened at the
+// search rate, the best polished and scored) while the gap is above kFurtherGap and the addition
+// shrinks it by kMinFurtherShrink; then backward: a member without which the gap grows by less
+// than kBackwardTolerance (or stays within the noise) goes.
+SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool, const std::vector<CandidateSpec>& library,
+                   SetFits& fits, std::vector<SelectionStep>& steps) {
+  SetFit current = first;
+  steps.push_back({"add", current.names(), current.gap});
+  while (current.members.size() < kMaxEffects && current.gap > kFurtherGap) {
+    std::vector<const CandidateSpec*> tries;
+    for (const SetFit* c : pool)
+      if (!contains(current, c->members.front().effect)) tries.push_back(&spec_of(library, c->members.front().effect));
+    if (tries.empty()) break;
+    const std::vector<SetFit> screened = fits.screen_on_top(current.members, tries);
+    const SetFit* lead = &screened.front();
+    for (const SetFit& t : screened)
+      if (t.train_gap < lead->train_gap) lead = &t;
+    const SetFit& best = fits.finish(lead->members);
+    if (!best.plausible || best.gap > (1 - kMinFurtherShrink) * current.gap) break;
+    current = best;
+    steps.push_back({"add", current.names(), current.gap});
+  }
+  while (current.members.size() >= 2) {
+    const SetFit* best = nullptr;
+    std::vector<SetFit> reduced;
+    for (std::size_t i = 0; i < current.members.size(); ++i) reduced.push_back(fits.finish(without(current, i)));
+    for (const SetFit& r : reduced)
+      if (r.plausible && (!best || r.gap < best->gap)) best = &r;
+    if (!best || (best->gap > (1 + kBackwardTolerance) * current.gap && significant_gap(best->fitted))) {
+      steps.push_back({"keep", current.names(), current.gap});
+      break;
+    }
+    current = *best;
+    steps.push_back({"remove", current.names(), current.gap});
+  }
+  return current;
+}
+
 }  // namespace
 
 double systematic_gap(const FittedModel& m) {
@@ -180,42 +244,20 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   SetFit current;
   bool have = false;
   if (significant_gap(d.baseline) && !pool.empty() && pool.front()->shrink >= kMinShrink) {
-    current = *pool.front();
-    have = true;
-    d.steps.push_back({"add", current.names(), current.gap});
-    // forward: every plausible candidate joins the set in a joint fit; the sets are screened at
-    // the search rate, the best is polished and scored, and joins when it shrinks the gap enough
-    while (current.members.size() < kMaxEffects && significant_gap(current.fitted)) {
-      std::vector<std::vector<MemberFit>> tries;
-      for (const SetFit* c : pool) {
-        if (contains(current, c->members.front().effect)) continue;
-        std::vector<MemberFit> m = current.members;
-        m.push_back(c->members.front());
-        tries.push_back(m);
+    // The search starts from the best single and from the runner-up when it comes close (an
+    // amplifier and a compliant actuator trade places); the set that ends with the smaller
+    // held-out gap is kept.
+    std::vector<const SetFit*> firsts{pool.front()};
+    if (pool.size() > 1 && pool[1]->shrink >= kMinShrink && pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
+      firsts.push_back(pool[1]);
+    for (const SetFit* first : firsts) {
+      std::vector<SelectionStep> steps;
+      const SetFit end = select_from(*first, pool, library, fits, steps);
+      if (!have || end.gap < current.gap) {
+        current = end;
+        d.steps = steps;
       }
-      if (tries.empty()) break;
-      const std::vector<SetFit> screened = fits.screen(tries);
-      const SetFit* lead = &screened.front();
-      for (const SetFit& t : screened)
-        if (t.train_gap < lead->train_gap) lead = &t;
-      const SetFit& best = fits.finish(lead->members);
-      if (!best.plausible || best.gap > (1 - kMinFurtherShrink) * current.gap) break;
-      current = best;
-      d.steps.push_back({"add", current.names(), current.gap});
-    }
-    // backward: every member must still earn its place once the others are in
-    while (current.members.size() >= 2) {
-      const SetFit* best = nullptr;
-      std::vector<SetFit> reduced;
-      for (std::size_t i = 0; i < current.members.size(); ++i) reduced.push_back(fits.finish(without(current, i)));
-      for (const SetFit& r : reduced)
-        if (r.plausible && (!best || r.gap < best->gap)) best = &r;
-      if (!best || (best->gap > (1 + kBackwardTolerance) * current.gap && significant_gap(best->fitted))) {
-        d.steps.push_back({"keep", current.names(), current.gap});
-        break;
-      }
-      current = *best;
-      d.steps.push_back({"remove", current.names(), current.gap});
+      have = true;
     }
   }
   // honesty: a set that leaves a significant remainder must explain most of the gap

@@ -3,9 +3,10 @@
 //
 // 1. Baseline: the impulse model with alpha and mu fitted (gap.h); its held-out gap is gap_before.
 // 2. Candidates: every identifiable effect fitted alone (candidates.h), ranked by shrink.
-// 3. Forward: the best plausible candidate that shrinks the gap by kMinShrink starts the set; an
-//    effect that shrank the gap alone is then fitted jointly with the set, and the best is added
-//    while it shrinks the set's gap by kMinFurtherShrink and a significant gap remains.
+// 3. Forward: the best plausible candidate that shrinks the gap by kMinShrink starts the set; every
+//    other plausible candidate is then fitted on top of the set (its own search with the set held,
+//    then all jointly, screened at the search rate), and the best is added while the set's gap is
+//    above kFurtherGap and the addition shrinks it by kMinFurtherShrink.
 // 4. Backward: every member of a set of two or more is taken out (the rest refitted jointly); a
 //    member without which the gap grows by less than kBackwardTolerance goes.
 // 5. Honesty: a set that leaves a significant remainder is named only when it explains most of the
@@ -31,6 +32,8 @@ constexpr double kExplainedGap = 2.0;
 constexpr double kSystematicGap = 1.5;
 constexpr double kMinShrink = 0.3;
 constexpr double kMinFurtherShrink = 0.4;
+constexpr double kFurtherGap = 1.5;  // a set's gap above which another effect is looked for
+constexpr double kRunnerUpRatio = 1.5;  // a second start when the runner-up's gap is this close
 constexpr double kBackwardTolerance = 0.25;
 constexpr double kNameShrink = 0.75;
 constexpr double kAmbiguousRatio = 1.25;

@@ -54,6 +54,7 @@ class Objective {
     ModelConfig model = model_;
     model.effects = effects_of(library_, members);
     model.chain_rate_hz = search ? search_rate_hz(model.effects) : score_rate_hz(model.effects);
+    model.search = search;
     const std::vector<CellPrediction> pred = predict_sweep(sweep_, model, threads_);
     const Calibration calib = fit_calibration(sweep_, pred, model.stage.friction_coefficient, false);
     last_mu_ = fit_calibration(sweep_, pred, model.stage.friction_coefficient).mu;  // a proposal
@@ -193,6 +194,86 @@ std::vector<std::vector<double>> starts_from(std::vector<std::pair<double, std::
 
 }  // namespace
 
+namespace {
+
+// The coarse search for one effect, on top of `fixed` members (held where they are): its grid or
+// scan, then Subplex from the best points that are not neighbours. `value`: the objective there;
+// `per_variant`, when given, receives the best of each variant.
+MemberFit coarse_search(Objective& coarse, const CandidateSpec& spec, const std::vector<MemberFit>& fixed_members,
+                        const FitOptions& opt, double& value, std::vector<MemberFit>* per_variant = nullptr) {
+  MemberFit best{spec.effect, spec.variants.front(), {}, {}};
+  value = std::numeric_limits<double>::infinity();
+  auto with = [&](const MemberFit& m) {
+    std::vector<MemberFit> all = fixed_members;
+    all.push_back(m);
+    return coarse.train_gap(all, true);
+  };
+  if (!spec.grid.empty()) {
+    for (const Params& g : spec.grid) {
+      const MemberFit m{spec.effect, spec.variants.front(), {}, g};
+      const double v = with(m);
+      if (v < value) {
+        value = v;
+        best = m;
+      }
+    }
+    return best;
+  }
+  const std::size_t n = spec.axes.size();
+  const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
+  for (const Params& fixed : spec.variants) {
+    MemberFit m{spec.effect, fixed, std::vector<double>(n, 0.0), {}};
+    auto f = [&](const std::vector<double>& u) {
+      m.u = u;
+      return with(m);
+    };
+    std::vector<std::pair<double, std::vector<double>>> grid;
+    int spacing = pts;  // grid points per unit of u, for telling neighbours apart
+    if (spec.scan_ratio > 1 && n == 2) {
+      const FitAxis& a = spec.axes[0];
+      const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
+      spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
+      for (double other : spec.scan_other)
+        for (double u0 = 0; u0 <= 1 + 1e-9; u0 += du) {
+          const std::vector<double> u{std::min(u0, 1.0), spec.axes[1].coordinate(other)};
+          grid.push_back({f(u), u});
+        }
+    } else {
+      const int total = n == 1 ? pts : pts * pts;
+      for (int k = 0; k < total; ++k) {
+        std::vector<double> u(n);
+        u[0] = (k % pts) / double(pts - 1);
+        if (n == 2) u[1] = (k / pts) / double(pts - 1);
+        grid.push_back({f(u), u});
+      }
+    }
+    if (!spec.start.empty()) {
+      std::vector<double> u;
+      for (std::size_t i = 0; i < n; ++i) u.push_back(spec.axes[i].coordinate(spec.start[i]));
+      grid.push_back({f(u), u});
+    }
+    MemberFit variant_best = m;
+    double variant_value = std::numeric_limits<double>::infinity();
+    for (const std::vector<double>& start : starts_from(grid, spacing, n == 1 ? 1 : opt.starts_2d)) {
+      double v = 0;
+      const std::vector<double> u =
+          subplex(f, start, 0.5 / (spacing - 1), opt.refine_evals * static_cast<int>(n), 1e-3, v);
+      if (v < variant_value) {
+        variant_value = v;
+        variant_best = {spec.effect, fixed, u, {}};
+      }
+    }
+    if (per_variant) per_variant->push_back(variant_best);
+    if (variant_value < value) {
+      value = variant_value;
+      best = variant_best;
+    }
+  }
+  return best;
+}
+
+}  // namespace
+
 SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& library, const CandidateSpec& spec,
                   const FittedModel& baseline, const FitOptions& opt) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -201,86 +282,59 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   // large sweep); the refinement runs on every cell.
   const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
   Objective coarse(coarse_cells, library, baseline, opt.threads);
-  MemberFit best;
-  best.effect = spec.effect;
-  double best_value = std::numeric_limits<double>::infinity();
-  if (!spec.grid.empty()) {
-    for (const Params& g : spec.grid) {
-      MemberFit m{spec.effect, spec.variants.front(), {}, g};
-      const double v = obj.train_gap({m}, true);
-      if (v < best_value) {
-        best_value = v;
-        best = m;
-      }
-    }
-  } else {
-    const std::size_t n = spec.axes.size();
+  double best_value = 0;
+  std::vector<MemberFit> variants;
+  MemberFit best = coarse_search(coarse, spec, {}, opt, best_value, &variants);
+  if (spec.grid.empty()) {
+    const int n = static_cast<int>(spec.axes.size());
     const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
-    for (const Params& fixed : spec.variants) {
-      MemberFit m{spec.effect, fixed, std::vector<double>(n, 0.0), {}};
-      auto f = [&](const std::vector<double>& u) {
+    auto on_all = [&](bool search) {
+      return [&, search](const std::vector<double>& u) {
+        MemberFit m = best;
         m.u = u;
-        return obj.train_gap({m}, true);
+        return obj.train_gap({m}, search);
       };
-      auto f_coarse = [&](const std::vector<double>& u) {
-        m.u = u;
-        return coarse.train_gap({m}, true);
-      };
-      std::vector<std::pair<double, std::vector<double>>> grid;
-      int spacing = pts;  // grid points per unit of u, for telling neighbours apart
-      if (spec.scan_ratio > 1 && n == 2) {
-        const FitAxis& a = spec.axes[0];
-        const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
-        spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
-        for (double other : spec.scan_other)
-          for (double u0 = 0; u0 <= 1 + 1e-9; u0 += du) {
-            const std::vector<double> u{std::min(u0, 1.0), spec.axes[1].coordinate(other)};
-            grid.push_back({f_coarse(u), u});
-          }
-      } else {
-        const int total = n == 1 ? pts : pts * pts;
-        for (int k = 0; k < total; ++k) {
-          std::vector<double> u(n);
-          u[0] = (k % pts) / double(pts - 1);
-          if (n == 2) u[1] = (k / pts) / double(pts - 1);
-          grid.push_back({f_coarse(u), u});
-        }
-      }
-      if (!spec.start.empty()) {
-        std::vector<double> u;
-        for (std::size_t i = 0; i < n; ++i) u.push_back(spec.axes[i].coordinate(spec.start[i]));
-        grid.push_back({f_coarse(u), u});
-      }
-      for (const std::vector<double>& start : starts_from(grid, spacing, n == 1 ? 1 : opt.starts_2d)) {
+    };
+    // On a large sweep each variant's coarse optimum is refined on every cell (a short Subplex
+    // from there) and the variants are compared there.
+    if (coarse_cells.cells.size() < sweep.cells.size()) {
+      best_value = std::numeric_limits<double>::infinity();
+      for (const MemberFit& v : variants) {
+        MemberFit keep = best;
+        best = v;
         double value = 0;
-        const std::vector<double> u =
-            subplex(f, start, 0.5 / (spacing - 1), opt.refine_evals * static_cast<int>(n), 1e-3, value);
+        best.u = subplex(on_all(true), v.u, 0.1 / (pts - 1), opt.refine_evals * n / 2, 1e-3, value);
         if (value < best_value) {
           best_value = value;
-          best = {spec.effect, fixed, u, {}};
+          keep = best;
         }
+        best = keep;
       }
     }
     // The winner polished at the scoring rate, simulated at its own mu: with little noise the gap
     // is a sharp V around the optimum, and the search rate's error and the linearized mu move it.
-    {
-      obj.recenter({best});
-      MemberFit m = best;
-      auto f = [&](const std::vector<double>& u) {
-        m.u = u;
-        return obj.train_gap({m}, false);
-      };
-      double value = 0;
-      const double step = spec.scan_ratio > 1 ? 0.005 : 0.05 / (pts - 1);
-      const std::vector<double> u = subplex(f, best.u, step, opt.polish_evals * static_cast<int>(n), 1e-4, value);
-      best.u = u;
-      best_value = value;
-    }
+    obj.recenter({best});
+    const double step = spec.scan_ratio > 1 ? 0.005 : 0.05 / (pts - 1);
+    best.u = subplex(on_all(false), best.u, step, opt.polish_evals * n, 1e-4, best_value);
   }
   SetFit out = obj.score({best}, best_value);
   out.evaluations += coarse.evaluations;
   judge(library, out);
   log_fit("fit", out, t0);
+  return out;
+}
+
+SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                  const std::vector<MemberFit>& base, const CandidateSpec& spec, const FittedModel& baseline,
+                  const FitOptions& opt) {
+  // the new effect searched with the set held, on the coarse cells; then all of them jointly
+  const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
+  Objective coarse(coarse_cells, library, baseline, opt.threads);
+  double value = 0;
+  std::vector<MemberFit> start = base;
+  start.push_back(coarse_search(coarse, spec, base, opt, value));
+  SetFit out = fit_joint(sweep, library, start, baseline, opt, JointStage::Search);
+  out.evaluations += coarse.evaluations;
   return out;
 }
 
@@ -310,7 +364,7 @@ SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& libr
       unpack(u);
       return obj.train_gap(members, search);
     };
-    u0 = subplex(f, u0, search ? 0.08 : 0.01, search ? opt.refine_evals * n + 8 : opt.polish_evals * n,
+    u0 = subplex(f, u0, search ? 0.02 : 0.005, search ? opt.refine_evals * n + 8 : opt.polish_evals * n,
                  search ? 1e-3 : 1e-4, value);
   }
   if (n == 0) value = obj.train_gap(members, stage == JointStage::Search);

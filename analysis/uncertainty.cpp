@@ -24,6 +24,7 @@ class HeldOut {
     ModelConfig m = fit_.fitted.model;
     m.effects = effects_of(library_, members);
     m.chain_rate_hz = scoring_ ? score_rate_hz(m.effects) : search_rate_hz(m.effects);
+    m.search = !scoring_;
     const std::vector<CellPrediction> pred = predict_sweep(sweep_, m, threads_);
     const Calibration calib = fit_calibration(sweep_, pred, m.stage.friction_coefficient);
     const double g = evaluate_gap(sweep_, pred, calib, TrialSet::Test).gap;
@@ -290,6 +291,7 @@ std::string separating_sweep(const SweepCells& sweep, const SetFit& a, const Set
   auto predict = [&](const SetFit& s) {
     ModelConfig m = s.fitted.model;
     m.chain_rate_hz = search_rate_hz(m.effects);
+    m.search = true;
     const std::vector<CellPrediction> p = predict_sweep(wide, m, threads);
     std::vector<double> steps;
     for (const CellPrediction& c : p) steps.push_back(s.fitted.calibration.step(c));

@@ -126,7 +126,7 @@ void DampedOscillator::set(double c0, double c1) {
     l1_ = cplx(q, 0);
     l2_ = cplx(c0 / q, 0);
   }
-  cached_t_s_ = -1;
+  cached_t_s_[0] = cached_t_s_[1] = -1;
 }
 
 DampedOscillator::Transition DampedOscillator::transition(double t) const {
@@ -153,13 +153,23 @@ DampedOscillator::State DampedOscillator::at(double e0, double w0, double c, dou
   const double ep = c / c0_;
   const double d = e0 - ep;
   Transition local;
-  // steps that differ only by rounding (t_k - t_{k-1}) share the coefficients
-  if (reuse && std::fabs(t - cached_t_s_) > 1e-12 * t) {
-    cached_ = transition(t);
-    cached_t_s_ = t;
+  const Transition* use = &local;
+  if (reuse) {
+    // steps that differ only by rounding (t_k - t_{k-1}) share the coefficients
+    int slot = -1;
+    for (int k = 0; k < 2; ++k)
+      if (std::fabs(t - cached_t_s_[k]) <= 1e-12 * t) slot = k;
+    if (slot < 0) {
+      slot = next_slot_;
+      next_slot_ = 1 - next_slot_;
+      cached_[slot] = transition(t);
+      cached_t_s_[slot] = t;
+    }
+    use = &cached_[slot];
+  } else {
+    local = transition(t);
   }
-  if (!reuse) local = transition(t);
-  const Transition& x = reuse ? cached_ : local;
+  const Transition& x = *use;
   State s;
   s.e = ep + x.e[0] * d + x.e[1] * w0;
   s.w = x.w[0] * d + x.w[1] * w0;
@@ -209,17 +219,16 @@ double CompliantPlant::slip_friction_n(double direction) const {
   return -direction * mu * normal_force_n_;
 }
 
-CompliantPlant::SlipState CompliantPlant::slip_at(double t, bool reuse) const {
+CompliantPlant::SlipState CompliantPlant::slip_from(const SlipState& a, double t, bool reuse) const {
   const double M = stage_.slider_mass_kg;
   const double K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
-  const DampedOscillator::State o = sliding_.at(e_m_, w_m_s_, -f_slip_n_ / M, t, reuse);
+  const DampedOscillator::State o = sliding_.at(a.e, a.w, -f_slip_n_ / M, t, reuse);
   const double net = f_slip_n_ - tilt_force_n_;
   SlipState s;
   s.e = o.e;
   s.w = o.w;
-  s.v = v_m_s_ + (C * (o.e - e_m_) + K * o.integral + net * t) / M;
-  s.x = x_m_ + v_m_s_ * t +
-        (C * (o.integral - e_m_ * t) + K * o.double_integral + 0.5 * net * t * t) / M;
+  s.v = a.v + (C * (o.e - a.e) + K * o.integral + net * t) / M;
+  s.x = a.x + a.v * t + (C * (o.integral - a.e * t) + K * o.double_integral + 0.5 * net * t * t) / M;
   return s;
 }
 
@@ -260,7 +269,7 @@ void CompliantPlant::advance_stuck(double& remaining) {
     for (double t = probe; t < remaining; t += probe) {
       const double bound = stuck_.energy_bound(e, w, c_stuck);
       if (std::fabs(hold_rest) + K * bound / std::sqrt(stuck_.c0()) + C * bound <= limit) break;
-      const DampedOscillator::State s = stuck_.at(e_m_, w_m_s_, c_stuck, t);
+      const DampedOscillator::State s = stuck_.at(e, w, c_stuck, probe, true);  // from the last probe
       const double f = std::fabs(hold_force_n(s.e, s.w)) - limit;
       if (f > 0) {
         lo = t - probe;
@@ -337,6 +346,7 @@ double CompliantPlant::first_stop_probe(double remaining, double& lo, double& v_
   const double c = -f_slip_n_ / M, c0 = sliding_.c0(), c1 = sliding_.c1();
   const double accel = (K * c / c0 + f_slip_n_ - tilt_force_n_) / M;  // the trend of v
   const double probe = sliding_.probe_s();
+  SlipState last{e_m_, w_m_s_, v_m_s_, x_m_};  // at the last probe, lo
   double e = e_m_, w = w_m_s_, v = v_m_s_;
   double t_before = -1, v_before = 0;  // the probe before lo, for a dip between probes
   for (double t = probe; t < remaining; t += probe) {
@@ -351,7 +361,9 @@ double CompliantPlant::first_stop_probe(double remaining, double& lo, double& v_
       const double reach = t_last + (direction_ * v - swing) / (-direction_ * accel);
       if (reach > t) t = std::min(reach, remaining - 0.5 * probe);
     }
-    const SlipState s = slip_at(t);
+    // from the last probe, the probe step's coefficients kept
+    const double dt = t - t_last;
+    const SlipState s = slip_from(last, dt, std::fabs(dt - probe) <= 1e-12 * probe);
     const double vt = s.v * direction_;
     if (vt <= 0) {
       v_hi = vt;
@@ -388,6 +400,7 @@ double CompliantPlant::first_stop_probe(double remaining, double& lo, double& v_
     v_before = v_lo;
     lo = t;
     v_lo = vt;
+    last = s;
     e = s.e;
     w = s.w;
     v = s.v;

@@ -99,8 +99,10 @@ class DampedOscillator {
   Transition transition(double t_s) const;
   double c0_ = 1, c1_ = 0;
   std::complex<double> l1_, l2_;
-  mutable double cached_t_s_ = -1;
-  mutable Transition cached_{};
+  // two slots: the plant's regular step and a probe step (compliant plant) alternate
+  mutable double cached_t_s_[2] = {-1, -1};
+  mutable Transition cached_[2]{};
+  mutable int next_slot_ = 0;
 };
 
 class CompliantPlant final : public Plant {
@@ -118,7 +120,9 @@ class CompliantPlant final : public Plant {
     double e, w, v, x;
   };
   // from the current state, sliding with force f_slip_n_
-  SlipState slip_at(double t_s, bool reuse = false) const;
+  SlipState slip_at(double t_s, bool reuse = false) const { return slip_from({e_m_, w_m_s_, v_m_s_, x_m_}, t_s, reuse); }
+  // from `start`, sliding with force f_slip_n_
+  SlipState slip_from(const SlipState& start, double t_s, bool reuse = false) const;
   double hold_force_n(double e, double w) const;  // friction force needed to hold the slider
   double slip_friction_n(double direction) const;
   void advance_stuck(double& remaining_s);
