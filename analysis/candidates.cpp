@@ -9,12 +9,14 @@ namespace idm::analysis {
 
 double FitAxis::value(double u) const {
   u = std::clamp(u, 0.0, 1.0);
-  const double v = log_scale ? std::exp(std::log(lo) + u * (std::log(hi) - std::log(lo))) : lo + u * (hi - lo);
+  const double v =
+      log_scale ? std::exp(std::log(lo) + u * (std::log(hi) - std::log(lo))) : lo + u * (hi - lo);
   return std::clamp(v, lo, hi);
 }
 
 double FitAxis::coordinate(double v) const {
-  const double u = log_scale ? (std::log(v) - std::log(lo)) / (std::log(hi) - std::log(lo)) : (v - lo) / (hi - lo);
+  const double u = log_scale ? (std::log(v) - std::log(lo)) / (std::log(hi) - std::log(lo))
+                             : (v - lo) / (hi - lo);
   return std::clamp(u, 0.0, 1.0);
 }
 
@@ -30,8 +32,8 @@ namespace {
 // typical velocity jump at a corner.
 struct SweepScales {
   double f_max_hz = 0;
-  double fast_hz = 0;      // 1 / (shortest phase of any cell)
-  double speed_m_s = 0;    // median velocity jump of the slider at the fast corner, m/(M+m) dxi
+  double fast_hz = 0;    // 1 / (shortest phase of any cell)
+  double speed_m_s = 0;  // median velocity jump of the slider at the fast corner, m/(M+m) dxi
 };
 
 SweepScales scales_of(const SweepCells& sweep) {
@@ -43,7 +45,8 @@ SweepScales scales_of(const SweepCells& sweep) {
     const double shortest = std::min(c.key.duty, 1.0 - c.key.duty) * T;
     s.f_max_hz = std::max(s.f_max_hz, c.key.freq_hz);
     s.fast_hz = std::max(s.fast_hz, 1.0 / shortest);
-    speeds.push_back(p.mass_ratio() * c.key.stroke_m * (1.0 / (c.key.duty * T) + 1.0 / ((1.0 - c.key.duty) * T)));
+    speeds.push_back(p.mass_ratio() * c.key.stroke_m *
+                     (1.0 / (c.key.duty * T) + 1.0 / ((1.0 - c.key.duty) * T)));
   }
   s.speed_m_s = median(speeds);
   return s;
@@ -68,7 +71,8 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
   // barely steps) to 30 times the shortest phase's rate (the rounding is then invisible).
   CandidateSpec amp;
   amp.effect = "amplifier";
-  amp.axes = {{"cutoff_hz", std::max(20.0, 0.5 * sc.f_max_hz), std::min(1e6, 30.0 * sc.fast_hz), true}};
+  amp.axes = {
+      {"cutoff_hz", std::max(20.0, 0.5 * sc.f_max_hz), std::min(1e6, 30.0 * sc.fast_hz), true}};
   amp.variants = {{{"order", 2}}, {{"order", 1}}};
   amp.params = [](const std::vector<double>& x) { return Params{{"cutoff_hz", x[0]}}; };
   amp.physics = "cutoff between half the highest frequency and 30 x the fastest phase's rate";
@@ -78,21 +82,23 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
   // the highest frequency to 10 times the fastest phase's rate (the actuator is then rigid to it).
   CandidateSpec comp;
   comp.effect = "actuator_compliance";
-  comp.axes = {{"resonance_hz", std::max(20.0, 0.5 * sc.f_max_hz), std::min(2e5, 10.0 * sc.fast_hz), true},
-               {"damping_ratio", 0.02, 2.0, true}};
+  comp.axes = {
+      {"resonance_hz", std::max(20.0, 0.5 * sc.f_max_hz), std::min(2e5, 10.0 * sc.fast_hz), true},
+      {"damping_ratio", 0.02, 2.0, true}};
   comp.variants = {{}};
   comp.params = [m_red](const std::vector<double>& x) {
     const double k = m_red * std::pow(2 * M_PI * x[0], 2);
     return Params{{"stiffness_n_m", clamp_to_library("actuator_compliance", "stiffness_n_m", k)},
-                  {"damping_n_s_m",
-                   clamp_to_library("actuator_compliance", "damping_n_s_m", 2 * x[1] * std::sqrt(k * m_red))}};
+                  {"damping_n_s_m", clamp_to_library("actuator_compliance", "damping_n_s_m",
+                                                     2 * x[1] * std::sqrt(k * m_red))}};
   };
   if (st.stiffness_n_m > 0 && st.damping_n_s_m > 0) {  // stage.yaml's K and C
     const double fr = std::sqrt(st.stiffness_n_m / m_red) / (2 * M_PI);
     const double zeta = st.damping_n_s_m / (2 * std::sqrt(st.stiffness_n_m * m_red));
-    if (fr > comp.axes[0].lo && fr < comp.axes[0].hi && zeta > 0.02 && zeta < 2.0) comp.start = {fr, zeta};
+    if (fr > comp.axes[0].lo && fr < comp.axes[0].hi && zeta > 0.02 && zeta < 2.0)
+      comp.start = {fr, zeta};
   }
-  comp.scan_ratio = 1.06;
+  comp.scan_ratio = 1.07;
   comp.scan_other = {0.05, 0.15, 0.45};
   comp.physics = "resonance with the reduced mass (K = m_red (2 pi f)^2) and damping ratio";
   lib.push_back(comp);
@@ -118,16 +124,20 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
   str.effect = "stribeck";
   const double v_lo = std::max(1e-6, sc.speed_m_s / 300), v_hi = std::min(1.0, 3 * sc.speed_m_s);
   const double kExcessLo = 0.01, kExcessHi = 1.5;
-  str.axes = {{"stribeck_impulse_m_s", kExcessLo * v_lo, kExcessHi * v_hi, true}, {"velocity_share", 0.0, 1.0, false}};
+  str.axes = {{"stribeck_impulse_m_s", kExcessLo * v_lo, kExcessHi * v_hi, true},
+              {"velocity_share", 0.0, 1.0, false}};
   str.variants = {{}};
   str.params = [v_lo, v_hi, kExcessLo, kExcessHi](const std::vector<double>& x) {
     const double a = x[0];
     const double lo = std::max(v_lo, a / kExcessHi), hi = std::min(v_hi, a / kExcessLo);
-    const double v = hi > lo ? std::exp(std::log(lo) + x[1] * (std::log(hi) - std::log(lo))) : std::sqrt(lo * hi);
-    return Params{{"static_over_kinetic", 1.0 + std::clamp(a / v, kExcessLo, kExcessHi)},
-                  {"stribeck_velocity_m_s", clamp_to_library("stribeck", "stribeck_velocity_m_s", v)}};
+    const double v = hi > lo ? std::exp(std::log(lo) + x[1] * (std::log(hi) - std::log(lo)))
+                             : std::sqrt(lo * hi);
+    return Params{
+        {"static_over_kinetic", 1.0 + std::clamp(a / v, kExcessLo, kExcessHi)},
+        {"stribeck_velocity_m_s", clamp_to_library("stribeck", "stribeck_velocity_m_s", v)}};
   };
-  str.physics = "(mu_s / mu_k - 1) times the Stribeck velocity, and that velocity's place in its range";
+  str.physics =
+      "(mu_s / mu_k - 1) times the Stribeck velocity, and that velocity's place in its range";
   lib.push_back(str);
   // friction_spread: only the spread; an offset of the mean friction is the baseline's mu.
   CandidateSpec spread;
@@ -154,8 +164,9 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
   dac.variants = {{}};
   for (double bits : {6.0, 8.0, 10.0, 12.0})
     for (double clock : {0.5, 2.0, 10.0})
-      dac.grid.push_back({{"bits", bits}, {"update_rate_hz", clamp_to_library("quantization", "update_rate_hz",
-                                                                               std::round(clock * sc.fast_hz))}});
+      dac.grid.push_back({{"bits", bits},
+                          {"update_rate_hz", clamp_to_library("quantization", "update_rate_hz",
+                                                              std::round(clock * sc.fast_hz))}});
   dac.physics = "bits and update clock (0.5, 2 and 10 x the fastest phase's rate)";
   lib.push_back(dac);
   return lib;
@@ -180,7 +191,8 @@ std::string missing_signature(const SweepCells& sweep, const std::string& effect
       if (c.key.duty > 0.5) rev = true;
     }
     if (!(fwd && rev))
-      return "both directions (duties below and above 0.5): in one direction a tilt is a friction change";
+      return "both directions (duties below and above 0.5): in one direction a tilt is a friction "
+             "change";
   }
   if (effect == "friction_spread") {
     bool two = false;

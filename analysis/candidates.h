@@ -38,17 +38,18 @@ using Params = std::map<std::string, double>;
 
 struct CandidateSpec {
   std::string effect;
-  std::vector<FitAxis> axes;            // fitted coordinates (empty with an explicit grid)
-  std::vector<Params> variants;         // fixed parameters, each variant fitted on its own
-  std::vector<Params> grid;             // explicit parameter sets (integer parameters), no refinement
-  std::function<Params(const std::vector<double>& axis_values)> params;  // -> the effect's parameters
-  std::vector<double> start;            // a start in axis values (stage.yaml's K and C), or empty
+  std::vector<FitAxis> axes;     // fitted coordinates (empty with an explicit grid)
+  std::vector<Params> variants;  // fixed parameters, each variant fitted on its own
+  std::vector<Params> grid;      // explicit parameter sets (integer parameters), no refinement
+  std::function<Params(const std::vector<double>& axis_values)>
+      params;                 // -> the effect's parameters
+  std::vector<double> start;  // a start in axis values (stage.yaml's K and C), or empty
   // A dense scan instead of the coarse grid for a needle-like objective (a lightly damped
   // resonance: the gap's basin is a few % wide in frequency): axis 0 in steps of scan_ratio, axis
   // 1 at each of scan_other.
   double scan_ratio = 0;
   std::vector<double> scan_other;
-  std::string physics;                  // one line: what the coordinates mean (for the report)
+  std::string physics;  // one line: what the coordinates mean (for the report)
 };
 
 // The candidates for every effect of model::effect_library(), in library order, with ranges
@@ -94,21 +95,30 @@ struct FitOptions {
 std::vector<model::EffectSpec> effects_of(const std::vector<CandidateSpec>& library,
                                           const std::vector<MemberFit>& members);
 
+// Cells a coarse search looks at on a large sweep.
+constexpr std::size_t kCoarseCells = 24;
+
+// At most `count` cells spread evenly over the sweep's order (stroke, frequency, duty), every
+// other field as in `sweep`; the sweep itself when it is small.
+SweepCells spread_subset(const SweepCells& sweep, std::size_t count);
+
 // One effect alone, fitted on the training trials and scored on the held-out ones against
 // `baseline` (its mu is where the search starts).
 SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
-                  const CandidateSpec& spec, const FittedModel& baseline, const FitOptions& options);
+                  const CandidateSpec& spec, const FittedModel& baseline,
+                  const FitOptions& options);
 
 // `spec` added to the set `base`: its coarse search with the set held, then the whole set's joint
-// search (JointStage::Search: to be finished with fit_joint).
+// search, both on the subset of cells a coarse search uses (JointStage::Search: its train_gap
+// ranks sets screened alike; fit_joint(..., Finish) takes it to every cell).
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
-                  const std::vector<MemberFit>& base, const CandidateSpec& spec, const FittedModel& baseline,
-                  const FitOptions& options);
+                  const std::vector<MemberFit>& base, const CandidateSpec& spec,
+                  const FittedModel& baseline, const FitOptions& options);
 
 // A set of effects fitted jointly from `start` (one member per effect, e.g. the single fits).
 // Search: the Subplex at the search rate only (train_gap is its objective; no held-out score, gap
-// is infinite), to screen sets; Finish: the polish and the score from `start` (a screened set);
-// Full: both.
+// is infinite), to screen sets; Finish: from `start` (a screened set) a short search on every cell,
+// the polish and the score; Full: the search, the polish and the score.
 enum class JointStage { Search, Finish, Full };
 SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                  const std::vector<MemberFit>& start, const FittedModel& baseline,

@@ -55,16 +55,20 @@ constexpr double kStribeckStep = 0.005, kStribeckSearchStep = 0.02;
 // velocity each), and in one step while it is far faster than that (friction is then kinetic).
 class BurstStepper {
  public:
-  BurstStepper(model::SimulatedStage& stage, const model::TriangleWave& wave, const model::SimConfig& sim,
-               bool search)
-      : stage_(stage), wave_(wave), min_step_s_(1e-9 * wave.period_s()),
+  BurstStepper(model::SimulatedStage& stage, const model::TriangleWave& wave,
+               const model::SimConfig& sim, bool search)
+      : stage_(stage),
+        wave_(wave),
+        min_step_s_(1e-9 * wave.period_s()),
         stribeck_step_(search ? kStribeckSearchStep : kStribeckStep) {
     if (const model::EffectSpec* s = sim.find("stribeck")) {
       stribeck_m_s_ = s->params.at("stribeck_velocity_m_s");
       const model::StageParams& p = stage.stage();
       double tilt = 0;
-      if (const model::EffectSpec* t = sim.find("tilt")) tilt = std::fabs(std::sin(t->params.at("angle_deg") * M_PI / 180));
-      max_decel_m_s2_ = p.gravity_m_s2 * (p.friction_coefficient * s->params.at("static_over_kinetic") + tilt);
+      if (const model::EffectSpec* t = sim.find("tilt"))
+        tilt = std::fabs(std::sin(t->params.at("angle_deg") * M_PI / 180));
+      max_decel_m_s2_ =
+          p.gravity_m_s2 * (p.friction_coefficient * s->params.at("static_over_kinetic") + tilt);
     }
   }
   void corner_reached() { rate_changed_ = true; }
@@ -93,8 +97,9 @@ class BurstStepper {
       if (stribeck_m_s_ > 0 && (rate_changed_ || stage_.velocity_m_s() != 0.0)) {
         const double speed = std::fabs(stage_.velocity_m_s());
         const double fine = stribeck_step_ * stribeck_m_s_ / max_decel_m_s2_;
-        h = std::min(h, speed > 4 * stribeck_m_s_ ? std::max(fine, (speed - 3.5 * stribeck_m_s_) / max_decel_m_s2_)
-                                                   : fine);
+        h = std::min(h, speed > 4 * stribeck_m_s_
+                            ? std::max(fine, (speed - 3.5 * stribeck_m_s_) / max_decel_m_s2_)
+                            : fine);
       }
       const double t_next = t_end - t_ - h < min_step_s_ ? t_end : t_ + h;
       stage_.step(t_next - t_, wave_.xi_m(t_next));
@@ -140,8 +145,8 @@ TrialFeatures features(const SweepCells& sweep, const std::vector<double>& marks
 
 }  // namespace
 
-std::vector<double> simulate_marks(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,
-                                   double tolerance_m, bool search) {
+std::vector<double> simulate_marks(const model::StageParams& stage, const model::SimConfig& sim,
+                                   const Cell& cell, double tolerance_m, bool search) {
   model::InterferometerParams exact;
   exact.resolution_m = 1e-12;
   model::SimulatedStage s(stage, exact, sim);
@@ -168,8 +173,10 @@ std::vector<double> simulate_marks(const model::StageParams& stage, const model:
     lag[k] = s.plant().actuator_length_m() - w.xi_m(reads[k]);
     // Three equal steps with the slider in the same state: the cycle repeats from here on.
     if (k >= 5) {
-      bool steady = std::fabs(speed[k] - speed[k - 1]) <= 1e-9 && std::fabs(speed[k - 1] - speed[k - 2]) <= 1e-9 &&
-                    std::fabs(lag[k] - lag[k - 1]) <= 1e-3 * eps && std::fabs(lag[k - 1] - lag[k - 2]) <= 1e-3 * eps;
+      bool steady = std::fabs(speed[k] - speed[k - 1]) <= 1e-9 &&
+                    std::fabs(speed[k - 1] - speed[k - 2]) <= 1e-9 &&
+                    std::fabs(lag[k] - lag[k - 1]) <= 1e-3 * eps &&
+                    std::fabs(lag[k - 1] - lag[k - 2]) <= 1e-3 * eps;
       const double step = marks[k] - marks[k - 1];
       for (std::size_t j = k - 1; j >= k - 2 && steady; --j)
         steady = std::fabs((marks[j] - marks[j - 1]) - step) <= eps;
@@ -186,7 +193,8 @@ double search_rate_hz(const std::vector<model::EffectSpec>& effects) {
   double rate = 0;
   for (const model::EffectSpec& e : effects) {
     // a cutoff far above the sweep's phases barely shows: 500 kHz is enough to see that
-    if (e.name == "amplifier") rate = std::max(rate, std::clamp(20.0 * e.params.at("cutoff_hz"), 1e5, 5e5));
+    if (e.name == "amplifier")
+      rate = std::max(rate, std::clamp(20.0 * e.params.at("cutoff_hz"), 1e5, 5e5));
     if (e.name == "hysteresis") rate = std::max(rate, 1e5);  // alone it is stepped kink to kink
     if (e.name == "creep" || e.name == "quantization") rate = std::max(rate, 1e5);
   }
@@ -230,7 +238,8 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
       model::StageParams stage = model.stage;
       // as model::GuideProfile bounds it: friction never below 5 % of the nominal
       stage.friction_coefficient *= std::max(0.05, 1.0 + shift + sd * z);
-      std::vector<double> marks = simulate_marks(stage, costly ? cheap : sim, cell, tol, model.search);
+      std::vector<double> marks =
+          simulate_marks(stage, costly ? cheap : sim, cell, tol, model.search);
       if (costly)
         for (std::size_t k = 0; k < marks.size(); ++k) marks[k] += full[k] - base[k];
       trials.push_back(features(sweep, marks));
@@ -245,7 +254,8 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
     votes.push_back(t.region);
   }
   double ss = 0;
-  for (const TrialFeatures& t : trials) ss += (t.steady_step_m - p.steady_step_m) * (t.steady_step_m - p.steady_step_m);
+  for (const TrialFeatures& t : trials)
+    ss += (t.steady_step_m - p.steady_step_m) * (t.steady_step_m - p.steady_step_m);
   p.step_sd_m = std::sqrt(ss / n);  // the spread of the integrated distribution (0 without spread)
   p.region = majority_region(votes);
   p.transient_cycles = trials[trials.size() / 2].transient_cycles;
@@ -255,15 +265,18 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
   model::StageParams lo = model.stage, hi = model.stage;
   lo.friction_coefficient -= h;
   hi.friction_coefficient += h;
-  p.mu_slope_m = (model::steady_step_ideal_m(hi, cell.key.freq_hz, cell.key.duty, cell.key.stroke_m) -
-                  model::steady_step_ideal_m(lo, cell.key.freq_hz, cell.key.duty, cell.key.stroke_m)) /
-                 (2 * h);
+  p.mu_slope_m =
+      (model::steady_step_ideal_m(hi, cell.key.freq_hz, cell.key.duty, cell.key.stroke_m) -
+       model::steady_step_ideal_m(lo, cell.key.freq_hz, cell.key.duty, cell.key.stroke_m)) /
+      (2 * h);
   return p;
 }
 
-std::vector<CellPrediction> predict_sweep(const SweepCells& sweep, const ModelConfig& model, int threads) {
+std::vector<CellPrediction> predict_sweep(const SweepCells& sweep, const ModelConfig& model,
+                                          int threads) {
   std::vector<CellPrediction> out(sweep.cells.size());
-  parallel_for(sweep.cells.size(), threads, [&](std::size_t c) { out[c] = predict_cell(sweep, model, sweep.cells[c]); });
+  parallel_for(sweep.cells.size(), threads,
+               [&](std::size_t c) { out[c] = predict_cell(sweep, model, sweep.cells[c]); });
   return out;
 }
 

@@ -27,7 +27,8 @@ struct ModelConfig {
   model::StageParams stage;                // stage.yaml, with the friction coefficient in use
   std::vector<model::EffectSpec> effects;  // completed (model::complete_effect)
   double chain_rate_hz = 0;                // plant rate under an actuator chain; 0: score_rate_hz
-  bool search = false;  // the cheaper numerics of a search (Stribeck: 2 % of its velocity a step, not 0.5 %)
+  bool search =
+      false;  // the cheaper numerics of a search (Stribeck: 2 % of its velocity a step, not 0.5 %)
 };
 
 struct CellPrediction {

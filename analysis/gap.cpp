@@ -18,7 +18,8 @@ StepMoments step_moments(const std::vector<TrialFeatures>& trials) {
   for (const TrialFeatures& t : trials) m.mean += t.steady_step_m;
   m.mean /= static_cast<double>(n);
   double ss = 0;
-  for (const TrialFeatures& t : trials) ss += (t.steady_step_m - m.mean) * (t.steady_step_m - m.mean);
+  for (const TrialFeatures& t : trials)
+    ss += (t.steady_step_m - m.mean) * (t.steady_step_m - m.mean);
   m.var = n > 1 ? ss / static_cast<double>(n - 1) : 0.0;
   return m;
 }
@@ -52,8 +53,8 @@ LogVarianceMoments log_sample_variance_moments(int dof) {
   return m;
 }
 
-Calibration fit_calibration(const SweepCells& sweep, const std::vector<CellPrediction>& pred, double mu_sim,
-                            bool fit_mu) {
+Calibration fit_calibration(const SweepCells& sweep, const std::vector<CellPrediction>& pred,
+                            double mu_sim, bool fit_mu) {
   // step = a s + b q with a = alpha, b = alpha (mu - mu_sim): weighted normal equations.
   const double noise_var = 2.0 * sweep.reading_sd_m * sweep.reading_sd_m;
   double ss = 0, sq = 0, qq = 0, ys = 0, yq = 0;
@@ -122,7 +123,8 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
     // spread term scores the spread.
     const double sd_all = std::sqrt(all_trials(cell).var);
     const double mean_var = std::max({step_sd * step_sd, sd * sd, sd_all * sd_all});
-    const double model_var = kModelErrorM * kModelErrorM + std::pow(kModelErrorRel * r.model_step_m, 2);
+    const double model_var =
+        kModelErrorM * kModelErrorM + std::pow(kModelErrorRel * r.model_step_m, 2);
     r.se_m = std::sqrt(mean_var / std::max(1, n) + model_var);
     r.mean_z = n > 0 ? (moments.mean - r.model_step_m) / r.se_m : 0.0;
     // The spread against the one expected: log ratio of the variances (regularized by the noise
@@ -130,7 +132,8 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
     // log sample variance with n - 1 degrees of freedom.
     if (n > 1) {
       const double q = step_sd * step_sd;
-      r.spread_z = std::log((sd * sd + q) / (expected_var + q)) / log_sample_variance_moments(n - 1).sd;
+      r.spread_z =
+          std::log((sd * sd + q) / (expected_var + q)) / log_sample_variance_moments(n - 1).sd;
     }
     r.label = r.measured_region == r.model_region ? 0.0 : kSignificantResidual;
     r.residual = std::sqrt(r.mean_z * r.mean_z + r.spread_z * r.spread_z + r.label * r.label);

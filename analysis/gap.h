@@ -26,10 +26,12 @@ namespace idm::analysis {
 
 // The baseline parameters fitted with every model: step = alpha (s + (mu - mu_sim) slope).
 struct Calibration {
-  double alpha = 1;   // the paper's correction factor (a scale on the model's steps)
-  double mu = 0.4;    // friction coefficient
+  double alpha = 1;     // the paper's correction factor (a scale on the model's steps)
+  double mu = 0.4;      // friction coefficient
   double mu_sim = 0.4;  // the friction coefficient the predictions were simulated at
-  double step(const CellPrediction& p) const { return alpha * (p.steady_step_m + (mu - mu_sim) * p.mu_slope_m); }
+  double step(const CellPrediction& p) const {
+    return alpha * (p.steady_step_m + (mu - mu_sim) * p.mu_slope_m);
+  }
 };
 
 struct CellResidual {

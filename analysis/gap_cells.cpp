@@ -10,16 +10,19 @@ namespace idm::analysis {
 SweepCells collect_cells(const Dataset& ds, int min_trials) {
   std::vector<TrialSeries> series(ds.trials.size());
   for (std::size_t i = 0; i < ds.trials.size(); ++i) series[i] = read_trial(ds, i);
-  SweepCells out = collect_cells(ds.stage, ds.trials, series, ds.path, min_trials, ds.progress.marked());
+  SweepCells out =
+      collect_cells(ds.stage, ds.trials, series, ds.path, min_trials, ds.progress.marked());
   out.progress = ds.progress;
   return out;
 }
 
 SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
-                         const std::vector<TrialSeries>& series, const std::string& name, int min_trials,
-                         bool skip_small) {
-  if (infos.size() != series.size()) throw std::invalid_argument("collect_cells: infos and trials differ in size");
-  if (infos.empty()) throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
+                         const std::vector<TrialSeries>& series, const std::string& name,
+                         int min_trials, bool skip_small) {
+  if (infos.size() != series.size())
+    throw std::invalid_argument("collect_cells: infos and trials differ in size");
+  if (infos.empty())
+    throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
   SweepCells out;
   out.stage = stage;
   out.resolution_m = stage.interferometer.resolution_m;
@@ -44,7 +47,8 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
   }
   const double quant_sd = out.resolution_m / std::sqrt(12.0);
   out.reading_sd_m = std::max(quant_sd, rest_sd.empty() ? quant_sd : median(rest_sd));
-  const double noise_m = std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
+  const double noise_m =
+      std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
   out.noise_m = noise_m;
   out.name = name;
 
@@ -76,8 +80,9 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
       kept_members.push_back(members[c]);
     }
     if (kept.empty())
-      throw InputError(name + ": the sweep is too small to diagnose: no cell has " + std::to_string(min_trials) +
-                       " trials (the recording was cut off after " + std::to_string(infos.size()) + " trials)");
+      throw InputError(name + ": the sweep is too small to diagnose: no cell has " +
+                       std::to_string(min_trials) + " trials (the recording was cut off after " +
+                       std::to_string(infos.size()) + " trials)");
     out.cells = std::move(kept);
     members = std::move(kept_members);
   }
@@ -85,9 +90,10 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
     Cell& cell = out.cells[c];
     if (static_cast<int>(members[c].size()) < min_trials) {
       std::ostringstream m;
-      m << name << ": the sweep is too small to diagnose: cell (" << cell.key.freq_hz << " Hz, duty "
-        << cell.key.duty << ", stroke " << cell.key.stroke_m << " m) has " << members[c].size()
-        << " trials, at least " << min_trials << " needed (some to fit, some held out)";
+      m << name << ": the sweep is too small to diagnose: cell (" << cell.key.freq_hz
+        << " Hz, duty " << cell.key.duty << ", stroke " << cell.key.stroke_m << " m) has "
+        << members[c].size() << " trials, at least " << min_trials
+        << " needed (some to fit, some held out)";
       throw InputError(m.str());
     }
     std::vector<model::Region> votes, train_votes, test_votes;
@@ -112,9 +118,10 @@ std::string progress_summary(const SweepCells& sweep) {
   std::ostringstream s;
   int empty = 0;
   for (const recording::MissingCell& m : p.missing) empty += m.recorded == 0 ? 1 : 0;
-  s << (p.interrupted() ? "interrupted sweep" : "sweep") << " (plan.yaml: " << recording::status_name(p.status)
-    << (p.note.empty() ? "" : ", " + p.note) << "): " << p.planned.size() - p.missing.size() << " of "
-    << p.planned.size() << " planned cells complete, " << empty << " missing, " << p.missing.size() - empty
+  s << (p.interrupted() ? "interrupted sweep" : "sweep")
+    << " (plan.yaml: " << recording::status_name(p.status) << (p.note.empty() ? "" : ", " + p.note)
+    << "): " << p.planned.size() - p.missing.size() << " of " << p.planned.size()
+    << " planned cells complete, " << empty << " missing, " << p.missing.size() - empty
     << " short of trials; diagnosed on the " << sweep.cells.size() << " cells with enough trials";
   if (!sweep.skipped.empty()) s << " (" << sweep.skipped.size() << " left out with too few)";
   s << "\n";
@@ -125,7 +132,8 @@ std::string progress_summary(const SweepCells& sweep) {
     s << (i ? "," : "") << " " << m.planned.freq_hz << " Hz duty " << m.planned.duty << " stroke "
       << m.planned.stroke_m * 1e6 << " um (" << m.recorded << "/" << m.planned.trials << ")";
   }
-  if (p.missing.size() > kListed) s << " and " << p.missing.size() - kListed << " more (all in the JSON)";
+  if (p.missing.size() > kListed)
+    s << " and " << p.missing.size() - kListed << " more (all in the JSON)";
   s << "\n";
   return s.str();
 }

@@ -1,6 +1,7 @@
-// The sweep as cells of the (frequency, duty, stroke) map: the features of every trial, a split into
-// training and held-out trials, the sensor's noise read from the data, and the sample instants a
-// model is read at (forward_model.h), so that measurement and model are compared by one procedure.
+// The sweep as cells of the (frequency, duty, stroke) map: the features of every trial, a split
+// into training and held-out trials, the sensor's noise read from the data, and the sample instants
+// a model is read at (forward_model.h), so that measurement and model are compared by one
+// procedure.
 #pragma once
 
 #include <string>
@@ -32,8 +33,8 @@ struct SweepCells {
   std::vector<Cell> cells;
   double resolution_m = 0;
   double reading_sd_m = 0;  // one position reading: noise and quantization, from the rest samples
-  double noise_m = 0;       // the sensor's noise without quantization (reading_sd_m less one count's)
-  std::string name;         // the dataset's path as given (messages, the report)
+  double noise_m = 0;  // the sensor's noise without quantization (reading_sd_m less one count's)
+  std::string name;    // the dataset's path as given (messages, the report)
   model::StageFile stage;
   // The recorder's mark (recording/sweep_plan.h): Unmarked for data from elsewhere. A marked sweep
   // that was cut off is diagnosed on the cells it has (`skipped`: cells with fewer trials than a

@@ -13,10 +13,18 @@ std::string json_string(const std::string& s) {
   std::string out = "\"";
   for (char c : s) {
     switch (c) {
-      case '"': out += "\\\""; break;
-      case '\\': out += "\\\\"; break;
-      case '\n': out += "\\n"; break;
-      case '\t': out += "\\t"; break;
+      case '"':
+        out += "\\\"";
+        break;
+      case '\\':
+        out += "\\\\";
+        break;
+      case '\n':
+        out += "\\n";
+        break;
+      case '\t':
+        out += "\\t";
+        break;
       default:
         if (static_cast<unsigned char>(c) < 0x20) {
           char b[8];
@@ -40,10 +48,13 @@ std::string json_number(double v) {
 namespace {
 std::string params_json(const std::map<std::string, double>& p) {
   std::string out = "{";
-  for (const auto& [k, v] : p) out += (out.size() > 1 ? ", " : "") + json_string(k) + ": " + json_number(v);
+  for (const auto& [k, v] : p)
+    out += (out.size() > 1 ? ", " : "") + json_string(k) + ": " + json_number(v);
   return out + "}";
 }
-std::string region(model::Region r) { return json_string(model::region_name(r)); }
+std::string region(model::Region r) {
+  return json_string(model::region_name(r));
+}
 
 // The recorder's mark: status, whether the sweep was cut off, the planned cells short of trials
 // and the cells the diagnosis left out.
@@ -58,15 +69,17 @@ std::string dataset_status_json(const SweepCells& sweep) {
     for (std::size_t i = 0; i < p.missing.size(); ++i) {
       const recording::MissingCell& m = p.missing[i];
       s << (i ? ", " : "") << "{\"freq_hz\": " << json_number(m.planned.freq_hz)
-        << ", \"duty\": " << json_number(m.planned.duty) << ", \"stroke_m\": " << json_number(m.planned.stroke_m)
-        << ", \"trials\": " << m.recorded << ", \"planned_trials\": " << m.planned.trials << "}";
+        << ", \"duty\": " << json_number(m.planned.duty)
+        << ", \"stroke_m\": " << json_number(m.planned.stroke_m) << ", \"trials\": " << m.recorded
+        << ", \"planned_trials\": " << m.planned.trials << "}";
     }
     s << "]";
   }
   s << ", \"cells_used\": " << sweep.cells.size() << ", \"cells_left_out\": [";
   for (std::size_t i = 0; i < sweep.skipped.size(); ++i)
-    s << (i ? ", " : "") << "[" << json_number(sweep.skipped[i].freq_hz) << ", " << json_number(sweep.skipped[i].duty)
-      << ", " << json_number(sweep.skipped[i].stroke_m) << "]";
+    s << (i ? ", " : "") << "[" << json_number(sweep.skipped[i].freq_hz) << ", "
+      << json_number(sweep.skipped[i].duty) << ", " << json_number(sweep.skipped[i].stroke_m)
+      << "]";
   s << "]}";
   return s.str();
 }
@@ -101,8 +114,8 @@ std::string effect_params_json(const model::EffectSpec& e) {
 std::string intervals_json(const ParameterIntervals& pi) {
   std::string out = "{";
   for (std::size_t i = 0; i < pi.params.size(); ++i)
-    out += (i ? ", " : "") + json_string(pi.params[i].param) + ": [" + json_number(pi.params[i].lo) + ", " +
-           json_number(pi.params[i].hi) + "]";
+    out += (i ? ", " : "") + json_string(pi.params[i].param) + ": [" +
+           json_number(pi.params[i].lo) + ", " + json_number(pi.params[i].hi) + "]";
   return out + "}";
 }
 
@@ -128,18 +141,26 @@ std::string cells_json(const SweepCells& sweep, const Diagnosis& d) {
     double ss = 0;
     for (const TrialFeatures* t : all) ss += (t->steady_step_m - mean) * (t->steady_step_m - mean);
     const double sd = all.size() > 1 ? std::sqrt(ss / (n - 1)) : 0.0;
-    s << "    {\"freq_hz\": " << json_number(cell.key.freq_hz) << ", \"duty\": " << json_number(cell.key.duty)
+    s << "    {\"freq_hz\": " << json_number(cell.key.freq_hz)
+      << ", \"duty\": " << json_number(cell.key.duty)
       << ", \"stroke_m\": " << json_number(cell.key.stroke_m) << ", \"trials\": " << all.size()
-      << ", \"held_out_trials\": " << cell.test.size() << ", \"measured_step_m\": " << json_number(mean)
-      << ", \"measured_step_sd_m\": " << json_number(sd) << ", \"model_step_m\": " << json_number(r.model_step_m)
-      << ", \"first_step_m\": " << json_number(first) << ", \"transient_cycles\": " << json_number(transient)
-      << ", \"reverse_m\": " << json_number(reverse) << ", \"measured_region\": " << region(cell.measured_region)
-      << ", \"model_region\": " << region(r.model_region) << ", \"residual\": " << json_number(r.residual)
+      << ", \"held_out_trials\": " << cell.test.size()
+      << ", \"measured_step_m\": " << json_number(mean)
+      << ", \"measured_step_sd_m\": " << json_number(sd)
+      << ", \"model_step_m\": " << json_number(r.model_step_m)
+      << ", \"first_step_m\": " << json_number(first)
+      << ", \"transient_cycles\": " << json_number(transient)
+      << ", \"reverse_m\": " << json_number(reverse)
+      << ", \"measured_region\": " << region(cell.measured_region)
+      << ", \"model_region\": " << region(r.model_region)
+      << ", \"residual\": " << json_number(r.residual)
       << ", \"significant\": " << (r.significant ? "true" : "false")
-      << ", \"effect_gap\": " << json_number(w.effect_gap) << ", \"spread_excess\": " << json_number(w.spread_excess)
+      << ", \"effect_gap\": " << json_number(w.effect_gap)
+      << ", \"spread_excess\": " << json_number(w.spread_excess)
       << ", \"model_step_after_m\": " << json_number(a.model_step_m)
-      << ", \"model_region_after\": " << region(a.model_region) << ", \"residual_after\": " << json_number(a.residual)
-      << "}" << (c + 1 < sweep.cells.size() ? "," : "") << "\n";
+      << ", \"model_region_after\": " << region(a.model_region)
+      << ", \"residual_after\": " << json_number(a.residual) << "}"
+      << (c + 1 < sweep.cells.size() ? "," : "") << "\n";
   }
   s << "  ],\n";
   return s.str();
@@ -148,30 +169,39 @@ std::string cells_json(const SweepCells& sweep, const Diagnosis& d) {
 std::string diagnosis_json(const Diagnosis& d) {
   std::ostringstream s;
   s << "  \"diagnosis\": {\"effects\": [";
-  for (std::size_t i = 0; i < d.chosen.size(); ++i) s << (i ? ", " : "") << json_string(d.chosen[i].name);
+  for (std::size_t i = 0; i < d.chosen.size(); ++i)
+    s << (i ? ", " : "") << json_string(d.chosen[i].name);
   s << "], \"params\": {";
   for (std::size_t i = 0; i < d.chosen.size(); ++i)
-    s << (i ? ", " : "") << json_string(d.chosen[i].name) << ": " << effect_params_json(d.chosen[i]);
+    s << (i ? ", " : "") << json_string(d.chosen[i].name) << ": "
+      << effect_params_json(d.chosen[i]);
   s << "}, \"intervals\": {";
   for (std::size_t i = 0; i < d.chosen_intervals.size(); ++i)
-    s << (i ? ", " : "") << json_string(d.chosen_intervals[i].effect) << ": " << intervals_json(d.chosen_intervals[i]);
+    s << (i ? ", " : "") << json_string(d.chosen_intervals[i].effect) << ": "
+      << intervals_json(d.chosen_intervals[i]);
   s << "}, \"step_correction\": " << json_number(d.after.calibration.alpha)
     << ", \"friction_coefficient\": " << json_number(d.after.calibration.mu)
     << ",\n                \"gap_before\": " << json_number(d.gap_before)
-    << ", \"gap_after\": " << json_number(d.gap_after) << ", \"shrink\": " << json_number(d.shrink) << ",\n";
+    << ", \"gap_after\": " << json_number(d.gap_after) << ", \"shrink\": " << json_number(d.shrink)
+    << ",\n";
   const Unexplained& u = d.unexplained;
   s << "                \"unexplained\": {\"significant\": " << (u.significant ? "true" : "false")
-    << ", \"gap\": " << json_number(u.gap) << ", \"systematic_gap\": " << json_number(u.systematic_gap)
-    << ", \"cells\": " << cell_pairs(u.cells, false) << ", \"cells_with_stroke\": " << cell_pairs(u.cells, true)
+    << ", \"gap\": " << json_number(u.gap)
+    << ", \"systematic_gap\": " << json_number(u.systematic_gap)
+    << ", \"cells\": " << cell_pairs(u.cells, false)
+    << ", \"cells_with_stroke\": " << cell_pairs(u.cells, true)
     << ", \"summary\": " << json_string(u.summary);
   if (!u.closest.empty()) s << ", \"closest\": " << json_string(u.closest);
   s << "},\n                \"ambiguous\": [";
   for (std::size_t i = 0; i < d.ambiguous.size(); ++i) {
     const Ambiguity& a = d.ambiguous[i];
     s << (i ? ",\n                  " : "") << "{\"effects\": " << names_json(a.effects)
-      << ", \"chosen\": " << names_json(a.chosen) << ", \"alternative\": " << names_json(a.alternative)
-      << ", \"gap_chosen\": " << json_number(a.gap_chosen) << ", \"gap_alternative\": " << json_number(a.gap_alternative)
-      << ", \"why\": " << json_string(a.why) << ", \"next_sweep\": " << json_string(a.next_sweep) << "}";
+      << ", \"chosen\": " << names_json(a.chosen)
+      << ", \"alternative\": " << names_json(a.alternative)
+      << ", \"gap_chosen\": " << json_number(a.gap_chosen)
+      << ", \"gap_alternative\": " << json_number(a.gap_alternative)
+      << ", \"why\": " << json_string(a.why) << ", \"next_sweep\": " << json_string(a.next_sweep)
+      << "}";
   }
   s << "],\n                \"not_identifiable\": [";
   for (std::size_t i = 0; i < d.not_identifiable.size(); ++i)
@@ -183,27 +213,32 @@ std::string diagnosis_json(const Diagnosis& d) {
 
 }  // namespace
 
-std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const std::string& dataset) {
+std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d,
+                            const std::string& dataset) {
   std::ostringstream s;
   s << "{\n  \"dataset\": " << json_string(dataset) << ",\n";
   s << "  \"dataset_status\": " << dataset_status_json(sweep) << ",\n";
   s << "  \"baseline\": {\"model\": \"impulse\", \"params\": {\"step_correction\": "
-    << json_number(d.baseline.calibration.alpha) << ", \"friction_coefficient\": "
-    << json_number(d.baseline.calibration.mu) << "}, \"gap\": " << json_number(d.gap_before)
+    << json_number(d.baseline.calibration.alpha)
+    << ", \"friction_coefficient\": " << json_number(d.baseline.calibration.mu)
+    << "}, \"gap\": " << json_number(d.gap_before)
     << ", \"systematic_gap\": " << json_number(systematic_gap(d.baseline)) << "},\n";
   s << cells_json(sweep, d);
   s << "  \"where\": {\"significant_cells\": " << cell_pairs(d.where.significant_cells, false)
-    << ",\n            \"significant_cells_with_stroke\": " << cell_pairs(d.where.significant_cells, true)
+    << ",\n            \"significant_cells_with_stroke\": "
+    << cell_pairs(d.where.significant_cells, true)
     << ",\n            \"summary\": " << json_string(d.where.summary)
     << ",\n            \"summary_after\": " << json_string(d.where.summary_after) << "},\n";
   s << "  \"candidates\": [\n";
   for (std::size_t i = 0; i < d.candidates.size(); ++i) {
     const SetFit& c = d.candidates[i];
-    s << "    {\"effect\": " << json_string(c.effects.front().name) << ", \"params\": "
-      << effect_params_json(c.effects.front()) << ", \"intervals\": "
-      << (i < d.intervals.size() && !d.intervals[i].empty() ? intervals_json(d.intervals[i].front()) : "{}")
+    s << "    {\"effect\": " << json_string(c.effects.front().name)
+      << ", \"params\": " << effect_params_json(c.effects.front()) << ", \"intervals\": "
+      << (i < d.intervals.size() && !d.intervals[i].empty() ? intervals_json(d.intervals[i].front())
+                                                            : "{}")
       << ", \"gap\": " << json_number(c.gap) << ", \"shrink\": " << json_number(c.shrink)
-      << ", \"plausible\": " << (c.plausible ? "true" : "false") << ", \"train_gap\": " << json_number(c.train_gap);
+      << ", \"plausible\": " << (c.plausible ? "true" : "false")
+      << ", \"train_gap\": " << json_number(c.train_gap);
     if (!c.plausible) s << ", \"why\": " << json_string(c.note);
     s << "}" << (i + 1 < d.candidates.size() ? "," : "") << "\n";
   }
@@ -214,7 +249,8 @@ std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const s
   s << "],\n  \"selection\": [";
   for (std::size_t i = 0; i < d.steps.size(); ++i)
     s << (i ? ", " : "") << "{\"action\": " << json_string(d.steps[i].action)
-      << ", \"effects\": " << names_json(d.steps[i].effects) << ", \"gap\": " << json_number(d.steps[i].gap) << "}";
+      << ", \"effects\": " << names_json(d.steps[i].effects)
+      << ", \"gap\": " << json_number(d.steps[i].gap) << "}";
   s << "],\n";
   s << diagnosis_json(d) << "}\n";
   return s.str();

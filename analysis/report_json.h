@@ -20,7 +20,8 @@
 
 namespace idm::analysis {
 
-std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d, const std::string& dataset);
+std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d,
+                            const std::string& dataset);
 
 // Writes `content` to `path` whole (temporary name, fsync, rename). Throws std::system_error
 // naming the file.

@@ -31,8 +31,8 @@ std::string tick_label(double value, double step);
 std::string steps_svg(const SweepCells& sweep, const Diagnosis& d);
 std::string regions_svg(const SweepCells& sweep, const Diagnosis& d);
 // A map of one value per cell, one panel per stroke and direction.
-std::string cell_map_svg(const SweepCells& sweep, const std::vector<double>& values, const std::string& title,
-                         const std::string& legend);
+std::string cell_map_svg(const SweepCells& sweep, const std::vector<double>& values,
+                         const std::string& title, const std::string& legend);
 std::string ranking_svg(const Diagnosis& d);
 
 // Writes every file above into `dir` (created if missing). Returns the path of report.html.

@@ -14,7 +14,8 @@ namespace idm::analysis {
 namespace {
 
 bool wanted(const DiagnoseOptions& o, const std::string& effect) {
-  return o.effects.empty() || std::find(o.effects.begin(), o.effects.end(), effect) != o.effects.end();
+  return o.effects.empty() ||
+         std::find(o.effects.begin(), o.effects.end(), effect) != o.effects.end();
 }
 
 bool contains(const SetFit& s, const std::string& effect) {
@@ -42,8 +43,9 @@ std::string key_of(const std::vector<MemberFit>& members) {
 // fits are finished sets already.
 class SetFits {
  public:
-  SetFits(const SweepCells& sweep, const std::vector<CandidateSpec>& library, const FittedModel& baseline,
-          const FitOptions& options, const std::vector<SetFit>& singles)
+  SetFits(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+          const FittedModel& baseline, const FitOptions& options,
+          const std::vector<SetFit>& singles)
       : sweep_(sweep), library_(library), baseline_(baseline), options_(options) {
     for (const SetFit& s : singles) finished_[key_of(s.members)] = s;
   }
@@ -56,8 +58,9 @@ class SetFits {
     std::vector<SetFit> done(todo.size());
     FitOptions one = options_;
     one.threads = 1;
+    const SweepCells coarse = spread_subset(sweep_, kCoarseCells);
     parallel_for(todo.size(), options_.threads, [&](std::size_t i) {
-      done[i] = fit_joint(sweep_, library_, sets[todo[i]], baseline_, one, JointStage::Search);
+      done[i] = fit_joint(coarse, library_, sets[todo[i]], baseline_, one, JointStage::Search);
     });
     for (SetFit& f : done) screened_[key_of(f.members)] = std::move(f);
     std::vector<SetFit> out;
@@ -69,7 +72,8 @@ class SetFits {
   }
 
   // Each effect of `specs` added to `base` (fit_on_top), screened; cached like screen().
-  std::vector<SetFit> screen_on_top(const std::vector<MemberFit>& base, const std::vector<const CandidateSpec*>& specs) {
+  std::vector<SetFit> screen_on_top(const std::vector<MemberFit>& base,
+                                    const std::vector<const CandidateSpec*>& specs) {
     std::vector<std::vector<MemberFit>> sets;
     for (const CandidateSpec* spec : specs) {
       std::vector<MemberFit> m = base;
@@ -99,8 +103,9 @@ class SetFits {
     const std::string k = key_of(members);
     if (!finished_.count(k)) {
       const bool screened = screened_.count(k) > 0;
-      finished_[k] = fit_joint(sweep_, library_, screened ? screened_.at(k).members : members, baseline_, options_,
-                               screened ? JointStage::Finish : JointStage::Full);
+      finished_[k] =
+          fit_joint(sweep_, library_, screened ? screened_.at(k).members : members, baseline_,
+                    options_, screened ? JointStage::Finish : JointStage::Full);
     }
     return finished_.at(k);
   }
@@ -120,35 +125,43 @@ std::vector<MemberFit> without(const SetFit& s, std::size_t index) {
 }
 
 // What the physics says about a pair that explains a sweep equally well.
-std::string why_alike(const std::vector<std::string>& a, const std::vector<std::string>& b, double ga, double gb) {
-  auto has = [](const std::vector<std::string>& v, const char* e) { return std::find(v.begin(), v.end(), e) != v.end(); };
+std::string why_alike(const std::vector<std::string>& a, const std::vector<std::string>& b,
+                      double ga, double gb) {
+  auto has = [](const std::vector<std::string>& v, const char* e) {
+    return std::find(v.begin(), v.end(), e) != v.end();
+  };
   std::string s;
-  if ((has(a, "amplifier") && has(b, "actuator_compliance")) || (has(b, "amplifier") && has(a, "actuator_compliance")))
-    s = "a low-pass amplifier and a damped actuator resonance both round the velocity corners of the triangle; "
+  if ((has(a, "amplifier") && has(b, "actuator_compliance")) ||
+      (has(b, "amplifier") && has(a, "actuator_compliance")))
+    s = "a low-pass amplifier and a damped actuator resonance both round the velocity corners of "
+        "the triangle; "
         "below the resonance they look alike. ";
   char buf[200];
-  std::snprintf(buf, sizeof buf, "%s leaves a held-out gap of %.3g, %s %.3g.", joined(a).c_str(), ga,
-                joined(b).c_str(), gb);
+  std::snprintf(buf, sizeof buf, "%s leaves a held-out gap of %.3g, %s %.3g.", joined(a).c_str(),
+                ga, joined(b).c_str(), gb);
   return s + buf;
 }
 
 // The remainder after a model, in words: where, and whether the stage steps further or less far.
-std::string remainder_summary(const SweepCells& sweep, const FittedModel& after, const std::string& named) {
+std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
+                              const std::string& named) {
   int further = 0, shorter = 0, wider = 0, labels = 0;
   std::vector<double> rest;
   for (const CellResidual& r : after.test.cells) {
     rest.push_back(r.residual);
     if (!r.significant) continue;
-    if (std::fabs(r.mean_z) >= 2) (std::fabs(r.measured_step_m) > std::fabs(r.model_step_m) ? further : shorter)++;
+    if (std::fabs(r.mean_z) >= 2)
+      (std::fabs(r.measured_step_m) > std::fabs(r.model_step_m) ? further : shorter)++;
     if (r.spread_z >= 2) ++wider;
     if (r.label > 0) ++labels;
   }
   std::ostringstream s;
-  s << "After " << named << ", a held-out gap of " << model::format_number(after.test.gap) << " (systematic part "
-    << model::format_number(systematic_gap(after)) << ") remains that no effect of the library explains. "
-    << pattern_summary(sweep, rest, "It") << " In the significant cells the stage steps further than the model in "
-    << further << ", less far in " << shorter << "; its trial-to-trial spread is wider than predicted in " << wider
-    << "; the region label differs in " << labels << ".";
+  s << "After " << named << ", a held-out gap of " << model::format_number(after.test.gap)
+    << " (systematic part " << model::format_number(systematic_gap(after))
+    << ") remains that no effect of the library explains. " << pattern_summary(sweep, rest, "It")
+    << " In the significant cells the stage steps further than the model in " << further
+    << ", less far in " << shorter << "; its trial-to-trial spread is wider than predicted in "
+    << wider << "; the region label differs in " << labels << ".";
   return s.str();
 }
 
@@ -156,14 +169,16 @@ std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
 // search rate, the best polished and scored) while the gap is above kFurtherGap and the addition
 // shrinks it by kMinFurtherShrink; then backward: a member without which the gap grows by less
 // than kBackwardTolerance (or stays within the noise) goes.
-SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool, const std::vector<CandidateSpec>& library,
-                   SetFits& fits, std::vector<SelectionStep>& steps) {
+SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool,
+                   const std::vector<CandidateSpec>& library, SetFits& fits,
+                   std::vector<SelectionStep>& steps) {
   SetFit current = first;
   steps.push_back({"add", current.names(), current.gap});
   while (current.members.size() < kMaxEffects && current.gap > kFurtherGap) {
     std::vector<const CandidateSpec*> tries;
     for (const SetFit* c : pool)
-      if (!contains(current, c->members.front().effect)) tries.push_back(&spec_of(library, c->members.front().effect));
+      if (!contains(current, c->members.front().effect))
+        tries.push_back(&spec_of(library, c->members.front().effect));
     if (tries.empty()) break;
     const std::vector<SetFit> screened = fits.screen_on_top(current.members, tries);
     const SetFit* lead = &screened.front();
@@ -177,10 +192,12 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool, 
   while (current.members.size() >= 2) {
     const SetFit* best = nullptr;
     std::vector<SetFit> reduced;
-    for (std::size_t i = 0; i < current.members.size(); ++i) reduced.push_back(fits.finish(without(current, i)));
+    for (std::size_t i = 0; i < current.members.size(); ++i)
+      reduced.push_back(fits.finish(without(current, i)));
     for (const SetFit& r : reduced)
       if (r.plausible && (!best || r.gap < best->gap)) best = &r;
-    if (!best || (best->gap > (1 + kBackwardTolerance) * current.gap && significant_gap(best->fitted))) {
+    if (!best ||
+        (best->gap > (1 + kBackwardTolerance) * current.gap && significant_gap(best->fitted))) {
       steps.push_back({"keep", current.names(), current.gap});
       break;
     }
@@ -203,7 +220,9 @@ double systematic_gap(const FittedModel& m) {
   return std::sqrt(std::max(0.0, s / static_cast<double>(m.test.cells.size())));
 }
 
-bool significant_gap(const FittedModel& m) { return m.test.gap > kExplainedGap && systematic_gap(m) > kSystematicGap; }
+bool significant_gap(const FittedModel& m) {
+  return m.test.gap > kExplainedGap && systematic_gap(m) > kSystematicGap;
+}
 
 Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   Diagnosis d;
@@ -224,8 +243,9 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   FitOptions one = options.fit;
   one.threads = 1;
   d.candidates.resize(specs.size());
-  parallel_for(specs.size(), threads,
-               [&](std::size_t i) { d.candidates[i] = fit_single(sweep, library, *specs[i], d.baseline, one); });
+  parallel_for(specs.size(), threads, [&](std::size_t i) {
+    d.candidates[i] = fit_single(sweep, library, *specs[i], d.baseline, one);
+  });
   std::stable_sort(d.candidates.begin(), d.candidates.end(),
                    [](const SetFit& a, const SetFit& b) { return a.shrink > b.shrink; });
   d.intervals.resize(d.candidates.size());
@@ -248,7 +268,8 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
     // amplifier and a compliant actuator trade places); the set that ends with the smaller
     // held-out gap is kept.
     std::vector<const SetFit*> firsts{pool.front()};
-    if (pool.size() > 1 && pool[1]->shrink >= kMinShrink && pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
+    if (pool.size() > 1 && pool[1]->shrink >= kMinShrink &&
+        pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
       firsts.push_back(pool[1]);
     for (const SetFit* first : firsts) {
       std::vector<SelectionStep> steps;
@@ -286,10 +307,12 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   if (u.significant) {
     u.summary = remainder_summary(sweep, d.after, named);
     if (have && !d.named)
-      u.closest = "the closest library set, " + joined(d.best.names()) + ", shrinks the gap by only " +
-                  model::format_number(std::round(1000 * d.best.shrink) / 10) + " % and is not named";
+      u.closest =
+          "the closest library set, " + joined(d.best.names()) + ", shrinks the gap by only " +
+          model::format_number(std::round(1000 * d.best.shrink) / 10) + " % and is not named";
     else if (!have && !d.candidates.empty())
-      u.closest = "the closest library effect, " + d.candidates.front().effects.front().name + ", shrinks the gap by " +
+      u.closest = "the closest library effect, " + d.candidates.front().effects.front().name +
+                  ", shrinks the gap by " +
                   model::format_number(std::round(1000 * d.candidates.front().shrink) / 10) + " %";
   } else {
     u.summary = "After " + named + " the held-out gap is " + model::format_number(u.gap) +
@@ -302,7 +325,8 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
     std::vector<std::vector<MemberFit>> alternatives;
     if (d.best.members.size() == 1) {
       for (const SetFit& c : d.candidates)
-        if (c.plausible && !contains(d.best, c.members.front().effect)) alternatives.push_back(c.members);
+        if (c.plausible && !contains(d.best, c.members.front().effect))
+          alternatives.push_back(c.members);
     } else {
       // each member replaced by one of the two best candidates outside the set
       std::vector<const SetFit*> rivals;
@@ -322,7 +346,8 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
     } else {
       // screened; the ones whose training gap comes near the chosen set's are finished
       for (const SetFit& a : fits.screen(alternatives))
-        if (a.train_gap <= kAmbiguousRatio * d.best.train_gap + 1.0) alt.push_back(fits.finish(a.members));
+        if (a.train_gap <= kAmbiguousRatio * d.best.train_gap + 1.0)
+          alt.push_back(fits.finish(a.members));
     }
     for (const SetFit& a : alt) {
       if (!a.plausible) continue;
@@ -334,7 +359,8 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
       am.alternative = a.names();
       am.effects = am.chosen;
       for (const std::string& n : am.alternative)
-        if (std::find(am.effects.begin(), am.effects.end(), n) == am.effects.end()) am.effects.push_back(n);
+        if (std::find(am.effects.begin(), am.effects.end(), n) == am.effects.end())
+          am.effects.push_back(n);
       am.gap_chosen = d.best.gap;
       am.gap_alternative = a.gap;
       am.why = why_alike(am.chosen, am.alternative, am.gap_chosen, am.gap_alternative);

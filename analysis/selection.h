@@ -32,7 +32,7 @@ constexpr double kExplainedGap = 2.0;
 constexpr double kSystematicGap = 1.5;
 constexpr double kMinShrink = 0.3;
 constexpr double kMinFurtherShrink = 0.4;
-constexpr double kFurtherGap = 1.5;  // a set's gap above which another effect is looked for
+constexpr double kFurtherGap = 1.5;     // a set's gap above which another effect is looked for
 constexpr double kRunnerUpRatio = 1.5;  // a second start when the runner-up's gap is this close
 constexpr double kBackwardTolerance = 0.25;
 constexpr double kNameShrink = 0.75;
@@ -52,15 +52,16 @@ struct SelectionStep {
 
 struct Unexplained {
   bool significant = false;
-  double gap = 0;             // held-out gap after the named effects
-  double systematic_gap = 0;  // its part shared by training and held-out trials
+  double gap = 0;              // held-out gap after the named effects
+  double systematic_gap = 0;   // its part shared by training and held-out trials
   std::vector<CellKey> cells;  // cells whose residual after is significant
   std::string summary;
   std::string closest;  // when nothing is named: the library set that came closest, and its shrink
 };
 
 struct Ambiguity {
-  std::vector<std::string> effects;  // the chosen set and the alternative, e.g. [amplifier, actuator_compliance]
+  std::vector<std::string>
+      effects;  // the chosen set and the alternative, e.g. [amplifier, actuator_compliance]
   std::vector<std::string> chosen, alternative;
   double gap_chosen = 0, gap_alternative = 0;
   std::string why;
@@ -68,16 +69,16 @@ struct Ambiguity {
 };
 
 struct Diagnosis {
-  FittedModel baseline;                       // impulse model, alpha and mu fitted
-  std::vector<SetFit> candidates;             // each effect alone, ranked by shrink
+  FittedModel baseline;                                    // impulse model, alpha and mu fitted
+  std::vector<SetFit> candidates;                          // each effect alone, ranked by shrink
   std::vector<std::vector<ParameterIntervals>> intervals;  // per candidate (same order)
   std::vector<NotIdentifiable> not_identifiable;
   std::vector<SelectionStep> steps;
-  SetFit best;               // the set selection ended with (named or not)
-  bool named = false;        // best is reported as the diagnosis
-  std::vector<model::EffectSpec> chosen;     // the named effects (fitted), empty when none
+  SetFit best;                                       // the set selection ended with (named or not)
+  bool named = false;                                // best is reported as the diagnosis
+  std::vector<model::EffectSpec> chosen;             // the named effects (fitted), empty when none
   std::vector<ParameterIntervals> chosen_intervals;  // of the named set (joint fit)
-  FittedModel after;         // the named set's model (the baseline when none)
+  FittedModel after;  // the named set's model (the baseline when none)
   double gap_before = 0, gap_after = 0, shrink = 0;
   Unexplained unexplained;
   std::vector<Ambiguity> ambiguous;

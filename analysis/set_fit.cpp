@@ -7,7 +7,6 @@
 #include <cstdlib>
 #include <functional>
 #include <limits>
-
 #include <nlopt.hpp>
 
 #include "analysis/candidates.h"
@@ -35,17 +34,20 @@ std::vector<model::EffectSpec> effects_of(const std::vector<CandidateSpec>& libr
 
 namespace {
 
-bool verbose() { return std::getenv("IDM_GAP_VERBOSE") != nullptr; }
-
-// Cells a coarse search looks at on a large sweep.
-constexpr std::size_t kCoarseCells = 24;
+bool verbose() {
+  return std::getenv("IDM_GAP_VERBOSE") != nullptr;
+}
 
 // The training gap of a set of effects (alpha and mu refitted around the baseline's mu).
 class Objective {
  public:
-  Objective(const SweepCells& sweep, const std::vector<CandidateSpec>& library, const FittedModel& baseline,
-            int threads)
-      : sweep_(sweep), library_(library), baseline_(baseline), model_(baseline.model), threads_(threads) {
+  Objective(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+            const FittedModel& baseline, int threads)
+      : sweep_(sweep),
+        library_(library),
+        baseline_(baseline),
+        model_(baseline.model),
+        threads_(threads) {
     model_.stage.friction_coefficient = sweep.stage.stage.friction_coefficient;
   }
 
@@ -56,7 +58,8 @@ class Objective {
     model.chain_rate_hz = search ? search_rate_hz(model.effects) : score_rate_hz(model.effects);
     model.search = search;
     const std::vector<CellPrediction> pred = predict_sweep(sweep_, model, threads_);
-    const Calibration calib = fit_calibration(sweep_, pred, model.stage.friction_coefficient, false);
+    const Calibration calib =
+        fit_calibration(sweep_, pred, model.stage.friction_coefficient, false);
     last_mu_ = fit_calibration(sweep_, pred, model.stage.friction_coefficient).mu;  // a proposal
     return evaluate_gap(sweep_, pred, calib, TrialSet::Train).gap;
   }
@@ -99,8 +102,9 @@ class Objective {
 };
 
 // Bounded Subplex on [0, 1]^n from `start`; returns the best point met (and its value in `best`).
-std::vector<double> subplex(const std::function<double(const std::vector<double>&)>& f, std::vector<double> start,
-                            double step, int max_evals, double xtol, double& best) {
+std::vector<double> subplex(const std::function<double(const std::vector<double>&)>& f,
+                            std::vector<double> start, double step, int max_evals, double xtol,
+                            double& best) {
   const std::size_t n = start.size();
   std::vector<double> best_x = start;
   best = std::numeric_limits<double>::infinity();
@@ -140,8 +144,10 @@ void judge(const std::vector<CandidateSpec>& library, SetFit& f) {
     for (std::size_t i = 0; i < m.u.size(); ++i)
       if (m.u[i] < 0.01 || m.u[i] > 0.99) {
         f.plausible = false;
-        f.note = m.effect + " " + spec.axes[i].name + " ended on the bound of its plausible range [" +
-                 model::format_number(spec.axes[i].lo) + ", " + model::format_number(spec.axes[i].hi) + "]";
+        f.note = m.effect + " " + spec.axes[i].name +
+                 " ended on the bound of its plausible range [" +
+                 model::format_number(spec.axes[i].lo) + ", " +
+                 model::format_number(spec.axes[i].hi) + "]";
       }
   }
   const double alpha = f.fitted.calibration.alpha;
@@ -155,28 +161,33 @@ void log_fit(const char* what, const SetFit& f, std::chrono::steady_clock::time_
   if (!verbose()) return;
   std::string names;
   for (const std::string& n : f.names()) names += (names.empty() ? "" : "+") + n;
-  std::fprintf(stderr, "  %s %s: %d evaluations, %.2f s, train gap %.3g, held-out %.3g%s\n", what, names.c_str(),
-               f.evaluations, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+  std::fprintf(stderr, "  %s %s: %d evaluations, %.2f s, train gap %.3g, held-out %.3g%s\n", what,
+               names.c_str(), f.evaluations,
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
                f.train_gap, f.gap, f.plausible ? "" : " (implausible)");
 }
 
-// At most `count` cells spread evenly over the sweep's order (stroke, frequency, duty), every
-// other field as in `sweep`; the sweep itself when it is small.
+}  // namespace
+
 SweepCells spread_subset(const SweepCells& sweep, std::size_t count) {
   if (sweep.cells.size() <= 2 * count) return sweep;
   SweepCells out = sweep;
   out.cells.clear();
   const double stride = static_cast<double>(sweep.cells.size()) / static_cast<double>(count);
   for (std::size_t k = 0; k < count; ++k)
-    out.cells.push_back(sweep.cells[static_cast<std::size_t>((static_cast<double>(k) + 0.5) * stride)]);
+    out.cells.push_back(
+        sweep.cells[static_cast<std::size_t>((static_cast<double>(k) + 0.5) * stride)]);
   return out;
 }
 
+namespace {
+
 // Starting points for a refinement: the best grid point and the next best ones that are not its
 // grid neighbours (a narrow valley can hide between grid points and trap a single start).
-std::vector<std::vector<double>> starts_from(std::vector<std::pair<double, std::vector<double>>> grid, int points,
-                                             int max_starts) {
-  std::sort(grid.begin(), grid.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+std::vector<std::vector<double>> starts_from(
+    std::vector<std::pair<double, std::vector<double>>> grid, int points, int max_starts) {
+  std::sort(grid.begin(), grid.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
   std::vector<std::vector<double>> starts;
   const double cell = 1.0 / (points - 1);
   for (const auto& [value, u] : grid) {
@@ -199,8 +210,9 @@ namespace {
 // The coarse search for one effect, on top of `fixed` members (held where they are): its grid or
 // scan, then Subplex from the best points that are not neighbours. `value`: the objective there;
 // `per_variant`, when given, receives the best of each variant.
-MemberFit coarse_search(Objective& coarse, const CandidateSpec& spec, const std::vector<MemberFit>& fixed_members,
-                        const FitOptions& opt, double& value, std::vector<MemberFit>* per_variant = nullptr) {
+MemberFit coarse_search(Objective& coarse, const CandidateSpec& spec,
+                        const std::vector<MemberFit>& fixed_members, const FitOptions& opt,
+                        double& value, std::vector<MemberFit>* per_variant = nullptr) {
   MemberFit best{spec.effect, spec.variants.front(), {}, {}};
   value = std::numeric_limits<double>::infinity();
   auto with = [&](const MemberFit& m) {
@@ -254,7 +266,8 @@ MemberFit coarse_search(Objective& coarse, const CandidateSpec& spec, const std:
     }
     MemberFit variant_best = m;
     double variant_value = std::numeric_limits<double>::infinity();
-    for (const std::vector<double>& start : starts_from(grid, spacing, n == 1 ? 1 : opt.starts_2d)) {
+    for (const std::vector<double>& start :
+         starts_from(grid, spacing, n == 1 ? 1 : opt.starts_2d)) {
       double v = 0;
       const std::vector<double> u =
           subplex(f, start, 0.5 / (spacing - 1), opt.refine_evals * static_cast<int>(n), 1e-3, v);
@@ -274,8 +287,8 @@ MemberFit coarse_search(Objective& coarse, const CandidateSpec& spec, const std:
 
 }  // namespace
 
-SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& library, const CandidateSpec& spec,
-                  const FittedModel& baseline, const FitOptions& opt) {
+SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                  const CandidateSpec& spec, const FittedModel& baseline, const FitOptions& opt) {
   const auto t0 = std::chrono::steady_clock::now();
   Objective obj(sweep, library, baseline, opt.threads);
   // The grid or scan looks for basins on a subset of the cells spread over the map (cheaper on a
@@ -325,22 +338,22 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
 }
 
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
-                  const std::vector<MemberFit>& base, const CandidateSpec& spec, const FittedModel& baseline,
-                  const FitOptions& opt) {
+                  const std::vector<MemberFit>& base, const CandidateSpec& spec,
+                  const FittedModel& baseline, const FitOptions& opt) {
   // the new effect searched with the set held, on the coarse cells; then all of them jointly
   const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
   Objective coarse(coarse_cells, library, baseline, opt.threads);
   double value = 0;
   std::vector<MemberFit> start = base;
   start.push_back(coarse_search(coarse, spec, base, opt, value));
-  SetFit out = fit_joint(sweep, library, start, baseline, opt, JointStage::Search);
+  SetFit out = fit_joint(coarse_cells, library, start, baseline, opt, JointStage::Search);
   out.evaluations += coarse.evaluations;
   return out;
 }
 
 SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
-                 const std::vector<MemberFit>& start, const FittedModel& baseline, const FitOptions& opt,
-                 JointStage stage) {
+                 const std::vector<MemberFit>& start, const FittedModel& baseline,
+                 const FitOptions& opt, JointStage stage) {
   const auto t0 = std::chrono::steady_clock::now();
   Objective obj(sweep, library, baseline, opt.threads);
   std::vector<MemberFit> members = start;
@@ -353,19 +366,21 @@ SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& libr
   };
   const int n = static_cast<int>(u0.size());
   double value = std::numeric_limits<double>::infinity();
-  for (const bool search : {true, false}) {
-    if (search && stage == JointStage::Finish) continue;
-    if (!search && stage == JointStage::Search) break;
-    if (!search) {
-      unpack(u0);
-      obj.recenter(members);
-    }
-    auto f = [&](const std::vector<double>& u) {
+  auto f = [&](bool search) {
+    return [&, search](const std::vector<double>& u) {
       unpack(u);
       return obj.train_gap(members, search);
     };
-    u0 = subplex(f, u0, search ? 0.02 : 0.005, search ? opt.refine_evals * n + 8 : opt.polish_evals * n,
-                 search ? 1e-3 : 1e-4, value);
+  };
+  // the search (screening runs it on a subset of the cells), then on every cell: a short search
+  // when the set was screened, mu recentered, the polish at the scoring rate
+  if (stage != JointStage::Finish)
+    u0 = subplex(f(true), u0, 0.02, opt.refine_evals * n + 8, 1e-3, value);
+  if (stage == JointStage::Finish) u0 = subplex(f(true), u0, 0.01, opt.refine_evals * n / 2, 1e-3, value);
+  if (stage != JointStage::Search) {
+    unpack(u0);
+    obj.recenter(members);
+    u0 = subplex(f(false), u0, 0.005, opt.polish_evals * n, 1e-4, value);
   }
   if (n == 0) value = obj.train_gap(members, stage == JointStage::Search);
   unpack(u0);

@@ -34,7 +34,8 @@ void validate(const SweepPlan& p) {
       fail(m.str());
     }
   if (!(p.guide_length_m > 0 && p.guide_length_m <= 10)) fail("guide_length_m: allowed (0, 10]");
-  if (!(p.plant_rate_hz >= 1e4 && p.plant_rate_hz <= 1e9)) fail("plant_rate_hz: allowed [1e4, 1e9]");
+  if (!(p.plant_rate_hz >= 1e4 && p.plant_rate_hz <= 1e9))
+    fail("plant_rate_hz: allowed [1e4, 1e9]");
   if (!(p.max_step_s > 0 && p.max_step_s <= 1e-3)) fail("max_step_s: allowed (0, 1e-3]");
 }
 
@@ -49,8 +50,11 @@ recording::TrialSeries run_trial(model::SimulatedStage& stage, const model::Tria
   const double post_s = plan.rest_cycles_after * w.period_s();
   const long n_total = n_pre + std::lround((w.duration_s() + post_s) * rate) + 1;
   const std::vector<double> corners = w.corner_times_s();
-  const double max_step = distortion ? std::min(plan.max_step_s, 1.0 / plan.plant_rate_hz) : plan.max_step_s;
-  auto command = [&](double t) { return distortion ? distortion->command_m(t, w.xi_m(t)) : w.xi_m(t); };
+  const double max_step =
+      distortion ? std::min(plan.max_step_s, 1.0 / plan.plant_rate_hz) : plan.max_step_s;
+  auto command = [&](double t) {
+    return distortion ? distortion->command_m(t, w.xi_m(t)) : w.xi_m(t);
+  };
   double t = -static_cast<double>(n_pre) / rate;
   // Instants closer than a billionth of a period are one (a step over a rounding error would make
   // up an actuator rate from it).

@@ -40,11 +40,11 @@ struct SweepPlan {
   int cycles = 12;
   double sample_rate_hz = 20e3;
   std::uint64_t seed = 1;
-  double guide_length_m = 40e-3;  // trials start anywhere on the guide
-  double rest_before_s = 0.5e-3;  // command at rest before t = 0
-  int rest_cycles_after = 2;      // settling after the burst, in periods
-  double plant_rate_hz = 4e6;     // plant rate under an actuator chain
-  double max_step_s = 1e-6;       // longest plant step without one
+  double guide_length_m = 40e-3;           // trials start anywhere on the guide
+  double rest_before_s = 0.5e-3;           // command at rest before t = 0
+  int rest_cycles_after = 2;               // settling after the burst, in periods
+  double plant_rate_hz = 4e6;              // plant rate under an actuator chain
+  double max_step_s = 1e-6;                // longest plant step without one
   HiddenDistortion* distortion = nullptr;  // validate's effect outside the library
 };
 

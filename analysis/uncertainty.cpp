@@ -1,13 +1,12 @@
 #include "analysis/uncertainty.h"
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <functional>
 #include <limits>
 #include <set>
-
-#include <Eigen/Dense>
 
 namespace idm::analysis {
 
@@ -16,8 +15,8 @@ namespace {
 // The held-out chi-square of a fitted set at other coordinates (alpha and mu refitted on training).
 class HeldOut {
  public:
-  HeldOut(const SweepCells& sweep, const std::vector<CandidateSpec>& library, const SetFit& fit, int threads,
-          bool scoring)
+  HeldOut(const SweepCells& sweep, const std::vector<CandidateSpec>& library, const SetFit& fit,
+          int threads, bool scoring)
       : sweep_(sweep), library_(library), fit_(fit), threads_(threads), scoring_(scoring) {}
 
   double chi2(const std::vector<MemberFit>& members) const {
@@ -57,8 +56,8 @@ struct Quadratic {
 
 // The quadratic of the held-out chi-square around the flat coordinate vector u0, with steps chosen
 // per coordinate so that the rise is between delta and 30 delta.
-Quadratic probe(const std::function<double(const std::vector<double>&)>& f, const std::vector<double>& u0,
-                double delta) {
+Quadratic probe(const std::function<double(const std::vector<double>&)>& f,
+                const std::vector<double>& u0, double delta) {
   const std::size_t n = u0.size();
   Quadratic q;
   q.g = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(n));
@@ -108,7 +107,8 @@ Quadratic probe(const std::function<double(const std::vector<double>&)>& f, cons
       const Eigen::Index I = static_cast<Eigen::Index>(i), J = static_cast<Eigen::Index>(j);
       const double a = q.step[i], b = q.step[j];
       const double hij =
-          (fij - q.f0 - q.g(I) * a - q.g(J) * b - 0.5 * (q.h(I, I) * a * a + q.h(J, J) * b * b)) / (a * b);
+          (fij - q.f0 - q.g(I) * a - q.g(J) * b - 0.5 * (q.h(I, I) * a * a + q.h(J, J) * b * b)) /
+          (a * b);
       q.h(I, J) = q.h(J, I) = hij;
     }
   // A Hessian that is not positive definite keeps its diagonal only.
@@ -119,9 +119,10 @@ Quadratic probe(const std::function<double(const std::vector<double>&)>& f, cons
 
 }  // namespace
 
-std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
-                                                    const SetFit& fit, const FittedModel& baseline, int threads,
-                                                    bool scoring) {
+std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep,
+                                                    const std::vector<CandidateSpec>& library,
+                                                    const SetFit& fit, const FittedModel& baseline,
+                                                    int threads, bool scoring) {
   (void)baseline;
   const HeldOut held(sweep, library, fit, threads, scoring);
   const double cells = static_cast<double>(sweep.cells.size());
@@ -163,7 +164,8 @@ std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep, con
     return m;
   };
   if (u0.empty()) return out;
-  const Quadratic q = probe([&](const std::vector<double>& u) { return held.chi2(members_at(u)); }, u0, delta);
+  const Quadratic q =
+      probe([&](const std::vector<double>& u) { return held.chi2(members_at(u)); }, u0, delta);
   const std::size_t n = u0.size();
   // the held-out minimum (at most two steps from the training optimum) and the points of the
   // delta-ellipsoid that reach furthest along each coordinate, plus a ring for two coordinates
@@ -259,7 +261,8 @@ std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep, con
   return out;
 }
 
-std::string separating_sweep(const SweepCells& sweep, const SetFit& a, const SetFit& b, int threads) {
+std::string separating_sweep(const SweepCells& sweep, const SetFit& a, const SetFit& b,
+                             int threads) {
   std::set<double> freqs, strokes;
   bool forward = false, reverse = false;
   int cycles = 0, trials = 0;
@@ -319,11 +322,12 @@ std::string separating_sweep(const SweepCells& sweep, const SetFit& a, const Set
       used_strokes.insert(k.stroke_m);
     }
   char buf[400];
-  std::snprintf(buf, sizeof buf,
-                "frequencies %.0f-%.0f Hz at duty %.2f-%.2f (or 1 - duty)%s: the two fits part by up to %.1f "
-                "times the step noise of %d trials there, %.1f in this sweep's cells",
-                f_lo, f_hi, d_lo, d_hi, used_strokes.size() < strokes.size() ? " at the larger stroke" : "", best,
-                trials, here);
+  std::snprintf(
+      buf, sizeof buf,
+      "frequencies %.0f-%.0f Hz at duty %.2f-%.2f (or 1 - duty)%s: the two fits part by up to %.1f "
+      "times the step noise of %d trials there, %.1f in this sweep's cells",
+      f_lo, f_hi, d_lo, d_hi, used_strokes.size() < strokes.size() ? " at the larger stroke" : "",
+      best, trials, here);
   std::string out = buf;
   if (best < 5) {
     const int needed = static_cast<int>(std::ceil(trials * std::pow(5.0 / std::max(best, 0.1), 2)));

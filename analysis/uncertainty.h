@@ -40,6 +40,7 @@ std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep,
 // the highest, duties 0.02-0.45 and their mirrors, the sweep's strokes) predicted by both,
 // compared in units of one trial's step noise over sqrt(trials a cell). A sentence naming the
 // frequencies, duties and strokes where they part by the most, and by how much against this sweep.
-std::string separating_sweep(const SweepCells& sweep, const SetFit& a, const SetFit& b, int threads);
+std::string separating_sweep(const SweepCells& sweep, const SetFit& a, const SetFit& b,
+                             int threads);
 
 }  // namespace idm::analysis

@@ -25,7 +25,9 @@ class StrokeSaturation final : public HiddenDistortion {
 class ThermalStroke final : public HiddenDistortion {
  public:
   ThermalStroke(double loss, double ref_hz) : loss_(loss), ref_hz_(ref_hz) {}
-  void start(double freq_hz, double, double, double) override { gain_ = 1.0 - loss_ * freq_hz / ref_hz_; }
+  void start(double freq_hz, double, double, double) override {
+    gain_ = 1.0 - loss_ * freq_hz / ref_hz_;
+  }
   double command_m(double, double xi_m) const override { return gain_ * xi_m; }
 
  private:
@@ -39,8 +41,9 @@ const std::vector<std::string>& unknown_effect_names() {
   return names;
 }
 
-std::unique_ptr<HiddenDistortion> make_unknown_effect(const std::string& name, double u01, double max_stroke_m,
-                                                      double max_freq_hz, std::map<std::string, double>& params) {
+std::unique_ptr<HiddenDistortion> make_unknown_effect(const std::string& name, double u01,
+                                                      double max_stroke_m, double max_freq_hz,
+                                                      std::map<std::string, double>& params) {
   if (name == "stroke_saturation") {
     const double knee = (0.7 + 0.15 * u01) * max_stroke_m;
     params = {{"knee_over_stroke", knee / max_stroke_m}, {"knee_width_over_stroke", 0.1}};

@@ -27,7 +27,8 @@ const std::vector<std::string>& unknown_effect_names();
 // The distortion `name` with its strength drawn from `u01` (in [0, 1]) for a sweep whose largest
 // stroke is `max_stroke_m` and highest frequency `max_freq_hz`; its parameters in `params`.
 // Throws std::invalid_argument for another name.
-std::unique_ptr<HiddenDistortion> make_unknown_effect(const std::string& name, double u01, double max_stroke_m,
-                                                      double max_freq_hz, std::map<std::string, double>& params);
+std::unique_ptr<HiddenDistortion> make_unknown_effect(const std::string& name, double u01,
+                                                      double max_stroke_m, double max_freq_hz,
+                                                      std::map<std::string, double>& params);
 
 }  // namespace idm::analysis

@@ -49,9 +49,10 @@ bool is_validate_effect(const std::string& e) {
 [[noreturn]] void bad_case(const std::string& name) {
   std::string allowed;
   for (const std::string& e : validate_effects()) allowed += (allowed.empty() ? "" : ", ") + e;
-  throw model::InputError("validate case '" + name + "': allowed none, one of " + allowed +
-                          ", two of them joined by '+', unknown:stroke_saturation, unknown:thermal_stroke, "
-                          "not_identifiable:tilt, not_identifiable:hysteresis");
+  throw model::InputError(
+      "validate case '" + name + "': allowed none, one of " + allowed +
+      ", two of them joined by '+', unknown:stroke_saturation, unknown:thermal_stroke, "
+      "not_identifiable:tilt, not_identifiable:hysteresis");
 }
 
 double round3(double v) {  // three significant digits, as a person would write them
@@ -86,10 +87,11 @@ std::string Scenario::describe() const {
   std::ostringstream s;
   const model::StageParams& p = stage.stage;
   s.precision(3);
-  s << "M " << p.slider_mass_kg << " kg, m " << p.counter_mass_kg << " kg, mu " << p.friction_coefficient << ", S "
-    << p.stroke_m * 1e6 << " um; " << plan.freqs_hz.size() << " x " << plan.duties.size() << " cells x "
-    << std::max<std::size_t>(1, plan.strokes_m.size()) << " stroke(s), " << plan.trials << " trials, "
-    << plan.sample_rate_hz / 1e3 << " kHz, " << plan.freqs_hz.front() << "-" << plan.freqs_hz.back() << " Hz";
+  s << "M " << p.slider_mass_kg << " kg, m " << p.counter_mass_kg << " kg, mu "
+    << p.friction_coefficient << ", S " << p.stroke_m * 1e6 << " um; " << plan.freqs_hz.size()
+    << " x " << plan.duties.size() << " cells x " << std::max<std::size_t>(1, plan.strokes_m.size())
+    << " stroke(s), " << plan.trials << " trials, " << plan.sample_rate_hz / 1e3 << " kHz, "
+    << plan.freqs_hz.front() << "-" << plan.freqs_hz.back() << " Hz";
   return s.str();
 }
 
@@ -158,13 +160,17 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed, bool quick) 
   sc.seed = seed;
   std::mt19937_64 rng(seed * 1000003ULL + std::hash<std::string>{}(name));
   std::uniform_real_distribution<double> u(0.0, 1.0);
-  auto pick = [&](int lo, int hi) { return lo + static_cast<int>(u(rng) * (hi - lo + 1)) % (hi - lo + 1); };
+  auto pick = [&](int lo, int hi) {
+    return lo + static_cast<int>(u(rng) * (hi - lo + 1)) % (hi - lo + 1);
+  };
   sc.stage = draw_stage(rng);
-  const std::vector<std::string> hidden =
-      sc.cls == "single" || sc.cls == "pair" ? split(name, '+')
-      : sc.cls == "not_identifiable"         ? std::vector<std::string>{name.substr(17)}
-                                             : std::vector<std::string>{};
-  auto hides = [&](const char* e) { return std::find(hidden.begin(), hidden.end(), e) != hidden.end(); };
+  const std::vector<std::string> hidden = sc.cls == "single" || sc.cls == "pair" ? split(name, '+')
+                                          : sc.cls == "not_identifiable"
+                                              ? std::vector<std::string>{name.substr(17)}
+                                              : std::vector<std::string>{};
+  auto hides = [&](const char* e) {
+    return std::find(hidden.begin(), hidden.end(), e) != hidden.end();
+  };
   // the lab's sampling
   SweepPlan& p = sc.plan;
   p.sample_rate_hz = 1e3 * std::round(10 + 40 * u(rng));
@@ -176,17 +182,20 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed, bool quick) 
   // frequencies up to where the impulse ratio reaches 0.25-0.6 (every region of the map)
   const model::StageParams& st = sc.stage.stage;
   const double beta_max = 0.25 + 0.35 * u(rng);
-  double f_max = std::sqrt(beta_max * st.total_mass_kg() * st.friction_coefficient * st.gravity_m_s2 /
-                           (st.counter_mass_kg * st.stroke_m));
+  double f_max = std::sqrt(beta_max * st.total_mass_kg() * st.friction_coefficient *
+                           st.gravity_m_s2 / (st.counter_mass_kg * st.stroke_m));
   f_max = std::clamp(std::round(f_max), 40.0, std::min(2000.0, p.sample_rate_hz / 25));
   const int n_f = quick ? 4 : pick(4, 8);
   int n_d = quick ? 5 : pick(5, 8);
   while (n_f * n_d * (two_dirs ? 2 : 1) * (two_strokes ? 2 : 1) > 96 && n_d > 5) --n_d;
   const double f_min = f_max / (4 + 4 * u(rng));
-  for (int i = 0; i < n_f; ++i) p.freqs_hz.push_back(std::round(f_min + (f_max - f_min) * i / (n_f - 1)));
-  for (int i = 0; i < n_d; ++i) p.duties.push_back(std::round(1000 * (0.05 + 0.4 * i / (n_d - 1))) / 1000);
+  for (int i = 0; i < n_f; ++i)
+    p.freqs_hz.push_back(std::round(f_min + (f_max - f_min) * i / (n_f - 1)));
+  for (int i = 0; i < n_d; ++i)
+    p.duties.push_back(std::round(1000 * (0.05 + 0.4 * i / (n_d - 1))) / 1000);
   if (two_dirs)
-    for (int i = 0; i < n_d; ++i) p.duties.push_back(std::round(1000 * (1 - p.duties[static_cast<std::size_t>(i)])) / 1000);
+    for (int i = 0; i < n_d; ++i)
+      p.duties.push_back(std::round(1000 * (1 - p.duties[static_cast<std::size_t>(i)])) / 1000);
   p.strokes_m = {st.stroke_m};
   if (two_strokes) p.strokes_m.push_back(st.stroke_m / 2);
   // noise and the hidden effects
@@ -198,7 +207,9 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed, bool quick) 
     const model::EffectSpec spec = draw_effect(e, sc, rng);
     sc.sim.effects.push_back(spec);
     for (const auto& [k, v] : spec.params) {
-      if ((e == "friction_spread" && (k == "correlation_m" || k == "mean_shift")) || (k == "slew_rate_m_s")) continue;
+      if ((e == "friction_spread" && (k == "correlation_m" || k == "mean_shift")) ||
+          (k == "slew_rate_m_s"))
+        continue;
       sc.params[e + "." + k] = v;
     }
   }

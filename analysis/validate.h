@@ -41,18 +41,18 @@ std::vector<std::string> validate_cases(bool quick);
 std::string case_class(const std::string& case_name);
 
 struct Scenario {
-  std::string name;   // the case
-  std::string cls;    // its class
+  std::string name;  // the case
+  std::string cls;   // its class
   std::uint64_t seed = 0;
   model::StageFile stage;  // as stage.yaml says (the truth: nominal mu and masses)
   model::SimConfig sim;    // the hidden library effects and the noise
   SweepPlan plan;
-  std::string unknown;     // the hidden effect of validate's own making, or ""
-  double unknown_strength = 0;  // in [0, 1], its parameters (make_unknown_effect)
+  std::string unknown;                   // the hidden effect of validate's own making, or ""
+  double unknown_strength = 0;           // in [0, 1], its parameters (make_unknown_effect)
   std::map<std::string, double> params;  // every hidden parameter as drawn ("effect.param")
   std::vector<std::string> expected;     // the set a correct diagnosis names
   bool expect_unexplained = false;
-  std::string describe() const;          // stage and sampling in one line
+  std::string describe() const;  // stage and sampling in one line
 };
 
 // The scenario of `case_name` drawn from `seed` (deterministic). `quick`: a small sweep.
@@ -98,7 +98,8 @@ struct ValidateResult {
 ValidateRun validate_one(const Scenario& scenario, int threads, Diagnosis* diagnosis = nullptr);
 
 // `progress` (may be null) is called after every run.
-ValidateResult run_validate(const ValidateOptions& options, void (*progress)(const ValidateRun&) = nullptr);
+ValidateResult run_validate(const ValidateOptions& options,
+                            void (*progress)(const ValidateRun&) = nullptr);
 
 // The JSON of specs/gap-report.md's validate section (with "by_class" and per run "class",
 // "expected", "unexplained", "where_rank", "setup").

@@ -24,7 +24,8 @@ Generated generate(const Scenario& sc, const model::SimConfig& sim, const SweepP
   std::unique_ptr<HiddenDistortion> distortion;
   SweepPlan p = plan;
   if (!sc.unknown.empty()) {
-    distortion = make_unknown_effect(sc.unknown, sc.unknown_strength, sc.stage.stage.stroke_m, plan.freqs_hz.back(), unused);
+    distortion = make_unknown_effect(sc.unknown, sc.unknown_strength, sc.stage.stage.stroke_m,
+                                     plan.freqs_hz.back(), unused);
     p.distortion = distortion.get();
   }
   simulate_sweep(sc.stage, sim, p, [&](const TrialInfo& info, TrialSeries&& s) {
@@ -37,17 +38,20 @@ Generated generate(const Scenario& sc, const model::SimConfig& sim, const SweepP
 // The true footprint of the hidden effects per cell: the noise-free sweep with them against the
 // same sweep without them (one trial a cell; friction that varies along the guide by the
 // predictor's distribution), in the units of the diagnosis's held-out residual of the cell.
-std::vector<double> true_footprint(const Scenario& sc, const SweepCells& cells, const Diagnosis& d) {
+std::vector<double> true_footprint(const Scenario& sc, const SweepCells& cells,
+                                   const Diagnosis& d) {
   std::vector<double> out(cells.cells.size(), 0.0);
   if (sc.sim.effects.empty() && sc.unknown.empty()) return out;
   if (sc.unknown.empty()) {
     ModelConfig with, bare;
     with.stage = bare.stage = sc.stage.stage;
     with.effects = sc.sim.effects;
-    const std::vector<CellPrediction> a = predict_sweep(cells, with, 1), b = predict_sweep(cells, bare, 1);
+    const std::vector<CellPrediction> a = predict_sweep(cells, with, 1),
+                                      b = predict_sweep(cells, bare, 1);
     for (std::size_t c = 0; c < out.size(); ++c)
-      out[c] = prediction_change(d.after.test.cells[c], a[c].steady_step_m, a[c].step_sd_m, a[c].region,
-                                 b[c].steady_step_m, b[c].step_sd_m, b[c].region, cells.reading_sd_m);
+      out[c] =
+          prediction_change(d.after.test.cells[c], a[c].steady_step_m, a[c].step_sd_m, a[c].region,
+                            b[c].steady_step_m, b[c].step_sd_m, b[c].region, cells.reading_sd_m);
     return out;
   }
   model::SimConfig quiet = sc.sim;
@@ -66,9 +70,10 @@ std::vector<double> true_footprint(const Scenario& sc, const SweepCells& cells, 
     const TrialFeatures fb = trial_features(b.infos[i], b.series[i], 1e-12, 0);
     for (std::size_t c = 0; c < cells.cells.size(); ++c) {
       const CellKey& k = cells.cells[c].key;
-      if (k.freq_hz == a.infos[i].freq_hz && k.duty == a.infos[i].duty && k.stroke_m == a.infos[i].stroke_m)
-        out[c] = prediction_change(d.after.test.cells[c], fa.steady_step_m, 0, fa.region, fb.steady_step_m, 0,
-                                   fb.region, cells.reading_sd_m);
+      if (k.freq_hz == a.infos[i].freq_hz && k.duty == a.infos[i].duty &&
+          k.stroke_m == a.infos[i].stroke_m)
+        out[c] = prediction_change(d.after.test.cells[c], fa.steady_step_m, 0, fa.region,
+                                   fb.steady_step_m, 0, fb.region, cells.reading_sd_m);
     }
   }
   return out;
@@ -87,7 +92,8 @@ ValidateRun validate_one(const Scenario& sc, int threads, Diagnosis* out) {
   run.expected = sc.expected;
   run.expect_unexplained = sc.expect_unexplained;
   Generated g = generate(sc, sc.sim, sc.plan);
-  const SweepCells cells = collect_cells(sc.stage, g.infos, g.series, "validate:" + sc.name + ":seed" + std::to_string(sc.seed));
+  const SweepCells cells = collect_cells(sc.stage, g.infos, g.series,
+                                         "validate:" + sc.name + ":seed" + std::to_string(sc.seed));
   g = Generated{};
   DiagnoseOptions opt;
   opt.fit.threads = threads;
@@ -121,12 +127,14 @@ ValidateRun validate_one(const Scenario& sc, int threads, Diagnosis* out) {
 
 ValidateResult run_validate(const ValidateOptions& options, void (*progress)(const ValidateRun&)) {
   ValidateResult r;
-  const std::vector<std::string> cases = options.cases.empty() ? validate_cases(options.quick) : options.cases;
+  const std::vector<std::string> cases =
+      options.cases.empty() ? validate_cases(options.quick) : options.cases;
   for (const std::string& c : cases) case_class(c);  // every name checked before the first run
   int correct = 0;
   for (int k = 0; k < options.seeds; ++k)
     for (const std::string& c : cases) {
-      const Scenario sc = make_scenario(c, options.first_seed + static_cast<std::uint64_t>(k), options.quick);
+      const Scenario sc =
+          make_scenario(c, options.first_seed + static_cast<std::uint64_t>(k), options.quick);
       ValidateRun run = validate_one(sc, options.threads);
       auto& tally = r.by_effect[c];
       ++tally.first;
@@ -146,7 +154,8 @@ ValidateResult run_validate(const ValidateOptions& options, void (*progress)(con
       if (progress) progress(run);
       r.runs.push_back(std::move(run));
     }
-  r.accuracy = r.runs.empty() ? 0.0 : static_cast<double>(correct) / static_cast<double>(r.runs.size());
+  r.accuracy =
+      r.runs.empty() ? 0.0 : static_cast<double>(correct) / static_cast<double>(r.runs.size());
   return r;
 }
 
@@ -163,33 +172,40 @@ std::string validate_json(const ValidateResult& r) {
   s << "{\"runs\": [\n";
   for (std::size_t i = 0; i < r.runs.size(); ++i) {
     const ValidateRun& run = r.runs[i];
-    s << "  {\"hidden\": " << json_string(run.hidden) << ", \"class\": " << json_string(run.cls) << ", \"params\": {";
+    s << "  {\"hidden\": " << json_string(run.hidden) << ", \"class\": " << json_string(run.cls)
+      << ", \"params\": {";
     bool first = true;
     for (const auto& [k, v] : run.params) {
       s << (first ? "" : ", ") << json_string(k) << ": " << json_number(v);
       first = false;
     }
-    s << "}, \"seed\": " << run.seed << ", \"setup\": " << json_string(run.setup) << ", \"named\": " << names(run.named)
-      << ", \"expected\": " << names(run.expected) << ", \"correct\": " << (run.correct ? "true" : "false")
+    s << "}, \"seed\": " << run.seed << ", \"setup\": " << json_string(run.setup)
+      << ", \"named\": " << names(run.named) << ", \"expected\": " << names(run.expected)
+      << ", \"correct\": " << (run.correct ? "true" : "false")
       << ", \"unexplained\": " << (run.unexplained ? "true" : "false")
       << ", \"expect_unexplained\": " << (run.expect_unexplained ? "true" : "false")
-      << ", \"ambiguous_with\": " << names(run.ambiguous_with) << ", \"shrink\": " << json_number(run.shrink)
-      << ", \"gap_before\": " << json_number(run.gap_before) << ", \"gap_after\": " << json_number(run.gap_after)
+      << ", \"ambiguous_with\": " << names(run.ambiguous_with)
+      << ", \"shrink\": " << json_number(run.shrink)
+      << ", \"gap_before\": " << json_number(run.gap_before)
+      << ", \"gap_after\": " << json_number(run.gap_after)
       << ", \"where_rank\": " << (run.where_scored ? json_number(run.where_rank) : "null")
-      << ", \"seconds\": " << json_number(run.seconds) << "}" << (i + 1 < r.runs.size() ? "," : "") << "\n";
+      << ", \"seconds\": " << json_number(run.seconds) << "}" << (i + 1 < r.runs.size() ? "," : "")
+      << "\n";
   }
   s << "],\n\"accuracy\": " << json_number(r.accuracy) << ",\n\"by_effect\": {";
   bool first = true;
   for (const auto& [e, t] : r.by_effect) {
-    s << (first ? "" : ", ") << json_string(e) << ": {\"runs\": " << t.first << ", \"correct\": " << t.second << "}";
+    s << (first ? "" : ", ") << json_string(e) << ": {\"runs\": " << t.first
+      << ", \"correct\": " << t.second << "}";
     first = false;
   }
   s << "},\n\"by_class\": {";
   first = true;
   for (const auto& [c, t] : r.by_class) {
-    s << (first ? "" : ", ") << json_string(c) << ": {\"runs\": " << t.runs << ", \"correct\": " << t.correct
-      << ", \"unexplained_said\": " << t.unexplained_said << ", \"mean_shrink\": " << json_number(t.shrink_sum / t.runs)
-      << ", \"mean_where_rank\": " << (t.where_runs ? json_number(t.where_sum / t.where_runs) : "null") << "}";
+    s << (first ? "" : ", ") << json_string(c) << ": {\"runs\": " << t.runs
+      << ", \"correct\": " << t.correct << ", \"unexplained_said\": " << t.unexplained_said
+      << ", \"mean_shrink\": " << json_number(t.shrink_sum / t.runs) << ", \"mean_where_rank\": "
+      << (t.where_runs ? json_number(t.where_sum / t.where_runs) : "null") << "}";
     first = false;
   }
   s << "}}\n";
@@ -203,9 +219,10 @@ std::string validate_table(const ValidateResult& r) {
   s << buf;
   s << "  class              correct   says unexplained   mean shrink   where (rank correlation)\n";
   for (const auto& [c, t] : r.by_class) {
-    std::snprintf(buf, sizeof buf, "  %-18s %3d / %-3d %6d / %-3d       %6.1f %%     %s\n", c.c_str(), t.correct, t.runs,
-                  t.unexplained_said, t.runs, 100 * t.shrink_sum / t.runs,
-                  t.where_runs ? std::to_string(t.where_sum / t.where_runs).substr(0, 5).c_str() : "-");
+    std::snprintf(
+        buf, sizeof buf, "  %-18s %3d / %-3d %6d / %-3d       %6.1f %%     %s\n", c.c_str(),
+        t.correct, t.runs, t.unexplained_said, t.runs, 100 * t.shrink_sum / t.runs,
+        t.where_runs ? std::to_string(t.where_sum / t.where_runs).substr(0, 5).c_str() : "-");
     s << buf;
   }
   for (const auto& [e, t] : r.by_effect) {

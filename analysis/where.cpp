@@ -41,8 +41,8 @@ double boundary_closeness(const model::StageParams& stage, const CellKey& k) {
   return -d;
 }
 
-double mean_where(const SweepCells& sweep, const std::vector<double>& v, bool (*pick)(const CellKey&, double),
-                  double arg) {
+double mean_where(const SweepCells& sweep, const std::vector<double>& v,
+                  bool (*pick)(const CellKey&, double), double arg) {
   double s = 0;
   int n = 0;
   for (std::size_t c = 0; c < v.size(); ++c)
@@ -59,7 +59,8 @@ double spearman(const std::vector<double>& a, const std::vector<double>& b) {
   if (a.size() != b.size() || a.size() < 3) return 0;
   const std::vector<double> ra = ranks(a), rb = ranks(b);
   const double n = static_cast<double>(a.size());
-  const double ma = std::accumulate(ra.begin(), ra.end(), 0.0) / n, mb = std::accumulate(rb.begin(), rb.end(), 0.0) / n;
+  const double ma = std::accumulate(ra.begin(), ra.end(), 0.0) / n,
+               mb = std::accumulate(rb.begin(), rb.end(), 0.0) / n;
   double sab = 0, saa = 0, sbb = 0;
   for (std::size_t i = 0; i < a.size(); ++i) {
     sab += (ra[i] - ma) * (rb[i] - mb);
@@ -69,13 +70,15 @@ double spearman(const std::vector<double>& a, const std::vector<double>& b) {
   return saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : 0.0;
 }
 
-double prediction_change(const CellResidual& cell, double step_a, double sd_a, model::Region region_a, double step_b,
-                         double sd_b, model::Region region_b, double reading_sd_m) {
+double prediction_change(const CellResidual& cell, double step_a, double sd_a,
+                         model::Region region_a, double step_b, double sd_b, model::Region region_b,
+                         double reading_sd_m) {
   const double d = cell.se_m > 0 ? (step_a - step_b) / cell.se_m : 0.0;
   double s = 0;
   if (cell.trials > 1) {
     const double q = 2.0 * reading_sd_m * reading_sd_m;
-    s = std::log((sd_a * sd_a + q) / (sd_b * sd_b + q)) / log_sample_variance_moments(cell.trials - 1).sd;
+    s = std::log((sd_a * sd_a + q) / (sd_b * sd_b + q)) /
+        log_sample_variance_moments(cell.trials - 1).sd;
   }
   const double l = region_a == region_b ? 0.0 : kSignificantResidual;
   return std::sqrt(d * d + s * s + l * l);
@@ -94,8 +97,9 @@ WhereReport where_of(const SweepCells& sweep, const FittedModel& baseline, const
     const CellPrediction& p = after.predictions[c];
     if (without) {
       const CellPrediction& o = (*without)[c];
-      cw.effect_gap = prediction_change(r, cal.step(p), std::fabs(cal.alpha) * p.step_sd_m, p.region, cal.step(o),
-                                        std::fabs(cal.alpha) * o.step_sd_m, o.region, sweep.reading_sd_m);
+      cw.effect_gap = prediction_change(r, cal.step(p), std::fabs(cal.alpha) * p.step_sd_m,
+                                        p.region, cal.step(o), std::fabs(cal.alpha) * o.step_sd_m,
+                                        o.region, sweep.reading_sd_m);
     }
     std::vector<double> steps;
     for (const auto* v : {&cell.train, &cell.test})
@@ -128,7 +132,8 @@ WhereReport where_of(const SweepCells& sweep, const FittedModel& baseline, const
   return w;
 }
 
-std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& v, const std::string& what) {
+std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& v,
+                            const std::string& what) {
   const std::size_t n = v.size();
   if (n == 0) return what + ": no cells.";
   std::size_t top = 0;
@@ -143,9 +148,12 @@ std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& 
     rev = rev || c.key.duty > 0.5;
   }
   std::string s = what;
-  const std::string at = fmt("%g Hz", k.freq_hz) + ", duty " + fmt("%g", k.duty) +
-                         (strokes.size() > 1 ? ", stroke " + fmt("%.4g", k.stroke_m * 1e6) + " um" : "");
-  if (v[top] < kSignificantResidual) return s + " is within the noise at all " + std::to_string(n) + " cells (largest " + fmt("%.2g", v[top]) + " at " + at + ").";
+  const std::string at =
+      fmt("%g Hz", k.freq_hz) + ", duty " + fmt("%g", k.duty) +
+      (strokes.size() > 1 ? ", stroke " + fmt("%.4g", k.stroke_m * 1e6) + " um" : "");
+  if (v[top] < kSignificantResidual)
+    return s + " is within the noise at all " + std::to_string(n) + " cells (largest " +
+           fmt("%.2g", v[top]) + " at " + at + ").";
   double total = 0;
   for (double x : v) total += x * x;
   std::vector<double> sorted = v;
@@ -164,9 +172,9 @@ std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& 
       d_lo = std::min(d_lo, sweep.cells[c].key.duty);
       d_hi = std::max(d_hi, sweep.cells[c].key.duty);
     }
-  s += " is largest at " + at + " (" + fmt("%.3g", v[top]) + "); " + std::to_string(carrying) + " of " +
-       std::to_string(n) + " cells carry 80 % of it (" + fmt("%g", f_lo) + "-" + fmt("%g", f_hi) + " Hz, duty " +
-       fmt("%g", d_lo) + "-" + fmt("%g", d_hi) + ").";
+  s += " is largest at " + at + " (" + fmt("%.3g", v[top]) + "); " + std::to_string(carrying) +
+       " of " + std::to_string(n) + " cells carry 80 % of it (" + fmt("%g", f_lo) + "-" +
+       fmt("%g", f_hi) + " Hz, duty " + fmt("%g", d_lo) + "-" + fmt("%g", d_hi) + ").";
   std::vector<std::string> trends;
   std::vector<double> f, fast, close;
   for (const Cell& c : sweep.cells) {
@@ -176,29 +184,38 @@ std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& 
   }
   const double rf = spearman(v, f), rd = spearman(v, fast), rb = spearman(v, close);
   if (std::fabs(rf) >= 0.4)
-    trends.push_back(std::string(rf > 0 ? "grows" : "falls") + " with frequency (rank correlation " + fmt("%.2f", rf) + ")");
+    trends.push_back(std::string(rf > 0 ? "grows" : "falls") +
+                     " with frequency (rank correlation " + fmt("%.2f", rf) + ")");
   if (std::fabs(rd) >= 0.4)
-    trends.push_back(std::string(rd < 0 ? "grows as the fast phase gets shorter (duty towards 0 or 1)"
-                                        : "grows towards duty 0.5") + " (rank correlation " + fmt("%.2f", -rd) + ")");
+    trends.push_back(std::string(rd < 0
+                                     ? "grows as the fast phase gets shorter (duty towards 0 or 1)"
+                                     : "grows towards duty 0.5") +
+                     " (rank correlation " + fmt("%.2f", -rd) + ")");
   if (strokes.size() > 1) {
-    const double big = mean_where(sweep, v, [](const CellKey& c, double s) { return c.stroke_m == s; }, *strokes.rbegin());
-    const double small = mean_where(sweep, v, [](const CellKey& c, double s) { return c.stroke_m == s; }, *strokes.begin());
+    const double big = mean_where(
+        sweep, v, [](const CellKey& c, double s) { return c.stroke_m == s; }, *strokes.rbegin());
+    const double small = mean_where(
+        sweep, v, [](const CellKey& c, double s) { return c.stroke_m == s; }, *strokes.begin());
     if (big > 1.5 * small || small > 1.5 * big)
-      trends.push_back(std::string("larger at the ") + (big > small ? "larger" : "smaller") + " stroke (" +
-                       fmt("%.2g", std::max(big, small) / std::max(1e-12, std::min(big, small))) + " times)");
+      trends.push_back(
+          std::string("larger at the ") + (big > small ? "larger" : "smaller") + " stroke (" +
+          fmt("%.2g", std::max(big, small) / std::max(1e-12, std::min(big, small))) + " times)");
   }
   if (fwd && rev) {
-    const double a = mean_where(sweep, v, [](const CellKey& c, double) { return c.duty < 0.5; }, 0);
-    const double b = mean_where(sweep, v, [](const CellKey& c, double) { return c.duty > 0.5; }, 0);
+    const double a = mean_where(
+        sweep, v, [](const CellKey& c, double) { return c.duty < 0.5; }, 0);
+    const double b = mean_where(
+        sweep, v, [](const CellKey& c, double) { return c.duty > 0.5; }, 0);
     if (a > 2 * b || b > 2 * a)
-      trends.push_back(std::string("mostly in one direction: duty ") + (a > b ? "< 0.5" : "> 0.5") + " carries " +
-                       fmt("%.2g", std::max(a, b) / std::max(1e-12, std::min(a, b))) + " times the other's");
+      trends.push_back(std::string("mostly in one direction: duty ") + (a > b ? "< 0.5" : "> 0.5") +
+                       " carries " + fmt("%.2g", std::max(a, b) / std::max(1e-12, std::min(a, b))) +
+                       " times the other's");
     else
       trends.push_back("about the same in both directions");
   }
   if (rb >= 0.4)
-    trends.push_back("sits near the region boundaries of the impulse model (rank correlation " + fmt("%.2f", rb) +
-                     " with closeness to the nearest)");
+    trends.push_back("sits near the region boundaries of the impulse model (rank correlation " +
+                     fmt("%.2f", rb) + " with closeness to the nearest)");
   if (!trends.empty()) {
     s += " It ";
     for (std::size_t i = 0; i < trends.size(); ++i)

@@ -29,9 +29,10 @@ struct CellWhere {
 };
 
 struct WhereReport {
-  std::vector<CellWhere> cells;             // sweep order
-  std::vector<CellKey> significant_cells;   // the baseline's significant cells
-  std::string summary;        // the pattern of effect_gap (of the baseline's residual when nothing is named)
+  std::vector<CellWhere> cells;            // sweep order
+  std::vector<CellKey> significant_cells;  // the baseline's significant cells
+  std::string
+      summary;  // the pattern of effect_gap (of the baseline's residual when nothing is named)
   std::string summary_after;  // the pattern of what is left after the named effects
 };
 
@@ -42,14 +43,16 @@ WhereReport where_of(const SweepCells& sweep, const FittedModel& baseline, const
 
 // Where `values` (one per cell, >= 0) are largest and what pattern they follow, as one or two
 // sentences; `what` names the quantity ("the named effects' footprint").
-std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& values, const std::string& what);
+std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& values,
+                            const std::string& what);
 
 // Spearman's rank correlation (ties get their mean rank); 0 when either side is constant.
 double spearman(const std::vector<double>& a, const std::vector<double>& b);
 
 // The normalized change of a cell's prediction (mean, spread and label) between two models, in
 // the units of the held-out residual of `cell` (CellResidual::se_m and its trials).
-double prediction_change(const CellResidual& cell, double step_a_m, double sd_a_m, model::Region region_a,
-                         double step_b_m, double sd_b_m, model::Region region_b, double reading_sd_m);
+double prediction_change(const CellResidual& cell, double step_a_m, double sd_a_m,
+                         model::Region region_a, double step_b_m, double sd_b_m,
+                         model::Region region_b, double reading_sd_m);
 
 }  // namespace idm::analysis

@@ -219,7 +219,8 @@ double CompliantPlant::slip_friction_n(double direction) const {
   return -direction * mu * normal_force_n_;
 }
 
-CompliantPlant::SlipState CompliantPlant::slip_from(const SlipState& a, double t, bool reuse) const {
+CompliantPlant::SlipState CompliantPlant::slip_from(const SlipState& a, double t,
+                                                    bool reuse) const {
   const double M = stage_.slider_mass_kg;
   const double K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
   const DampedOscillator::State o = sliding_.at(a.e, a.w, -f_slip_n_ / M, t, reuse);
@@ -228,7 +229,8 @@ CompliantPlant::SlipState CompliantPlant::slip_from(const SlipState& a, double t
   s.e = o.e;
   s.w = o.w;
   s.v = a.v + (C * (o.e - a.e) + K * o.integral + net * t) / M;
-  s.x = a.x + a.v * t + (C * (o.integral - a.e * t) + K * o.double_integral + 0.5 * net * t * t) / M;
+  s.x =
+      a.x + a.v * t + (C * (o.integral - a.e * t) + K * o.double_integral + 0.5 * net * t * t) / M;
   return s;
 }
 
@@ -269,7 +271,8 @@ void CompliantPlant::advance_stuck(double& remaining) {
     for (double t = probe; t < remaining; t += probe) {
       const double bound = stuck_.energy_bound(e, w, c_stuck);
       if (std::fabs(hold_rest) + K * bound / std::sqrt(stuck_.c0()) + C * bound <= limit) break;
-      const DampedOscillator::State s = stuck_.at(e, w, c_stuck, probe, true);  // from the last probe
+      const DampedOscillator::State s =
+          stuck_.at(e, w, c_stuck, probe, true);  // from the last probe
       const double f = std::fabs(hold_force_n(s.e, s.w)) - limit;
       if (f > 0) {
         lo = t - probe;

@@ -120,7 +120,9 @@ class CompliantPlant final : public Plant {
     double e, w, v, x;
   };
   // from the current state, sliding with force f_slip_n_
-  SlipState slip_at(double t_s, bool reuse = false) const { return slip_from({e_m_, w_m_s_, v_m_s_, x_m_}, t_s, reuse); }
+  SlipState slip_at(double t_s, bool reuse = false) const {
+    return slip_from({e_m_, w_m_s_, v_m_s_, x_m_}, t_s, reuse);
+  }
   // from `start`, sliding with force f_slip_n_
   SlipState slip_from(const SlipState& start, double t_s, bool reuse = false) const;
   double hold_force_n(double e, double w) const;  // friction force needed to hold the slider

@@ -48,8 +48,10 @@ double Hysteresis::next_kink_s(double rate_m_s) const {
   double first = std::numeric_limits<double>::infinity();
   if (rate_m_s == 0.0) return first;
   for (int i = 0; i < kOperators; ++i) {
-    const double gap = rate_m_s > 0 ? play_m_[i] + half_width_m_[i] - input_m_ : input_m_ - (play_m_[i] - half_width_m_[i]);
-    if (gap > 1e-16) first = std::min(first, gap / std::fabs(rate_m_s));  // 0.1 fm: already following
+    const double gap = rate_m_s > 0 ? play_m_[i] + half_width_m_[i] - input_m_
+                                    : input_m_ - (play_m_[i] - half_width_m_[i]);
+    if (gap > 1e-16)
+      first = std::min(first, gap / std::fabs(rate_m_s));  // 0.1 fm: already following
   }
   return first;
 }

@@ -46,7 +46,7 @@ class Hysteresis final : public ActuatorEffect {
   std::array<double, kOperators> weight_{};        // w_i
   std::array<double, kOperators> play_m_{};        // F_i
   double offset_m_ = 0.0;
-  double input_m_ = 0.0;                           // the last input
+  double input_m_ = 0.0;  // the last input
 };
 
 }  // namespace idm::model

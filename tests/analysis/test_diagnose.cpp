@@ -29,7 +29,8 @@ SweepCells generate(const std::vector<model::EffectSpec>& effects, const Sweep& 
   model::SimConfig sim;
   sim.noise_m = 2e-9;
   sim.seed = 5;
-  for (const model::EffectSpec& e : effects) sim.effects.push_back(model::complete_effect(e, "test"));
+  for (const model::EffectSpec& e : effects)
+    sim.effects.push_back(model::complete_effect(e, "test"));
   SweepPlan plan;
   plan.freqs_hz = s.freqs;
   plan.duties = s.duties;
@@ -69,8 +70,10 @@ TEST(Candidates, EveryEffectOfTheLibraryIsACandidateWithinItsAllowedRange) {
     const std::size_t n = lib[i].axes.size();
     for (int corner = 0; corner < (1 << n); ++corner) {
       std::vector<double> x;
-      for (std::size_t a = 0; a < n; ++a) x.push_back((corner >> a) & 1 ? lib[i].axes[a].hi : lib[i].axes[a].lo);
-      EXPECT_NO_THROW(model::complete_effect({lib[i].effect, n ? lib[i].params(x) : lib[i].grid.front()}, "test"))
+      for (std::size_t a = 0; a < n; ++a)
+        x.push_back((corner >> a) & 1 ? lib[i].axes[a].hi : lib[i].axes[a].lo);
+      EXPECT_NO_THROW(model::complete_effect(
+          {lib[i].effect, n ? lib[i].params(x) : lib[i].grid.front()}, "test"))
           << lib[i].effect;
     }
   }
@@ -93,16 +96,19 @@ TEST(Candidates, RangesScaleWithTheStageAndTheSweep) {
   // the same resonance is a different stiffness with another reduced mass
   const Params ka = spec_of(a, "actuator_compliance").params({2000, 0.2});
   const Params kb = spec_of(b, "actuator_compliance").params({2000, 0.2});
-  EXPECT_NEAR(kb.at("stiffness_n_m") / ka.at("stiffness_n_m"), (0.5 * 0.2 / 0.7) / (0.05 * 0.02 / 0.07), 1e-6);
+  EXPECT_NEAR(kb.at("stiffness_n_m") / ka.at("stiffness_n_m"),
+              (0.5 * 0.2 / 0.7) / (0.05 * 0.02 / 0.07), 1e-6);
   // a tilt is searched against the friction it competes with
-  EXPECT_NEAR(spec_of(a, "tilt").params({0.5}).at("angle_deg"), std::asin(0.5 * 0.15) * 180 / M_PI, 1e-9);
+  EXPECT_NEAR(spec_of(a, "tilt").params({0.5}).at("angle_deg"), std::asin(0.5 * 0.15) * 180 / M_PI,
+              1e-9);
   EXPECT_NEAR(spec_of(b, "tilt").params({0.5}).at("angle_deg"), std::asin(0.35) * 180 / M_PI, 1e-9);
 }
 
 TEST(Candidates, ACompliantActuatorFarFromTheNominalIsFound) {
   // stage.yaml says K 5.7e6 and C 230 (the paper's); the actuator has 1.5e7 and 120, a lightly
   // damped resonance whose gap basin is a few % wide: the scan over the resonance finds it.
-  const SweepCells sweep = generate({{"actuator_compliance", {{"stiffness_n_m", 1.5e7}, {"damping_n_s_m", 120}}}});
+  const SweepCells sweep =
+      generate({{"actuator_compliance", {{"stiffness_n_m", 1.5e7}, {"damping_n_s_m", 120}}}});
   const FittedModel base = fit_baseline(sweep, 2);
   const auto lib = candidate_library(sweep);
   FitOptions opt;
@@ -114,8 +120,8 @@ TEST(Candidates, ACompliantActuatorFarFromTheNominalIsFound) {
 }
 
 TEST(Selection, NamesTheHiddenEffectWithIntervalsAndNothingOnAnIdealStage) {
-  const Diagnosis amp =
-      diagnose(generate({{"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}}}), only({"amplifier", "creep", "stribeck"}));
+  const Diagnosis amp = diagnose(generate({{"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}}}),
+                                 only({"amplifier", "creep", "stribeck"}));
   ASSERT_EQ(amp.chosen.size(), 1u);
   EXPECT_EQ(amp.chosen[0].name, "amplifier");
   EXPECT_LT(amp.gap_after, 0.1 * amp.gap_before);
@@ -126,7 +132,8 @@ TEST(Selection, NamesTheHiddenEffectWithIntervalsAndNothingOnAnIdealStage) {
   EXPECT_LE(cut.lo, 3000);
   EXPECT_GE(cut.hi, 3000);
   EXPECT_LT(cut.hi / cut.lo, 1.2);
-  for (std::size_t i = 1; i < amp.candidates.size(); ++i) EXPECT_GE(amp.candidates[i - 1].shrink, amp.candidates[i].shrink);
+  for (std::size_t i = 1; i < amp.candidates.size(); ++i)
+    EXPECT_GE(amp.candidates[i - 1].shrink, amp.candidates[i].shrink);
 
   const Diagnosis ideal = diagnose(generate({}), only({"amplifier", "creep", "stribeck"}));
   EXPECT_TRUE(ideal.chosen.empty());
@@ -135,8 +142,8 @@ TEST(Selection, NamesTheHiddenEffectWithIntervalsAndNothingOnAnIdealStage) {
 }
 
 TEST(Selection, TwoEffectsAreNamedAsASet) {
-  // A tilt in both directions and a friction that varies from trial to trial: alone, friction_spread
-  // shrinks the gap by a few %; on top of the tilt it takes the rest.
+  // A tilt in both directions and a friction that varies from trial to trial: alone,
+  // friction_spread shrinks the gap by a few %; on top of the tilt it takes the rest.
   Sweep s;
   s.duties = {0.05, 0.2, 0.35, 0.65, 0.8, 0.95};
   s.trials = 5;
@@ -153,15 +160,19 @@ TEST(Selection, TwoEffectsAreNamedAsASet) {
 
 TEST(Selection, AnEffectOutsideTheLibraryIsUnexplainedAndNotNamed) {
   std::map<std::string, double> params;
-  auto thermal = make_unknown_effect("thermal_stroke", 1.0, model::StageParams{}.stroke_m, 800, params);
+  auto thermal =
+      make_unknown_effect("thermal_stroke", 1.0, model::StageParams{}.stroke_m, 800, params);
   Sweep s;
   s.distortion = thermal.get();
-  const Diagnosis d = diagnose(generate({}, s), only({"amplifier", "friction_spread", "creep", "stribeck"}));
+  const Diagnosis d =
+      diagnose(generate({}, s), only({"amplifier", "friction_spread", "creep", "stribeck"}));
   EXPECT_TRUE(d.chosen.empty()) << d.chosen.front().name;
   EXPECT_TRUE(d.unexplained.significant);
   EXPECT_FALSE(d.unexplained.cells.empty());
-  EXPECT_NE(d.unexplained.summary.find("no effect of the library explains"), std::string::npos) << d.unexplained.summary;
-  EXPECT_NE(d.unexplained.closest.find("shrinks the gap by"), std::string::npos) << d.unexplained.closest;
+  EXPECT_NE(d.unexplained.summary.find("no effect of the library explains"), std::string::npos)
+      << d.unexplained.summary;
+  EXPECT_NE(d.unexplained.closest.find("shrinks the gap by"), std::string::npos)
+      << d.unexplained.closest;
 }
 
 TEST(Selection, FrictionSpreadDoesNotAbsorbAFrictionOffset) {
@@ -203,7 +214,8 @@ TEST(Selection, EffectsWhoseSignatureIsMissingAreNotIdentifiable) {
 TEST(Where, RankCorrelationAndPatternInWords) {
   EXPECT_NEAR(spearman({1, 2, 3, 4}, {10, 20, 30, 40}), 1.0, 1e-12);
   EXPECT_NEAR(spearman({1, 2, 3, 4}, {4, 3, 2, 1}), -1.0, 1e-12);
-  EXPECT_NEAR(spearman({1, 1, 2, 2}, {1, 2, 3, 4}), spearman({1.5, 1.5, 3.5, 3.5}, {1, 2, 3, 4}), 1e-12);
+  EXPECT_NEAR(spearman({1, 1, 2, 2}, {1, 2, 3, 4}), spearman({1.5, 1.5, 3.5, 3.5}, {1, 2, 3, 4}),
+              1e-12);
   EXPECT_EQ(spearman({1, 1, 1}, {1, 2, 3}), 0.0);
   const SweepCells s = generate({});
   std::vector<double> grows;
@@ -211,6 +223,7 @@ TEST(Where, RankCorrelationAndPatternInWords) {
   const std::string text = pattern_summary(s, grows, "The footprint");
   EXPECT_NE(text.find("largest at 800 Hz, duty 0.05"), std::string::npos) << text;
   EXPECT_NE(text.find("grows with frequency"), std::string::npos) << text;
-  EXPECT_NE(pattern_summary(s, std::vector<double>(s.cells.size(), 0.5), "X").find("within the noise"),
-            std::string::npos);
+  EXPECT_NE(
+      pattern_summary(s, std::vector<double>(s.cells.size(), 0.5), "X").find("within the noise"),
+      std::string::npos);
 }

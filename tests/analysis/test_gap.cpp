@@ -17,7 +17,8 @@ using namespace idm::analysis;
 
 namespace {
 
-SweepCells memory_sweep(const model::StageFile& stage, const model::SimConfig& sim, const SweepPlan& plan) {
+SweepCells memory_sweep(const model::StageFile& stage, const model::SimConfig& sim,
+                        const SweepPlan& plan) {
   std::vector<TrialInfo> infos;
   std::vector<TrialSeries> series;
   simulate_sweep(stage, sim, plan, [&](const TrialInfo& i, TrialSeries&& s) {
@@ -55,9 +56,13 @@ double events_nm(const model::SimConfig& sim, double f, double duty) {
   c.cycles = 10;
   model::SimConfig coulomb;  // the reading instants do not depend on the effects
   c.read_t_s = fine(coulomb, f, duty).read_t_s;
-  return features_from_marks(simulate_marks(model::StageParams{}, sim, c, 30e-9), 1e-12, 0).steady_step_m * 1e9;
+  return features_from_marks(simulate_marks(model::StageParams{}, sim, c, 30e-9), 1e-12, 0)
+             .steady_step_m *
+         1e9;
 }
-double fine_nm(const model::SimConfig& sim, double f, double duty) { return fine(sim, f, duty).step_nm; }
+double fine_nm(const model::SimConfig& sim, double f, double duty) {
+  return fine(sim, f, duty).step_nm;
+}
 
 Fine fine(const model::SimConfig& sim, double f, double duty) {
   SweepPlan p;
@@ -90,7 +95,8 @@ TEST(ForwardModel, EventsMatchAFineIntegration) {
   };
   for (const auto& effects : configs) {
     model::SimConfig sim;
-    for (const model::EffectSpec& e : effects) sim.effects.push_back(model::complete_effect(e, "test"));
+    for (const model::EffectSpec& e : effects)
+      sim.effects.push_back(model::complete_effect(e, "test"));
     for (double f : {60.0, 300.0, 700.0})
       for (double duty : {0.05, 0.3, 0.45, 0.8}) {
         const double tol = effects.empty() ? 0.05 : 1.5;
@@ -103,9 +109,11 @@ TEST(ForwardModel, EventsMatchAFineIntegration) {
 TEST(ForwardModel, AnAmplifierIsScoredAtAConvergedPlantRate) {
   // Under a smoothed command the rigid plant finds a break-away to within a plant step: at the
   // scoring rate the steps of one-step cells are within 2.5 nm of a 16 MHz integration (multi-step
-  // cells near duty 0.5, whose steps swing with every detail, within 8 nm), the search rate less so.
+  // cells near duty 0.5, whose steps swing with every detail, within 8 nm), the search rate less
+  // so.
   model::SimConfig sim;
-  sim.effects.push_back(model::complete_effect({"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}}, "test"));
+  sim.effects.push_back(
+      model::complete_effect({"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}}, "test"));
   double worst_score = 0, worst_search = 0, worst_multi = 0;
   for (double f : {300.0, 700.0})
     for (double duty : {0.1, 0.3, 0.45}) {
@@ -153,8 +161,8 @@ TEST(Gap, TheBaselineFitsAFrictionOffset) {
 }
 
 TEST(Gap, AmplifierSampleSweepPartsFromTheBaselineAtHighFrequency) {
-  const SweepCells cells =
-      collect_cells(recording::read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier"));
+  const SweepCells cells = collect_cells(
+      recording::read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier"));
   ASSERT_EQ(cells.cells.size(), 160u);
   const FittedModel base = fit_baseline(cells, 2);
   EXPECT_GT(base.test.gap, 3.0);
@@ -166,7 +174,8 @@ TEST(Gap, AmplifierSampleSweepPartsFromTheBaselineAtHighFrequency) {
 
 TEST(Gap, TooSmallASweepSaysSo) {
   model::SimConfig sim;
-  const auto dir = std::filesystem::temp_directory_path() / ("gap_small_" + std::to_string(getpid()));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gap_small_" + std::to_string(getpid()));
   std::filesystem::remove_all(dir);
   SweepPlan plan;
   plan.freqs_hz = {100};

@@ -20,7 +20,8 @@ namespace {
 SweepCells small_sweep(const std::vector<model::EffectSpec>& effects) {
   model::SimConfig sim;
   sim.noise_m = 2e-9;
-  for (const model::EffectSpec& e : effects) sim.effects.push_back(model::complete_effect(e, "test"));
+  for (const model::EffectSpec& e : effects)
+    sim.effects.push_back(model::complete_effect(e, "test"));
   SweepPlan plan;
   plan.freqs_hz = {200, 500, 800};
   plan.duties = {0.1, 0.3, 0.7, 0.9};
@@ -68,18 +69,40 @@ TEST(ReportJson, HasTheShapeOfTheGapReportAndItsExtension) {
   const Diagnosis& d = tilted();
   const std::string j = gap_report_json(sweep, d, "some \"path\"");
   for (const char* key :
-       {"\"dataset\": \"some \\\"path\\\"\"", "\"baseline\": {\"model\": \"impulse\", \"params\": {\"step_correction\": ",
-        "\"friction_coefficient\": ", "\"cells\": [", "\"freq_hz\": ", "\"measured_step_m\": ", "\"measured_step_sd_m\": ",
-        "\"model_step_m\": ", "\"measured_region\": ", "\"model_region\": ", "\"residual\": ", "\"significant\": ",
-        "\"effect_gap\": ", "\"spread_excess\": ", "\"where\": {\"significant_cells\": [", "\"summary\": ",
-        "\"candidates\": [", "\"effect\": \"tilt\"", "\"intervals\": {\"angle_deg\": [", "\"plausible\": ",
-        "\"shrink\": ", "\"diagnosis\": {\"effects\": [\"tilt\"]", "\"gap_before\": ", "\"gap_after\": ",
-        "\"unexplained\": {\"significant\": false", "\"ambiguous\": [", "\"not_identifiable\": [",
+       {"\"dataset\": \"some \\\"path\\\"\"",
+        "\"baseline\": {\"model\": \"impulse\", \"params\": {\"step_correction\": ",
+        "\"friction_coefficient\": ",
+        "\"cells\": [",
+        "\"freq_hz\": ",
+        "\"measured_step_m\": ",
+        "\"measured_step_sd_m\": ",
+        "\"model_step_m\": ",
+        "\"measured_region\": ",
+        "\"model_region\": ",
+        "\"residual\": ",
+        "\"significant\": ",
+        "\"effect_gap\": ",
+        "\"spread_excess\": ",
+        "\"where\": {\"significant_cells\": [",
+        "\"summary\": ",
+        "\"candidates\": [",
+        "\"effect\": \"tilt\"",
+        "\"intervals\": {\"angle_deg\": [",
+        "\"plausible\": ",
+        "\"shrink\": ",
+        "\"diagnosis\": {\"effects\": [\"tilt\"]",
+        "\"gap_before\": ",
+        "\"gap_after\": ",
+        "\"unexplained\": {\"significant\": false",
+        "\"ambiguous\": [",
+        "\"not_identifiable\": [",
         "\"dataset_status\": {\"status\": \"unmarked\""})
     EXPECT_NE(j.find(key), std::string::npos) << key << "\n" << j;
   EXPECT_EQ(j.find("nan"), std::string::npos);
   std::size_t cells = 0;
-  for (std::size_t p = j.find("{\"freq_hz\""); p != std::string::npos; p = j.find("{\"freq_hz\"", p + 1)) ++cells;
+  for (std::size_t p = j.find("{\"freq_hz\""); p != std::string::npos;
+       p = j.find("{\"freq_hz\"", p + 1))
+    ++cells;
   EXPECT_EQ(cells, sweep.cells.size());
   EXPECT_TRUE(balanced(j));
 }
@@ -100,11 +123,12 @@ TEST(Report, RoundTicksWithoutMinusZero) {
 TEST(Report, WritesPlotsAndAPageWithoutLeavingTemporaryFiles) {
   const SweepCells sweep = small_sweep({{"tilt", {{"angle_deg", 2}}}});
   const Diagnosis& d = tilted();
-  const auto dir = std::filesystem::temp_directory_path() / ("gap_report_" + std::to_string(getpid()));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gap_report_" + std::to_string(getpid()));
   std::filesystem::remove_all(dir);
   write_report(sweep, d, text_summary(sweep, d), dir.string());
-  for (const char* f : {"steps.svg", "regions.svg", "gap_before.svg", "effect_gap.svg", "spread_excess.svg",
-                        "gap_after.svg", "ranking.svg", "report.html"}) {
+  for (const char* f : {"steps.svg", "regions.svg", "gap_before.svg", "effect_gap.svg",
+                        "spread_excess.svg", "gap_after.svg", "ranking.svg", "report.html"}) {
     ASSERT_TRUE(std::filesystem::exists(dir / f)) << f;
     std::ifstream in(dir / f);
     const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -140,7 +164,9 @@ TEST(BadInput, ATooSmallSweepAndABadTrialFileAreRefusedWithAMessage) {
     collect_cells(model::StageFile{}, infos, series, "tiny");
     ADD_FAILURE() << "no error";
   } catch (const InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("tiny: the sweep is too small to diagnose"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("tiny: the sweep is too small to diagnose"),
+              std::string::npos)
+        << e.what();
   }
   EXPECT_THROW(collect_cells(model::StageFile{}, {}, {}, "empty"), InputError);
   const auto dir = std::filesystem::temp_directory_path() / ("gap_bad_" + std::to_string(getpid()));
@@ -166,7 +192,8 @@ TEST(BadInput, ATooSmallSweepAndABadTrialFileAreRefusedWithAMessage) {
 }
 
 TEST(WriteFileAtomic, ReplacesWholeAndRefusesAMissingDirectory) {
-  const auto dir = std::filesystem::temp_directory_path() / ("gap_atomic_" + std::to_string(getpid()));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gap_atomic_" + std::to_string(getpid()));
   std::filesystem::create_directories(dir);
   const std::string path = (dir / "x.json").string();
   write_file_atomic(path, "first");
@@ -182,8 +209,9 @@ TEST(WriteFileAtomic, ReplacesWholeAndRefusesAMissingDirectory) {
 TEST(Validate, ScenariosAreInTheIssuesRanges) {
   int both = 0, two = 0, three = 0, five = 0;
   for (std::uint64_t seed = 1; seed <= 40; ++seed)
-    for (const std::string& c : {std::string("none"), std::string("tilt+hysteresis"), std::string("friction_spread"),
-                                 std::string("unknown:stroke_saturation"), std::string("not_identifiable:tilt")}) {
+    for (const std::string& c :
+         {std::string("none"), std::string("tilt+hysteresis"), std::string("friction_spread"),
+          std::string("unknown:stroke_saturation"), std::string("not_identifiable:tilt")}) {
       const Scenario s = make_scenario(c, seed, false);
       const model::StageParams& p = s.stage.stage;
       EXPECT_GE(p.slider_mass_kg, 0.0499);
@@ -205,9 +233,15 @@ TEST(Validate, ScenariosAreInTheIssuesRanges) {
         EXPECT_EQ(s.plan.strokes_m.size(), 2u);
         EXPECT_EQ(s.expected, (std::vector<std::string>{"hysteresis", "tilt"}));
       }
-      if (c == "friction_spread") EXPECT_GE(s.plan.trials, 4);
-      if (c == "not_identifiable:tilt") EXPECT_FALSE(fwd && rev);
-      if (c == "unknown:stroke_saturation") EXPECT_TRUE(s.expected.empty() && s.expect_unexplained);
+      if (c == "friction_spread") {
+        EXPECT_GE(s.plan.trials, 4);
+      }
+      if (c == "not_identifiable:tilt") {
+        EXPECT_FALSE(fwd && rev);
+      }
+      if (c == "unknown:stroke_saturation") {
+        EXPECT_TRUE(s.expected.empty() && s.expect_unexplained);
+      }
       both += fwd && rev;
       two += s.plan.strokes_m.size() == 2;
       three += s.plan.trials == 3;
@@ -226,6 +260,8 @@ TEST(Validate, ScenariosAreInTheIssuesRanges) {
   EXPECT_EQ(case_class("stribeck+tilt"), "pair");
   // every separable pair, and the expected-ambiguous one left out
   const std::vector<std::string> full = validate_cases(false);
-  EXPECT_EQ(std::count_if(full.begin(), full.end(), [](const std::string& c) { return case_class(c) == "pair"; }), 14);
+  EXPECT_EQ(std::count_if(full.begin(), full.end(),
+                          [](const std::string& c) { return case_class(c) == "pair"; }),
+            14);
   EXPECT_EQ(std::find(full.begin(), full.end(), "amplifier+actuator_compliance"), full.end());
 }
