@@ -6,11 +6,15 @@
 //                                               POS? round trips from CLIENTS threads to each server,
 //                                               same client code, interleaved rounds: p50/p99/max
 //   daemon_bench rss MOVES CONFIG               RSS before/after MOVES moves on the simulated stage
+//   daemon_bench loop-stalled SECONDS PERIOD_S CONFIG PID
+//                                               the loop on a Modbus device whose server (PID,
+//                                               idm-simdev) is stopped (SIGSTOP) the whole time
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <sys/epoll.h>
 #include <sys/socket.h>
+#include <signal.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -50,29 +54,44 @@ DaemonConfig bench_config(const std::string& path, double period_s) {
   c.realtime.period_s = period_s;
   // 32 bins of 4 us: 0..124 us, the last one holds the rest (a p99 there is reported as a bound).
   c.realtime.histogram_bin_s = 4e-6;
-  c.control.calibration_file.clear();
+  c.axes[0].control.calibration_file.clear();
   return c;
 }
 
-int loop_bench(double seconds, double period_s, const std::string& config) {
+int loop_bench(double seconds, double period_s, const std::string& config, int stall_pid = 0) {
   Daemon d(bench_config(config, period_s));
   const std::string warning = d.start();
   if (!warning.empty()) std::fprintf(stderr, "%s\n", warning.c_str());
+  // A stalled server: every request to it hangs until the driver's timeout, the device is lost,
+  // reconnects hang too. The loop must not notice.
+  if (stall_pid > 0) kill(stall_pid, SIGSTOP);
+  const LoopStats before = d.loop_stats();
   const double end = now_s() + seconds;
   int sign = 1;
   while (now_s() < end) {
     if (d.motion_done()) {
-      d.move_relative(sign * 50e-6);
+      d.move_relative(0, sign * 50e-6);
       sign = -sign;
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
-  const LoopStats s = d.loop_stats();
+  LoopStats s = d.loop_stats();
+  if (stall_pid > 0) {
+    // Only the stalled stretch: the histogram since the stop.
+    for (int i = 0; i < 32; ++i) s.bins[i] -= before.bins[i];
+    s.wakeups -= before.wakeups;
+    s.deadline_misses -= before.deadline_misses;
+    const idm::drivers::LinkHealth h = d.link_of(0).health();
+    std::printf("device while stalled: %s, %u losses, last error: %s\n",
+                idm::drivers::link_state_name(h.state), h.losses, h.message);
+    kill(stall_pid, SIGCONT);
+  }
   d.shutdown();
   const double p99 = percentile_from_bins(s, 0.99);
   if (p99 >= 32 * s.bin_width_s)
     std::fprintf(stderr, "idmd_loop: p99 is past the histogram (>= %.0f us): a bound\n", p99 * 1e6);
-  std::printf("idmd_loop wakeups=%llu misses=%llu bin_us=%.0f min_us=%.1f avg_us=%.1f p50_us=%.0f p99_us=%.0f max_us=%.1f\n",
+  std::printf("%s wakeups=%llu misses=%llu bin_us=%.0f min_us=%.1f avg_us=%.1f p50_us=%.0f p99_us=%.0f max_us=%.1f\n",
+              stall_pid > 0 ? "idmd_loop_stalled_modbus" : "idmd_loop",
               static_cast<unsigned long long>(s.wakeups), static_cast<unsigned long long>(s.deadline_misses),
               s.bin_width_s * 1e6, s.latency_min_s * 1e6, s.latency_avg_s * 1e6, percentile_from_bins(s, 0.5) * 1e6,
               p99 * 1e6, s.latency_max_s * 1e6);
@@ -216,13 +235,13 @@ double rss_mb() {
 int rss_bench(int moves, const std::string& config) {
   Daemon d(bench_config(config, 1e-4));
   d.start();
-  while (!d.status().position_valid) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  while (!d.status(0).position_valid) std::this_thread::sleep_for(std::chrono::milliseconds(5));
   double after_warmup = 0;
   int failed = 0;
   for (int i = 0; i < moves; ++i) {
-    if (!d.move_relative(i % 2 ? -1e-6 : 1e-6).ok()) ++failed;
+    if (!d.move_relative(0, i % 2 ? -1e-6 : 1e-6).ok()) ++failed;
     while (!d.motion_done()) std::this_thread::sleep_for(std::chrono::microseconds(200));
-    if (d.status().state == "FAULT") {
+    if (d.status(0).state == "FAULT") {
       ++failed;
       d.reset();
     }
@@ -240,6 +259,8 @@ int rss_bench(int moves, const std::string& config) {
 int main(int argc, char** argv) {
   const std::string mode = argc > 1 ? argv[1] : "";
   if (mode == "loop" && argc == 5) return loop_bench(std::atof(argv[2]), std::atof(argv[3]), argv[4]);
+  if (mode == "loop-stalled" && argc == 6)
+    return loop_bench(std::atof(argv[2]), std::atof(argv[3]), argv[4], std::atoi(argv[5]));
   if (mode == "echo") return echo_server();
   if (mode == "rtt" && argc == 7)
     return rtt_bench(std::atoi(argv[2]), std::atoi(argv[3]), std::atoi(argv[4]), std::atoi(argv[5]),

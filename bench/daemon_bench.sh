@@ -4,6 +4,8 @@
 #      ratio of p99 wake-up latency (target <= 1.5)
 #   2. POS? round trip with 8 clients on loopback vs a minimal echo server: p99 ratio (<= 3)
 #   3. RSS on the simulated stage over 10,000 moves (<= 50 MB, no growth)
+#   4. the real-time loop at 10 kHz on a Modbus device whose server is stalled (SIGSTOP) vs the
+#      same loop on the simulated stage (section 1): ratio of p99 and of max wake-up latency
 set -euo pipefail
 build="${1:?usage: bench/daemon_bench.sh BUILD_DIR [--quick]}"
 quick="${2:-}"
@@ -57,3 +59,17 @@ echo "idmd process after the round trips: $(grep -E 'VmRSS|VmHWM' /proc/$idmd_pi
 
 echo "== 3. RSS over ${moves} moves of 1 um on the simulated stage"
 "$bench" rss "$moves" "$tmp/idmd.yaml"
+
+echo "== 4. real-time loop, 10 kHz, ${secs} s, on a Modbus device whose server is stalled (SIGSTOP)"
+mport=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+sed -e "s#/var/lib/idmd/calibration.txt#$tmp/cal-mb.txt#" -e "s#/var/lib/idmd/data#$tmp/data#" \
+    -e "s/port: 1502/port: $mport/" -e "s/period_s: 1e-3 /period_s: 1e-4 /" \
+    "$src/config/idmd-modbus.yaml" > "$tmp/modbus.yaml"
+"$build/tools/idm-simdev" --port "$mport" --config "$tmp/modbus.yaml" > "$tmp/simdev.out" &
+simdev=$!; pids+=($simdev)
+for _ in $(seq 100); do grep -q listening "$tmp/simdev.out" && break; sleep 0.05; done
+"$bench" loop-stalled "$secs" 1e-4 "$tmp/modbus.yaml" "$simdev" | tee "$tmp/stalled.txt"
+awk '/^idmd_loop / {for(i=1;i<=NF;i++) {if ($i ~ /^p99_us=/) {split($i,a,"="); p=a[2]} if ($i ~ /^max_us=/) {split($i,a,"="); m=a[2]}}}
+     /^idmd_loop_stalled_modbus/ {for(i=1;i<=NF;i++) {if ($i ~ /^p99_us=/) {split($i,a,"="); q=a[2]} if ($i ~ /^max_us=/) {split($i,a,"="); n=a[2]}}}
+     END {printf "stalled Modbus / sim: p99 ratio %.2f, max ratio %.2f (the loop never waits for a device: target ~1)\n", q/p, n/m}' \
+  "$tmp/loop.txt" "$tmp/stalled.txt"

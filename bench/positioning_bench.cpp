@@ -20,6 +20,7 @@
 
 #include "control/calibration.h"
 #include "control/positioner.h"
+#include "daemon/sim_axis.h"
 #include "drivers/sim/sim_backend.h"
 #include "model/impulse_model.h"
 
@@ -128,24 +129,11 @@ double percentile(std::vector<double> v, double q) {
   return i + 1 < v.size() ? v[i] * (1 - f) + v[i + 1] * f : v[i];
 }
 
-struct Rig {
-  drivers::Device device;
-  drivers::sim::SimBackend* sim = nullptr;
-  explicit Rig(const drivers::sim::SimDeviceConfig& cfg) {
-    device = drivers::sim::make_sim_device(cfg);
-    sim = device.sim.get();
-    if (!device.configure().ok() || !device.activate().ok()) {
-      std::fprintf(stderr, "positioning_bench: the sim device did not come up\n");
-      std::exit(1);
-    }
-  }
-  ~Rig() { device.shutdown(); }
-};
-
 // Runs one move to rest, tracking the true position after every tick (overshoot, soft limits).
 template <class Start>
-MoveResult run_move(Positioner& p, drivers::sim::SimBackend& sim, double start_m, double target_m,
-                    Start&& start) {
+MoveResult run_move(daemon::SimAxis& axis, double start_m, double target_m, Start&& start) {
+  Positioner& p = *axis.positioner;
+  drivers::sim::SimBackend& sim = *axis.sim;
   MoveResult r;
   const double sign = target_m >= start_m ? 1.0 : -1.0;
   const double t0 = sim.now_s();
@@ -192,11 +180,11 @@ MoveResult run_move(Positioner& p, drivers::sim::SimBackend& sim, double start_m
     x_before_tick = x;
   };
   start();
-  p.tick(sim.now_s());
+  axis.tick();
   observe();
   while (!p.at_rest() && sim.now_s() - t0 < 600) {
     sim.advance_s(1e-4);
-    p.tick(sim.now_s());
+    axis.tick();
     observe();
   }
   close_chunk(sim.true_position_m());
@@ -216,21 +204,20 @@ void finish(MoveResult& r, const Positioner& p, const drivers::sim::SimBackend& 
 Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map,
                  Calibration& cal, double& final_step_bound_m) {
   Summary s;
-  Rig rig(realistic_device(seed));
   PositionerConfig pc;
   pc.soft_lower_m = -kSoftLimitM;
   pc.soft_upper_m = kSoftLimitM;
-  Positioner p(map, PlannerConfig{}, pc, *rig.device.output, *rig.device.interferometer, &cal);
-  final_step_bound_m = std::max(p.planner().final_step_bound_m(1), p.planner().final_step_bound_m(-1));
-  p.tick(rig.sim->now_s());
+  daemon::SimAxis rig(map, realistic_device(seed), pc, &cal);
+  Positioner& p = *rig.positioner;
+  final_step_bound_m = std::max(p.finest_live_step_m(1), p.finest_live_step_m(-1));
   const auto w0 = std::chrono::steady_clock::now();
   for (double target : targets) {
     if (p.status().state == MotionState::Fault) {
       p.reset_fault();
-      p.tick(rig.sim->now_s());
+      rig.tick();
     }
     const double start = rig.sim->true_position_m();
-    MoveResult r = run_move(p, *rig.sim, start, target, [&] { p.move_absolute(target); });
+    MoveResult r = run_move(rig, start, target, [&] { p.move_absolute(target); });
     r.corrections = p.status().corrections;
     r.step_m = std::max(p.count_m(), std::fabs(p.last_plan().final_step_m));
     if (!r.faulted) r.time_s = p.status().last_move_time_s;
@@ -264,26 +251,25 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
 // count), up to 10 retries; it gives up when the error rounds to zero steps.
 Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map) {
   Summary s;
-  Rig rig(realistic_device(seed));
   PositionerConfig pc;
   pc.max_chunk_s = 10.0;  // whole bursts (2,000 cycles at most: the sim's 2^20 samples)
-  Positioner p(map, PlannerConfig{}, pc, *rig.device.output, *rig.device.interferometer);
-  auto now = [&] { return rig.sim->now_s(); };
-  auto advance = [&](double dt) { rig.sim->advance_s(dt); };
-  p.tick(now());
+  drivers::sim::SimDeviceConfig device = realistic_device(seed);
+  device.stream_capacity = std::size_t{1} << 21;  // a whole 10 s burst's capture
+  daemon::SimAxis rig(map, device, pc);
+  Positioner& p = *rig.positioner;
   const double freq = 200, duty_positive = 0.9, stroke = 20.35e-6;
   double step_m[2] = {0, 0};  // [0] negative, [1] positive, measured
   for (int dir : {1, -1}) {
     const double before = p.status().position_m;
     p.step_open_loop(dir * 200, duty_positive, freq, stroke);
-    run_until_rest(p, now, advance, 60);
+    rig.run();
     step_m[dir > 0 ? 1 : 0] = std::fabs(p.status().position_m - before) / 200;
   }
   const auto w0 = std::chrono::steady_clock::now();
   for (double target : targets) {
     const double start = rig.sim->true_position_m();
     std::uint32_t retries = 0;
-    MoveResult r = run_move(p, *rig.sim, start, target, [] {});
+    MoveResult r = run_move(rig, start, target, [] {});
     const double t0 = rig.sim->now_s();
     const std::uint64_t cycles0 = p.status().cycles, bursts0 = p.status().bursts;
     for (int attempt = 0; attempt <= 10; ++attempt) {
@@ -296,7 +282,7 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
       for (double left = n; left > 0;) {
         const double burst = std::min(left, 2000.0);
         left -= burst;
-        const MoveResult part = run_move(p, *rig.sim, start, target, [&] {
+        const MoveResult part = run_move(rig, start, target, [&] {
           p.step_open_loop(static_cast<std::int64_t>(dir * burst), duty_positive, freq, stroke);
         });
         r.overshoot_m = std::max(r.overshoot_m, part.overshoot_m);
@@ -307,7 +293,7 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
         if (part.faulted) {
           r.faulted = true;
           p.reset_fault();
-          p.tick(now());
+          rig.tick();
         }
       }
     }

@@ -22,23 +22,11 @@ namespace {
 constexpr const char* kMagic = "idm-calibration 2";
 constexpr const char* kMagicV1 = "idm-calibration 1";  // no rung lines; still read
 
-[[noreturn]] void fail_range(const std::string& where, const std::string& key, double v,
-                             const std::string& range) {
-  throw model::InputError(where + "." + key + ": " + model::format_number(v) +
-                          " is out of range, allowed " + range);
-}
-
 int direction_index(int direction) { return direction > 0 ? 1 : 0; }
 
 const char* direction_name(int index) { return index == 1 ? "positive" : "negative"; }
 
-const char* region_key(int region) {
-  switch (region) {
-    case 0: return "cutoff";
-    case 1: return "one-step";
-    default: return "multi-step";
-  }
-}
+const char* region_key(int region) { return model::region_name(static_cast<model::Region>(region)); }
 
 // The regressors of a burst of `cycles` cycles of the cell along its direction, for
 // theta = (alpha, alpha mu): D(N) = alpha phi_a - alpha mu phi_m.
@@ -91,19 +79,37 @@ bool estimate_ok(const CalibrationEstimate& e) {
 
 }  // namespace
 
+const model::ParamTable<CalibrationConfig>& calibration_params() {
+  using model::boolean;
+  using model::real;
+  static const model::ParamTable<CalibrationConfig> table({
+      boolean<CalibrationConfig>("enabled", "learn the step model online from measured steps",
+                                 [](auto& c) -> auto& { return c.enabled; }),
+      real<CalibrationConfig>("forgetting", "1", {0, 1, true}, "RLS forgetting factor of the cell estimates",
+                              [](auto& c) -> auto& { return c.forgetting; }),
+      real<CalibrationConfig>("initial_relative_sd", "1", {0, 10, true},
+                              "relative sd of the nominal alpha and alpha mu before any update",
+                              [](auto& c) -> auto& { return c.initial_relative_sd; }),
+      real<CalibrationConfig>("observation_relative_sd", "1", {0, 10, true},
+                              "relative sd of one burst's displacement about the model",
+                              [](auto& c) -> auto& { return c.observation_relative_sd; }),
+      real<CalibrationConfig>("max_ratio", "1", {1, 100, true},
+                              "a calibrated prediction is used within this ratio of the nominal",
+                              [](auto& c) -> auto& { return c.max_ratio; }),
+      real<CalibrationConfig>("min_update_counts", "count", {0, 1e6},
+                              "a burst updates the estimate only when it moved this many counts",
+                              [](auto& c) -> auto& { return c.min_update_counts; }),
+      real<CalibrationConfig>("rung_initial_relative_sd", "1", {0, 10, true},
+                              "relative sd of a rung's seed from the model",
+                              [](auto& c) -> auto& { return c.rung_initial_relative_sd; }),
+      real<CalibrationConfig>("rung_forgetting", "1", {0, 1, true}, "RLS forgetting factor of the rungs",
+                              [](auto& c) -> auto& { return c.rung_forgetting; }),
+  });
+  return table;
+}
+
 void validate(const CalibrationConfig& c, const std::string& where) {
-  if (!(c.forgetting > 0 && c.forgetting <= 1)) fail_range(where, "forgetting", c.forgetting, "(0, 1]");
-  if (!(c.initial_relative_sd > 0 && c.initial_relative_sd <= 10))
-    fail_range(where, "initial_relative_sd", c.initial_relative_sd, "(0, 10]");
-  if (!(c.observation_relative_sd > 0 && c.observation_relative_sd <= 10))
-    fail_range(where, "observation_relative_sd", c.observation_relative_sd, "(0, 10]");
-  if (!(c.max_ratio > 1 && c.max_ratio <= 100)) fail_range(where, "max_ratio", c.max_ratio, "(1, 100]");
-  if (!(c.min_update_counts >= 0 && c.min_update_counts <= 1e6))
-    fail_range(where, "min_update_counts", c.min_update_counts, "[0, 1e6]");
-  if (!(c.rung_initial_relative_sd > 0 && c.rung_initial_relative_sd <= 10))
-    fail_range(where, "rung_initial_relative_sd", c.rung_initial_relative_sd, "(0, 10]");
-  if (!(c.rung_forgetting > 0 && c.rung_forgetting <= 1))
-    fail_range(where, "rung_forgetting", c.rung_forgetting, "(0, 1]");
+  calibration_params().validate(c, where);
 }
 
 bool RungEstimate::same_cell(double f, double d, double s) const {
@@ -246,23 +252,6 @@ bool Calibration::rls_update(RungEstimate& e, std::uint64_t cycles, double measu
   ++next.updates;
   if (!rung_ok(next)) return false;
   e = next;
-  return true;
-}
-
-bool Calibration::predict(const RegionCell& cell, double& single_along_m,
-                          double& step_along_m) const {
-  if (!config_.enabled) return false;
-  const CalibrationEstimate& e = estimate(cell.region, cell.direction());
-  if (e.updates == 0) return false;
-  const Regressors r = regressors(nominal_, cell, 1);
-  const double step = e.alpha * r.step_a - e.alpha_mu * r.step_m;
-  const double single = e.alpha * r.phi_a - e.alpha_mu * r.phi_m;
-  const double nominal_step = cell.direction() * cell.step_m;
-  if (!(nominal_step > 0) || !(step > 0)) return false;
-  const double ratio = step / nominal_step;
-  if (!(ratio >= 1.0 / config_.max_ratio && ratio <= config_.max_ratio)) return false;
-  single_along_m = single;
-  step_along_m = step;
   return true;
 }
 

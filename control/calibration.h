@@ -27,6 +27,7 @@
 #include <string>
 
 #include "model/impulse_model.h"
+#include "model/param_table.h"
 #include "model/stage.h"
 
 namespace idm::control {
@@ -52,6 +53,7 @@ struct CalibrationConfig {
   double rung_initial_relative_sd = 0.5;
   double rung_forgetting = 0.9;
 };
+const model::ParamTable<CalibrationConfig>& calibration_params();
 void validate(const CalibrationConfig& config, const std::string& where = "control.calibration");
 
 // One (region, direction) estimate: theta = (alpha, alpha mu), its covariance P (symmetric).
@@ -125,10 +127,6 @@ class Calibration {
   const CalibrationEstimate& estimate(model::Region region, int direction) const;
   double alpha(model::Region region, int direction) const { return estimate(region, direction).alpha; }
   double mu(model::Region region, int direction) const { return estimate(region, direction).mu(); }
-  // The calibrated prediction of a burst of the cell, along its direction of motion (> 0):
-  // one-cycle burst and steady step. False (outputs untouched) when disabled, never updated for
-  // the cell's region and direction, or the ratio to the nominal step is outside max_ratio.
-  bool predict(const RegionCell& cell, double& single_along_m, double& step_along_m) const;
   // One measured burst of `cycles` cycles of the cell: displacement signed (as the cell's
   // step_m), count_m the interferometer count. Returns whether it updated the estimate.
   bool update(const RegionCell& cell, std::uint64_t cycles, double measured_m, double count_m);

@@ -1,6 +1,6 @@
-// The move planner: a signed distance -> a sequence of bursts (duty, frequency, stroke, cycles),
-// every one from a usable cell of the region map (robustly one-step, within the device limits).
-// The rules are in control/README.md ("Planning rules").
+// What the positioner plans with (PlannerConfig) and what it reports of its plans (Burst, Plan):
+// a chunk is one burst of a usable cell of the region map (robustly one-step, within the device
+// limits). The step ladder that chooses it is the positioner's (control/README.md).
 #pragma once
 
 #include <cstddef>
@@ -8,23 +8,21 @@
 #include <string>
 #include <vector>
 
+#include "model/param_table.h"
+
 #include "control/region_map.h"
 
 namespace idm::control {
 
 struct PlannerConfig {
-  // The step the last burst should not exceed: one interferometer count.
+  // One interferometer count.
   double resolution_m = 9.8906e-9;
-  // When no usable cell steps within the resolution, the last burst may use any cell whose step is
-  // within this factor of the finest one.
-  double final_class_slack = 1.25;
-  // The last burst covers up to about this many of its (largest allowed) steps; the bursts before
-  // it stop at least half of that short of the target for every mu of the stated interval.
-  int final_approach_steps = 8;
-  // Most bursts in one plan (a device that holds few cycles per burst needs many for a long move).
+  // Most bursts (chunks) in one move (a device that holds few cycles per burst needs many for a long move).
   int max_bursts = 10000;
 };
 
+// The keys of PlannerConfig (resolution_m comes from the interferometer, not a file).
+const model::ParamTable<PlannerConfig>& planner_params();
 void validate(const PlannerConfig& config, const std::string& where = "planner");
 
 struct Burst {
@@ -56,55 +54,6 @@ struct Plan {
   bool within_final_step() const;
   std::uint64_t total_cycles() const;
   double duration_s() const;
-};
-
-class Planner {
- public:
-  // Sorts the map's usable cells once per direction; the map must outlive the planner.
-  explicit Planner(const RegionMap& map, PlannerConfig config = {});
-
-  // Deterministic; allocates only when out.bursts has to grow.
-  void plan(double distance_m, Plan& out) const;
-  Plan plan(double distance_m) const;
-
-  const RegionMap& map() const { return map_; }
-  const PlannerConfig& config() const { return config_; }
-  // Largest and smallest |step| of the usable cells moving in `direction` (+1 / -1); 0 if none.
-  double largest_step_m(int direction) const;
-  double finest_step_m(int direction) const;
-  // The largest |step| a last burst toward `direction` may use.
-  double final_step_bound_m(int direction) const;
-
- private:
-  // A usable cell seen along its direction of motion (all lengths > 0 forward).
-  struct Entry {
-    double step_m;       // |eq 22| at nominal mu
-    double step_hi_m;    // largest over the mu interval
-    double single_m;     // one-cycle burst, nominal (may be < 0: a first cycle that goes back)
-    double single_hi_m;  // largest over the mu interval
-    double period_s;
-    std::uint64_t max_cycles;
-    std::size_t cell;
-    double displacement_m(std::uint64_t n) const {
-      return single_m + static_cast<double>(n - 1) * step_m;
-    }
-    // No burst of this cell moves more than this per cycle: max(step, single).
-    double rate_bound_m() const { return single_m > step_m ? single_m : step_m; }
-  };
-  struct Direction {
-    std::vector<Entry> all;       // by step, largest first (then shorter period, then cell index)
-    std::vector<Entry> approach;  // by rate_bound_m, largest first (then as in `all`)
-    std::vector<Entry> last;      // the final class: step <= final_step_bound
-    double final_step_bound_m = 0;
-    double smallest_move_m = 0;  // the smallest forward displacement of any burst
-  };
-  const Direction& direction(int sign) const { return sign > 0 ? positive_ : negative_; }
-  Burst make_burst(const Entry& e, std::uint64_t cycles, int sign) const;
-
-  const RegionMap& map_;
-  PlannerConfig config_;
-  Direction positive_;
-  Direction negative_;
 };
 
 }  // namespace idm::control

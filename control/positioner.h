@@ -1,21 +1,23 @@
-// The closed-loop positioner: burst -> read the interferometer -> correct, until the slider is
-// within tolerance of the target (default: one interferometer count). A state machine advanced by
-// tick(), so that the daemon's real-time loop can drive it: tick() and every command below never
+// The closed-loop positioner of one axis: burst -> read the interferometer -> correct, until the
+// slider is within tolerance of the target (default: one interferometer count). Pure: it never
+// calls a driver. The device link (drivers/link.h) feeds it position readings and segment events
+// (on_event), and tick() hands out what the output must do (a segment to play, a stop, a request
+// for fresh readings) as a model::OutputRequest. tick(), on_event() and every command below never
 // block, allocate, lock or log (buffers are sized at construction).
 //
 // CONTRACT (shared with daemon/): the names and meanings in this header are what the daemon codes
 // against. Extend it; do not change what is here without changing the daemon with it.
 //
 //   IDLE      at rest, nothing commanded (after a move that reached its target, a stop, or start)
-//   MOVING    a burst (or a chunk of one) is loaded or playing
-//   SETTLING  the output is at rest; waiting settle_s, then reading the position
-//   FAULT     something is wrong; the output has been stopped (zero). Commands other than
+//   MOVING    a burst (or a chunk of one) is requested or playing
+//   SETTLING  the output is at rest; waiting settle_s, then for fresh readings
+//   FAULT     something is wrong; the output has been told to stop (zero). Commands other than
 //             stop/reset_fault are refused until reset_fault().
 //
 // Stop at any time: a burst is played in chunks of whole cycles no longer than max_chunk_s, each
 // ending with the actuator at 0 and the slider at rest; stop() lets the playing chunk end (never
 // a step cut short, never a fast edge) and plays nothing after it. A fault stops the output at
-// once (WaveformOutput::stop brings it to zero).
+// once (an OutputRequest::Stop).
 #pragma once
 
 #include <cstddef>
@@ -27,8 +29,8 @@
 #include "control/calibration.h"
 #include "control/planner.h"
 #include "control/region_map.h"
-#include "drivers/interfaces.h"
-#include "drivers/position_word.h"
+#include "model/axis_io.h"
+#include "model/param_table.h"
 
 namespace idm::control {
 
@@ -49,8 +51,6 @@ struct PositionerConfig {
   // Soft limits: a move whose target lies outside is refused before anything moves.
   double soft_lower_m = -std::numeric_limits<double>::infinity();
   double soft_upper_m = std::numeric_limits<double>::infinity();
-  // While IDLE, the position is re-latched at most this often (for POS? queries).
-  double idle_poll_s = 0.01;
   // An approach burst (not the plan's last) is cut so that its prediction, grown by this
   // share, still stops the planner's approach margin short of the target: the step model's own
   // error (alpha, which the mu interval of the map does not cover) must not carry it past.
@@ -62,7 +62,7 @@ struct PositionerConfig {
   int max_chunks_per_move = 0;
   // ---- the step ladder (control/README.md, "Positioner") ----
   // The last chunks of a move use a rung whose learned step is at most this many counts (a step
-  // under two counts always lands in the +/- one count window when played one cycle at a time).
+  // under two counts, played one cycle at a time, reaches the half-count window within a few tries).
   double final_step_counts = 2.0;
   // A rung whose learned step falls below this many counts per cycle is treated as not moving.
   double min_step_counts = 0.3;
@@ -74,7 +74,9 @@ struct PositionerConfig {
   double chunk_overhead_s = 5e-3;
 };
 
-// Throws model::InputError naming the key and the allowed range.
+// The keys of PositionerConfig, and the check of values set in code (model::InputError naming the
+// key and the allowed range). The soft limits are checked here as a pair (lower < upper).
+const model::ParamTable<PositionerConfig>& positioner_params();
 void validate(const PositionerConfig& config, const std::string& where = "control");
 
 enum class MotionState : std::uint8_t { Idle, Moving, Settling, Fault };
@@ -87,6 +89,8 @@ enum class MotionFault : std::uint8_t {
   RetryLimit,     // still outside tolerance after max_retries corrections
   Driver,         // a driver call failed (the driver's message is in last_driver_error())
   NoPlan,         // no usable cell moves toward the target (map empty for that direction)
+  CaptureOverrun, // the interferometer's capture filled before it was read (a chunk too long for it)
+  DeviceLost,     // the device stopped answering (the link reconnects by itself)
 };
 const char* motion_fault_name(MotionFault fault);  // "none", "invalid_sample", ...
 
@@ -99,6 +103,7 @@ enum class Refusal : std::uint8_t {
   Busy,               // a move is in progress (stop it first)
   OutOfRange,         // an open-loop step's cycles/duty/frequency/stroke outside the device limits
   NoPosition,         // the position is not known (no valid word yet)
+  NotReferenced,      // an absolute move on an axis that must be referenced first (the daemon's)
 };
 const char* refusal_name(Refusal refusal);  // "none", "not_finite", ...
 
@@ -117,41 +122,62 @@ struct MotionStatus {
   double last_move_time_s = 0.0;     // time the last finished move took
 };
 
+// What the positioner knows of its device: plain numbers the daemon takes from the drivers'
+// capabilities (drivers/interfaces.h), so that control needs no driver.
+struct AxisDeviceInfo {
+  double count_m = 9.8906e-9;          // one interferometer count
+  double max_velocity_m_s = 0.1;       // the position decoder's limit (faster reads as a glitch)
+  double stream_rate_hz = 1e5;         // the capture's sample rate during a burst
+  std::size_t stream_capacity = 1u << 20;  // records the capture holds for one burst
+  bool buffered = true;                // the output takes samples (else burst parameters)
+  std::size_t max_burst_samples = 1u << 20;  // buffered: the longest burst
+  std::uint32_t max_cycles = 1000000;  // parameters: most cycles in one burst
+};
+
 class Positioner {
  public:
-  // The map, output, interferometer and (optional) calibration must outlive the positioner; the
-  // devices must be active before tick() moves anything. Throws model::InputError on a bad config.
+  // The map and the (optional) calibration must outlive the positioner. Throws
+  // model::InputError on a bad config, or a device that cannot carry out the map (a chunk that
+  // overruns its capture, a decoder slower than the map's fastest slider).
   Positioner(const RegionMap& map, const PlannerConfig& planner, const PositionerConfig& config,
-             drivers::WaveformOutput& output, drivers::Interferometer& interferometer,
-             Calibration* calibration = nullptr);
+             const AxisDeviceInfo& device, Calibration* calibration = nullptr);
 
   // ---- commands (real-time safe; nothing moves until tick()) ----
   Refusal move_absolute(double target_m);
   Refusal move_relative(double distance_m);
   // Open-loop burst of |cycles| cycles of (duty, freq_hz, stroke_m); negative cycles mirror the
-  // duty (1 - duty) to move the other way. duty/freq/stroke <= 0: the map's largest-step cell
-  // for that direction.
-  Refusal step_open_loop(std::int64_t cycles, double duty = 0, double freq_hz = 0,
-                         double stroke_m = 0);
+  // duty (1 - duty) to move the other way. duty and freq_hz NaN (omitted): the map's largest-step
+  // cell for that direction; stroke_m NaN: the map's largest stroke. A given value outside the
+  // device limits is refused (OutOfRange), never replaced; so is a burst whose predicted end,
+  // grown by approach_uncertainty, lies outside the soft limits (OutsideSoftLimits).
+  static constexpr double kOmitted = std::numeric_limits<double>::quiet_NaN();
+  Refusal step_open_loop(std::int64_t cycles, double duty = kOmitted, double freq_hz = kOmitted,
+                         double stroke_m = kOmitted);
   // Ends motion at the next chunk end (see above). No effect when idle.
   void stop();
   // Leaves FAULT for IDLE (the output is already at zero); re-reads the position.
   void reset_fault();
   Refusal set_soft_limits(double lower_m, double upper_m);
+  // After a rebuild at rest (new settings): carry on from the previous positioner's status (the
+  // target, the position read at rest, the counters), so that a reset does not show target 0.
+  void continue_from(const MotionStatus& previous);
 
   // ---- the state machine ----
-  // Advances by polling the devices; now_s on any monotonic clock (seconds). Never blocks.
-  void tick(double now_s);
+  // Everything the device link reports for this axis, in order.
+  void on_event(const model::AxisEvent& event);
+  // Advances to now_s (the link's clock). Returns true with `request` filled when the output must
+  // be told something (push it to the link); at most one per tick. Never blocks.
+  bool tick(double now_s, model::OutputRequest& request);
 
   const MotionStatus& status() const { return status_; }
+  // The target of the last move or step command, accepted or refused (NaN when it had none, e.g.
+  // a non-finite argument): what a refusal's message names.
+  double requested_target_m() const { return requested_target_m_; }
   bool at_rest() const;  // IDLE or FAULT (the motor record's DMOV = 1)
   const PositionerConfig& config() const { return config_; }
   double tolerance_m() const;
-  // The driver's message for MotionFault::Driver (empty otherwise). Not real-time safe to copy.
-  const std::string& last_driver_error() const { return last_driver_error_; }
 
   // ---- for tests, tools and benchmarks ----
-  const Planner& planner() const { return planner_; }
   const RegionMap& map() const { return map_; }
   // The plan made for the last chunk (its first burst is what was played, cut to a chunk).
   const Plan& last_plan() const { return plan_; }
@@ -183,6 +209,13 @@ class Positioner {
 
  private:
   enum class Phase : std::uint8_t { Idle, Pending, Playing, Settling, Fault };
+  // Fresh readings: the average of latch_words valid readings taken at or after fresh_after_s_.
+  struct Fresh {
+    double after_s = 0;
+    int count = 0;
+    double sum_m = 0;
+    bool requested = false;  // a Read request went out for them
+  };
   struct Chunk {
     double freq_hz = 0, duty = 0, stroke_m = 0;
     std::uint32_t period_samples = 0, extension_samples = 0;
@@ -229,12 +262,19 @@ class Positioner {
   bool judge_and_learn(double moved_m);  // false: a fault was entered
 
   void enter_fault(MotionFault fault);
-  void driver_fault(const drivers::DriverStatus& status);
-  bool latch_position(double& position_m);  // false: a fault was entered
-  bool drain_stream();                      // false: a fault was entered
-  bool start_chunk();                       // false: a fault was entered
-  void after_chunk(double now_s);
+  void on_reading(const model::AxisEvent& e);
+  void want_fresh(double after_s);          // start collecting fresh readings
+  bool fresh_position(double& position_m);  // true once they are in (position_m: their mean)
+  void start_chunk();                       // the request for chunk_
+  void after_chunk(double now_s, double position_m);
   void plan_next_chunk(double now_s);
+  int final_rung(std::vector<Rung>& ladder);
+  int approach_rung(const std::vector<Rung>& ladder, double distance, double keep,
+                    std::uint64_t& cycles) const;
+  int final_try(const std::vector<Rung>& ladder, int fin, double distance, std::uint64_t& cycles,
+                bool& capped) const;
+  void play_rung(const std::vector<Rung>& ladder, int chosen, int sign, std::uint64_t cycles,
+                 bool final_chunk, bool capped, double b_final, double error);
   void next_open_loop_chunk(double now_s);
   void finish(double now_s);
   std::uint64_t chunk_cycle_limit(double freq_hz, std::uint32_t period_samples,
@@ -242,23 +282,26 @@ class Positioner {
   double nominal_open_loop_step_m(double freq_hz, double duty, double stroke_m) const;
 
   const RegionMap& map_;
-  Planner planner_;
+  PlannerConfig planner_;
   PositionerConfig config_;
-  drivers::WaveformOutput& output_;
-  drivers::Interferometer& interferometer_;
+  AxisDeviceInfo device_;
   Calibration* calibration_;
   MotionStatus status_;
-  std::string last_driver_error_;
 
   // Sized in the constructor; never grown afterwards.
   Plan plan_;
-  std::vector<double> samples_;               // one chunk at the output's clock
-  std::vector<drivers::TimedWord> stream_;    // a slice of the burst stream
-  drivers::PositionDecoder latch_decoder_;    // latched words (reset per reading)
-  drivers::PositionDecoder stream_decoder_;   // the stream of one chunk (reset per chunk)
   double count_m_ = 0;
-  bool buffered_ = true;          // write_burst (samples) or write_burst_parameters
+  bool buffered_ = true;          // clocked segments (samples) or burst parameters
   double sample_rate_hz_ = 0;     // the output clock for buffered bursts
+  std::size_t max_chunk_samples_ = 0;  // buffered: the longest chunk the output takes
+  // The link: what tick() has to say, the segment in flight, fresh readings.
+  bool request_due_ = false;
+  model::OutputRequest request_;
+  std::uint32_t seq_ = 0;         // of the last segment requested
+  Fresh fresh_;
+  double now_s_ = 0;              // the last tick's time
+  bool device_lost_ = false;      // between DeviceLost and DeviceBack
+  bool lost_at_rest_ = false;     // the loss came with nothing moving
   int max_chunks_ = 0;
   std::vector<Rung> ladder_[2];
   CalibrationConfig rung_cfg_;  // the calibration's (or the default) RLS settings for the rungs
@@ -266,10 +309,10 @@ class Positioner {
   bool has_largest_cell_[2] = {false, false};
 
   std::uint8_t invalid_sample_status_ = 0;
+  double requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
+  bool target_known_ = false;  // target_m holds a move's target or the first position read
   Phase phase_ = Phase::Idle;
   bool stop_requested_ = false;
-  bool poll_due_ = true;
-  double last_poll_s_ = 0;
   double move_start_s_ = 0;
   double settle_until_s_ = 0;
   bool move_started_ = false;     // move_start_s_ is set (the first tick after the command)
@@ -283,20 +326,5 @@ class Positioner {
   Chunk open_loop_;
   std::uint64_t open_loop_remaining_ = 0;
 };
-
-// For tools, tests and benchmarks: ticks until at_rest() or timeout_s of `clock` time has passed;
-// `advance(dt)` is called between ticks (for the simulated stage's synthetic clock:
-// sim->advance_s(dt); on the wall clock: a sleep). Returns the final state.
-template <typename Clock, typename Advance>
-MotionState run_until_rest(Positioner& positioner, Clock&& now_s, Advance&& advance,
-                           double timeout_s, double tick_s = 1e-4) {
-  const double start = now_s();
-  positioner.tick(start);
-  while (!positioner.at_rest() && now_s() - start < timeout_s) {
-    advance(tick_s);
-    positioner.tick(now_s());
-  }
-  return positioner.status().state;
-}
 
 }  // namespace idm::control

@@ -137,17 +137,6 @@ std::string describe_limit_violations(unsigned flags) {
   return out;
 }
 
-ClockedWave snap_to_sample_clock(double rate_hz, double freq_hz, double duty) {
-  ClockedWave w;
-  const double p = std::max(2.0, std::round(rate_hz / freq_hz));
-  const double k = std::clamp(std::round(duty * p), 1.0, p - 1);
-  w.period_samples = static_cast<std::uint32_t>(p);
-  w.extension_samples = static_cast<std::uint32_t>(k);
-  w.freq_hz = rate_hz / p;
-  w.duty = k / p;
-  return w;
-}
-
 std::vector<double> RegionGrid::duties() const {
   std::vector<double> out;
   for (long j = 1;; ++j) {

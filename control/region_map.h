@@ -14,6 +14,7 @@
 
 #include "model/impulse_model.h"
 #include "model/stage.h"
+#include "model/waveform.h"
 
 namespace idm::control {
 
@@ -49,17 +50,8 @@ inline constexpr unsigned kBurstTooLong = 1u << 4;  // not even one cycle fits a
 // "frequency above max, off sample clock" (empty for 0).
 std::string describe_limit_violations(unsigned flags);
 
-// A waveform on the output clock: f = rate / P, duty = k / P.
-struct ClockedWave {
-  double freq_hz = 0;
-  double duty = 0;
-  std::uint32_t period_samples = 0;     // P
-  std::uint32_t extension_samples = 0;  // k, 1 <= k <= P - 1
-};
-// The playable waveform nearest to (freq_hz, duty): P = round(rate / f) (at least 2), k =
-// round(duty P) clamped to [1, P-1]. The corners then lie on samples, so the ideal model of the
-// played waveform is exact; the cell is evaluated at the snapped values, not the requested ones.
-ClockedWave snap_to_sample_clock(double sample_rate_hz, double freq_hz, double duty);
+using model::ClockedWave;
+using model::snap_to_sample_clock;
 
 // The grid of the map.
 struct RegionGrid {

@@ -2,218 +2,481 @@
 
 #include <algorithm>
 #include <cmath>
-#include <functional>
 #include <limits>
+#include <set>
 #include <utility>
-#include <vector>
 
 #include "drivers/backends.h"
-#include "drivers/config.h"
 #include "model/yaml_util.h"
 
 namespace idm::daemon {
 
+using model::boolean;
+using model::custom;
 using model::InputError;
+using model::integer;
 using model::located;
-using model::read_bool;
-using model::read_double;
-using model::read_integer;
-using model::read_string;
+using model::real;
+using model::text;
+using model::with_default;
 
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
+using Node = YAML::Node;
 
-// One section: its keys and how each is read. Unknown keys are errors naming the allowed ones.
-struct Key {
-  const char* name;
-  std::function<void(const YAML::Node&, const std::string& key)> read;
+bool present(const Node& n) { return n.IsDefined() && !n.IsNull(); }
+
+// map[key], or an undefined node (never yaml-cpp's invalid one, which cannot be assigned).
+Node child(const Node& map, const char* key) {
+  if (map.IsDefined() && map.IsMap()) {
+    const Node n = map[key];
+    if (n.IsDefined()) return n;
+  }
+  return Node(YAML::NodeType::Undefined);
+}
+
+// An axis's sections before they are parsed by their layers.
+struct AxisSections {
+  std::string device;
+  int channel = -1;
+  bool require_reference = false;
+  Node stage, interferometer, sim, control;
 };
 
-void read_section(const YAML::Node& root, const char* section, const std::string& file,
-                  const std::vector<Key>& keys) {
-  const YAML::Node node = drivers::detail::child(root, section);
-  if (!drivers::detail::present(node)) return;
-  if (!node.IsMap()) throw InputError(located(file, node, section, "expected a map"));
-  for (const auto& kv : node) {
-    const std::string name = kv.first.as<std::string>();
-    const std::string key = std::string(section) + "." + name;
-    const auto it = std::find_if(keys.begin(), keys.end(),
-                                 [&](const Key& k) { return name == k.name; });
-    if (it == keys.end()) {
-      std::string allowed;
-      for (const Key& k : keys) allowed += (allowed.empty() ? "" : ", ") + std::string(k.name);
-      throw InputError(located(file, kv.first, key, "unknown key, allowed " + allowed));
-    }
-    if (!drivers::detail::present(kv.second))
-      throw InputError(located(file, kv.first, key, "no value"));
-    it->read(kv.second, key);
+template <typename S>
+model::Param<S> section(const char* name, const char* doc, Node S::*field) {
+  return custom<S>(name, "map", "see its section", "", doc,
+                   [field](S& s, const Node& v, const std::string& f, const std::string& k) {
+                     if (!v.IsMap()) throw InputError(located(f, v, k, "expected a map"));
+                     s.*field = v;
+                   });
+}
+
+const model::ParamTable<AxisSections>& axis_params() {
+  static const model::ParamTable<AxisSections> table({
+      text<AxisSections>("device", "the device (devices.NAME) it is on; the only one when there is one",
+                         [](auto& a) -> auto& { return a.device; }, "a name under devices:"),
+      with_default(integer<AxisSections>("channel", "count", 0, 63,
+                                         "its output channel and interferometer axis on the device",
+                                         [](auto& a) -> auto& { return a.channel; }),
+                   "its place among the device's axes"),
+      boolean<AxisSections>("require_reference", "MOVE:ABS is refused (-221) until the axis is referenced",
+                            [](auto& a) -> auto& { return a.require_reference; }),
+      section<AxisSections>("stage", "the stage (below), travel_m required", &AxisSections::stage),
+      section<AxisSections>("interferometer", "the position words (below)", &AxisSections::interferometer),
+      section<AxisSections>("sim", "this axis's simulated stage (below)", &AxisSections::sim),
+      section<AxisSections>("control", "the axis's control settings (below)", &AxisSections::control),
+  });
+  return table;
+}
+
+void check_range_order(double lo, double hi, const std::string& f, const Node& node,
+                       const std::string& key, const std::string& other) {
+  if (lo > hi)
+    throw InputError(located(f, node, key, model::format_number(lo) + " must not exceed " + other +
+                                               " (" + model::format_number(hi) + ")"));
+}
+
+ControlConfig parse_control(const Node& node, const std::string& f, const std::string& key,
+                            const model::StageFile& stage) {
+  ControlConfig c;
+  c.planner.resolution_m = stage.interferometer.resolution_m;
+  control_params().read(node, f, key, c);
+  auto& p = c.positioner;
+  check_range_order(c.min_freq_hz, c.max_freq_hz, f, node, key + ".min_freq_hz", "max_freq_hz");
+  if (c.max_stroke_m > 0)
+    check_range_order(c.min_stroke_m, c.max_stroke_m, f, node, key + ".min_stroke_m", "max_stroke_m");
+  // Soft limits: default to the stage's travel, and never outside it.
+  const bool has_lower = present(child(node, "soft_lower_m")), has_upper = present(child(node, "soft_upper_m"));
+  if (!has_lower) p.soft_lower_m = stage.has_travel() ? stage.travel_lower_m : -kInf;
+  if (!has_upper) p.soft_upper_m = stage.has_travel() ? stage.travel_upper_m : kInf;
+  if (!(p.soft_lower_m < p.soft_upper_m))
+    throw InputError(located(f, node, key + ".soft_lower_m",
+                             model::format_number(p.soft_lower_m) + " must be below soft_upper_m (" +
+                                 model::format_number(p.soft_upper_m) + ")"));
+  if (stage.has_travel()) {
+    const std::string travel = "the stage's travel [" + model::format_number(stage.travel_lower_m) +
+                               ", " + model::format_number(stage.travel_upper_m) + "] m (stage.travel_m)";
+    if (p.soft_lower_m < stage.travel_lower_m)
+      throw InputError(located(f, child(node, "soft_lower_m"), key + ".soft_lower_m",
+                               model::format_number(p.soft_lower_m) + " lies outside " + travel));
+    if (p.soft_upper_m > stage.travel_upper_m)
+      throw InputError(located(f, child(node, "soft_upper_m"), key + ".soft_upper_m",
+                               model::format_number(p.soft_upper_m) + " lies outside " + travel));
   }
-}
-
-int read_int(const YAML::Node& v, const std::string& file, const std::string& key, long lo,
-             long hi) {
-  return static_cast<int>(read_integer(v, file, key, lo, hi));
-}
-
-std::string read_choice(const YAML::Node& v, const std::string& file, const std::string& key,
-                        std::initializer_list<const char*> allowed) {
-  const std::string s = read_string(v, file, key);
-  std::string list;
-  for (const char* a : allowed) {
-    if (s == a) return s;
-    list += (list.empty() ? "" : ", ") + std::string(a);
-  }
-  throw InputError(located(file, v, key, "'" + s + "' is not allowed, allowed " + list));
-}
-
-// A validate() of another layer failed on values we read: point at the section.
-template <typename Fn>
-void at_section(const YAML::Node& root, const char* section, const std::string& file, Fn&& fn) {
   try {
-    fn();
+    control::validate(c.planner, key);
+    control::validate(c.positioner, key);
+    control::validate(c.calibration, key + ".calibration");
   } catch (const InputError& e) {
-    throw InputError(located(file, drivers::detail::child(root, section), section, e.what()));
+    throw InputError(located(f, node, key, e.what()));
+  }
+  return c;
+}
+
+// devices.NAME (or daq:) -> DeviceConfig; the driver's section is checked with the axes.
+DeviceConfig parse_device(const Node& node, const std::string& f, const std::string& key,
+                          const std::string& name) {
+  DeviceConfig d;
+  d.name = name;
+  device_params().read(node, f, key, d);
+  bool known = false;
+  for (const drivers::BackendEntry& e : drivers::backend_table()) known = known || d.driver == e.name;
+  if (!known)
+    throw InputError(located(f, child(node, "driver"), key + ".driver",
+                             "unknown driver '" + d.driver + "', known: " + drivers::known_backends()));
+  for (const drivers::BackendEntry& e : drivers::backend_table()) {
+    const Node sub = child(node, e.name);
+    if (present(sub) && d.driver != e.name)
+      throw InputError(located(f, sub, key + "." + e.name,
+                               std::string("a section for driver ") + e.name + ", but the driver is " +
+                                   d.driver));
+  }
+  d.node = child(node, d.driver.c_str());
+  if (d.crosstalk_fraction != 0 && d.driver != "sim")
+    throw InputError(located(f, child(node, "crosstalk_fraction"), key + ".crosstalk_fraction",
+                             "only a simulated device has crosstalk"));
+  try {
+    drivers::validate(d.link, key);
+  } catch (const InputError& e) {
+    throw InputError(located(f, node, key, e.what()));
+  }
+  return d;
+}
+
+// The document a backend's factory reads for one axis: its stage, interferometer and sim
+// sections, and daq: {driver, <driver>: the device's section}.
+Node axis_document(const AxisSections& a, const DeviceConfig& d) {
+  Node doc(YAML::NodeType::Map);
+  if (present(a.stage)) doc["stage"] = a.stage;
+  if (present(a.interferometer)) doc["interferometer"] = a.interferometer;
+  if (present(a.sim)) doc["sim"] = a.sim;
+  Node daq(YAML::NodeType::Map);
+  daq["driver"] = d.driver;
+  if (present(d.node)) daq[d.driver] = d.node;
+  doc["daq"] = daq;
+  return doc;
+}
+
+// `prefix`: "" in the single-axis form ("stage.travel_m"), "axes.NAME." with axes.
+AxisConfig parse_axis(const AxisSections& a, const std::string& name, std::size_t device,
+                      const DaemonConfig& c, const Node& name_node, const std::string& prefix) {
+  const std::string& f = c.file;
+  AxisConfig axis;
+  axis.name = name;
+  axis.device = device;
+  axis.require_reference = a.require_reference;
+  axis.document = axis_document(a, c.devices[device]);
+  axis.stage = model::parse_stage_yaml(axis.document, f, {.strict = true, .require_dataset_keys = false});
+  try {
+    model::validate(axis.stage.stage, prefix + "stage");
+  } catch (const InputError& e) {
+    throw InputError(located(f, a.stage, prefix + "stage", e.what()));
+  }
+  const drivers::InterferometerConfig ifm = drivers::parse_interferometer_yaml(axis.document, f);
+  axis.stage.interferometer = ifm.sensor;
+  if (present(a.sim)) axis.sim = model::parse_sim_yaml(a.sim, f);
+  // The simulated stage's hard stops are the ends of its travel unless the file says otherwise.
+  if (std::isnan(axis.sim.end_stop_low_m)) {
+    axis.sim.end_stop_low_m = axis.stage.travel_lower_m;
+    axis.sim.end_stop_high_m = axis.stage.travel_upper_m;
+  }
+  // The backend's own parser checks the device's section for this axis (no I/O).
+  (void)drivers::make_backend(c.devices[device].driver, axis.document, f);
+  axis.control = parse_control(a.control, f, prefix + "control", axis.stage);
+  // Last, so that a typo elsewhere is reported first.
+  if (!axis.stage.has_travel())
+    throw InputError(located(f, present(a.stage) ? a.stage : name_node, prefix + "stage.travel_m",
+                             "missing: the stage's mechanical range in metres, e.g. "
+                             "`travel_m: [-5e-3, 5e-3]` under stage:; the soft limits default to it "
+                             "and no move or STEP may leave it"));
+  return axis;
+}
+
+void parse_globals(const Node& root, DaemonConfig& c) {
+  const std::string& f = c.file;
+  server_params().read(child(root, "server"), f, "server", c.server);
+  if (c.server.unix_socket.size() > 100)
+    throw InputError(located(f, child(root, "server"), "server.unix_socket",
+                             "longer than 100 characters (sockaddr_un)"));
+  realtime_params().read(child(root, "realtime"), f, "realtime", c.realtime);
+  logging_params().read(child(root, "logging"), f, "logging", c.logging);
+  recording_params().read(child(root, "recording"), f, "recording", c.recording);
+  if (c.recording.data_dir.empty())
+    throw InputError(located(f, child(root, "recording"), "recording.data_dir", "must not be empty"));
+}
+
+// The single-axis form: one device `daq`, one axis `x`.
+void parse_single_axis(const Node& root, DaemonConfig& c) {
+  c.devices.push_back(parse_device(child(root, "daq"), c.file, "daq", "daq"));
+  AxisSections a;
+  a.stage = child(root, "stage");
+  a.interferometer = child(root, "interferometer");
+  a.sim = child(root, "sim");
+  a.control = child(root, "control");
+  a.channel = 0;
+  c.axes.push_back(parse_axis(a, "x", 0, c, root, ""));
+  c.axes.back().channel = 0;
+}
+
+void parse_axes(const Node& root, DaemonConfig& c) {
+  const std::string& f = c.file;
+  const Node devices = child(root, "devices");
+  if (!present(devices) || !devices.IsMap() || devices.size() == 0)
+    throw InputError(located(f, present(devices) ? devices : root, "devices",
+                             "axes: needs devices: with at least one device, e.g.\n"
+                             "  devices:\n    card:\n      driver: sim\n"));
+  for (const auto& kv : devices) {
+    const std::string name = kv.first.as<std::string>();
+    c.devices.push_back(parse_device(kv.second, f, "devices." + name, name));
+  }
+  const Node axes = child(root, "axes");
+  if (!axes.IsMap() || axes.size() == 0)
+    throw InputError(located(f, axes, "axes", "expected a map of axes, e.g. axes: {x: {...}}"));
+  std::vector<int> next_channel(c.devices.size(), 0);
+  std::set<std::pair<std::size_t, int>> used;
+  for (const auto& kv : axes) {
+    const std::string name = kv.first.as<std::string>();
+    const std::string key = "axes." + name;
+    if (name.empty() || name.find_first_of(" \t,;:") != std::string::npos)
+      throw InputError(located(f, kv.first, key, "an axis name is a word without blanks, ',', ';' or ':'"));
+    AxisSections a;
+    axis_params().read(kv.second, f, key, a);
+    std::size_t device = 0;
+    if (a.device.empty()) {
+      if (c.devices.size() > 1)
+        throw InputError(located(f, kv.second, key + ".device", "missing: there are several devices"));
+    } else {
+      auto it = std::find_if(c.devices.begin(), c.devices.end(),
+                             [&](const DeviceConfig& d) { return d.name == a.device; });
+      if (it == c.devices.end())
+        throw InputError(located(f, child(kv.second, "device"), key + ".device",
+                                 "no device '" + a.device + "' under devices:"));
+      device = static_cast<std::size_t>(it - c.devices.begin());
+    }
+    const int channel = a.channel >= 0 ? a.channel : next_channel[device];
+    next_channel[device] = std::max(next_channel[device], channel + 1);
+    if (!used.insert({device, channel}).second)
+      throw InputError(located(f, kv.first, key + ".channel",
+                               "channel " + std::to_string(channel) + " of device " +
+                                   c.devices[device].name + " is taken by another axis"));
+    c.axes.push_back(parse_axis(a, name, device, c, kv.first, key + "."));
+    c.axes.back().channel = channel;
   }
 }
 
 }  // namespace
 
-ControlConfig parse_control_config(const YAML::Node& root, const std::string& f,
-                                   const model::StageFile& stage) {
-  ControlConfig c;
-  c.planner.resolution_m = stage.interferometer.resolution_m;
-  auto& p = c.positioner;
-  read_section(root, "control", f, {
-      {"freq_step_hz", [&](auto& v, auto& k) { c.freq_step_hz = read_double(v, f, k, 0, 1e5, true); }},
-      {"duty_step", [&](auto& v, auto& k) { c.duty_step = read_double(v, f, k, 0, 0.25, true); }},
-      {"stroke_count", [&](auto& v, auto& k) { c.stroke_count = read_int(v, f, k, 1, 64); }},
-      {"min_freq_hz", [&](auto& v, auto& k) { c.min_freq_hz = read_double(v, f, k, 0, 1e6, true); }},
-      {"max_freq_hz", [&](auto& v, auto& k) { c.max_freq_hz = read_double(v, f, k, 0, 1e6, true); }},
-      {"min_stroke_m", [&](auto& v, auto& k) { c.min_stroke_m = read_double(v, f, k, 0, 1e-3, true); }},
-      {"max_stroke_m", [&](auto& v, auto& k) { c.max_stroke_m = read_double(v, f, k, 0, 1e-3); }},
-      {"output_sample_rate_hz",
-       [&](auto& v, auto& k) { c.output_sample_rate_hz = read_double(v, f, k, 0, 1e8, true); }},
-      {"friction_uncertainty",
-       [&](auto& v, auto& k) { c.friction_uncertainty = read_double(v, f, k, 0, 0.45); }},
-      {"final_class_slack",
-       [&](auto& v, auto& k) { c.planner.final_class_slack = read_double(v, f, k, 1, 100); }},
-      {"final_approach_steps",
-       [&](auto& v, auto& k) { c.planner.final_approach_steps = read_int(v, f, k, 1, 10000); }},
-      {"max_bursts", [&](auto& v, auto& k) { c.planner.max_bursts = read_int(v, f, k, 1, 1000000); }},
-      {"tolerance_m", [&](auto& v, auto& k) { p.tolerance_m = read_double(v, f, k, 0, 1e-3); }},
-      {"max_retries", [&](auto& v, auto& k) { p.max_retries = read_int(v, f, k, 0, 1000); }},
-      {"stall_bursts", [&](auto& v, auto& k) { p.stall_bursts = read_int(v, f, k, 1, 1000); }},
-      {"stall_fraction", [&](auto& v, auto& k) { p.stall_fraction = read_double(v, f, k, 0, 1); }},
-      {"settle_s", [&](auto& v, auto& k) { p.settle_s = read_double(v, f, k, 0, 10); }},
-      {"max_chunk_s", [&](auto& v, auto& k) { p.max_chunk_s = read_double(v, f, k, 0, 60, true); }},
-      {"latch_words", [&](auto& v, auto& k) { p.latch_words = read_int(v, f, k, 1, 1024); }},
-      {"soft_lower_m", [&](auto& v, auto& k) { p.soft_lower_m = read_double(v, f, k, -10, 10); }},
-      {"soft_upper_m", [&](auto& v, auto& k) { p.soft_upper_m = read_double(v, f, k, -10, 10); }},
-      {"idle_poll_s", [&](auto& v, auto& k) { p.idle_poll_s = read_double(v, f, k, 0, 60, true); }},
-      {"calibration_file", [&](auto& v, auto& k) { c.calibration_file = read_string(v, f, k); }},
-      {"calibration",
-       [&](auto& v, auto& k) {
-         drivers::detail::check_keys(v, f, k, {"enabled", "forgetting"});
-         if (v["enabled"]) c.calibration.enabled = read_bool(v["enabled"], f, k + ".enabled");
-         if (v["forgetting"])
-           c.calibration.forgetting = read_double(v["forgetting"], f, k + ".forgetting", 0, 1, true);
-       }},
+// ---- the tables ----
+
+const model::ParamTable<ControlConfig>& control_params() {
+  using C = ControlConfig;
+  static const model::ParamTable<C> table(model::join<C>({
+      {
+          real<C>("freq_step_hz", "Hz", {0, 1e5, true}, "region map grid: frequency step",
+                  [](auto& c) -> auto& { return c.freq_step_hz; }),
+          real<C>("duty_step", "1", {0, 0.25, true}, "region map grid: duty step",
+                  [](auto& c) -> auto& { return c.duty_step; }),
+          integer<C>("stroke_count", "count", 1, 64, "region map grid: strokes",
+                     [](auto& c) -> auto& { return c.stroke_count; }),
+          real<C>("min_freq_hz", "Hz", {0, 1e6, true}, "lowest frequency (narrowed by the device)",
+                  [](auto& c) -> auto& { return c.min_freq_hz; }),
+          real<C>("max_freq_hz", "Hz", {0, 1e6, true}, "highest frequency (narrowed by the device)",
+                  [](auto& c) -> auto& { return c.max_freq_hz; }),
+          real<C>("min_stroke_m", "m", {0, 1e-3, true}, "smallest stroke of the map",
+                  [](auto& c) -> auto& { return c.min_stroke_m; }),
+          with_default(real<C>("max_stroke_m", "m", {0, 1e-3}, "largest stroke; 0: the stage's (capped by the output)",
+                               [](auto& c) -> auto& { return c.max_stroke_m; }),
+                       "0 (stage.stroke_m)"),
+          real<C>("output_sample_rate_hz", "Hz", {0, 1e8, true}, "buffered outputs: the DAC clock (capped by the device)",
+                  [](auto& c) -> auto& { return c.output_sample_rate_hz; }),
+          real<C>("friction_uncertainty", "1", {0, 0.45}, "relative uncertainty of mu the map keeps a margin for",
+                  [](auto& c) -> auto& { return c.friction_uncertainty; }),
+          text<C>("calibration_file", "the learned step model: loaded at start, saved after moves; \"\": none",
+                  [](auto& c) -> auto& { return c.calibration_file; }, "a path"),
+          model::nested<C>("calibration", "online calibration (control.calibration.KEY below)",
+                           control::calibration_params(), [](auto& c) -> auto& { return c.calibration; }),
+      },
+      model::lifted<C>(control::planner_params(), [](auto& c) -> auto& { return c.planner; },
+                       {"max_bursts"}),
+      model::lifted<C>(control::positioner_params(), [](auto& c) -> auto& { return c.positioner; }),
+  }));
+  return table;
+}
+
+const model::ParamTable<ListenConfig>& server_params() {
+  using S = ListenConfig;
+  static const model::ParamTable<S> table({
+      text<S>("tcp_address", "TCP listener address; \"\": none", [](auto& c) -> auto& { return c.tcp_address; },
+              "an address"),
+      integer<S>("tcp_port", "", 0, 65535, "TCP port; 0: any free port (`--port` overrides)",
+                 [](auto& c) -> auto& { return c.tcp_port; }),
+      text<S>("unix_socket", "the Unix socket; \"\": none (`--unix` overrides)",
+              [](auto& c) -> auto& { return c.unix_socket; }, "a path, <= 100 characters"),
+      integer<S>("max_clients", "count", 1, 1024, "clients that may send any command",
+                 [](auto& c) -> auto& { return c.max_clients; }),
+      integer<S>("overflow_slots", "count", 1, 64, "with the table full, stop-only connections",
+                 [](auto& c) -> auto& { return c.overflow_slots; }),
+      real<S>("ready_timeout_s", "s", {0, 600, true}, "every axis must read a valid position within this at start, or idmd exits 3",
+              [](auto& c) -> auto& { return c.ready_timeout_s; }),
   });
-  const YAML::Node node = drivers::detail::child(root, "control");
-  if (c.min_freq_hz > c.max_freq_hz)
-    throw InputError(located(f, node, "control.min_freq_hz",
-                             "must not exceed max_freq_hz (" + model::format_number(c.max_freq_hz) + ")"));
-  if (c.max_stroke_m > 0 && c.min_stroke_m > c.max_stroke_m)
-    throw InputError(located(f, node, "control.min_stroke_m", "must not exceed max_stroke_m"));
-  if (p.soft_lower_m > p.soft_upper_m)
-    throw InputError(located(f, node, "control.soft_lower_m", "must not exceed soft_upper_m"));
-  if (!node || !node["soft_lower_m"]) p.soft_lower_m = -kInf;
-  if (!node || !node["soft_upper_m"]) p.soft_upper_m = kInf;
-  at_section(root, "control", f, [&] {
-    control::validate(c.planner, "control");
-    control::validate(c.positioner, "control");
-    control::validate(c.calibration, "control.calibration");
+  return table;
+}
+
+const model::ParamTable<RealtimeConfig>& realtime_params() {
+  using R = RealtimeConfig;
+  static const model::ParamTable<R> table({
+      real<R>("period_s", "s", {1e-5, 0.1}, "the real-time loop's period", [](auto& c) -> auto& { return c.period_s; }),
+      boolean<R>("sched_fifo", "SCHED_FIFO when permitted (CAP_SYS_NICE)", [](auto& c) -> auto& { return c.sched_fifo; }),
+      integer<R>("priority", "", 1, 99, "SCHED_FIFO priority", [](auto& c) -> auto& { return c.priority; }),
+      integer<R>("cpu", "", -1, 1023, "pin the loop to this CPU; -1: no affinity", [](auto& c) -> auto& { return c.cpu; }),
+      boolean<R>("lock_memory", "mlockall when permitted (CAP_IPC_LOCK / RLIMIT_MEMLOCK)",
+                 [](auto& c) -> auto& { return c.lock_memory; }),
+      real<R>("histogram_bin_s", "s", {1e-7, 1e-2}, "wake-up latency histogram bin (32 bins)",
+              [](auto& c) -> auto& { return c.histogram_bin_s; }),
+      real<R>("watchdog_stall_s", "s", {1e-3, 60}, "no tick for this long: the loop has stalled",
+              [](auto& c) -> auto& { return c.watchdog_stall_s; }),
   });
-  return c;
+  return table;
+}
+
+const model::ParamTable<LoggingConfig>& logging_params() {
+  using L = LoggingConfig;
+  static const model::ParamTable<L> table({
+      model::choice<L, std::string>("level", {{"trace", "trace"}, {"debug", "debug"}, {"info", "info"},
+                                              {"warn", "warn"}, {"error", "error"}, {"critical", "critical"},
+                                              {"off", "off"}},
+                                    "the least severe level logged", [](auto& c) -> auto& { return c.level; }),
+      model::choice<L, std::string>("format", {{"auto", "auto"}, {"console", "console"}, {"journal", "journal"}},
+                                    "journal: <N> priority prefixes, no time stamps; auto: journal under systemd",
+                                    [](auto& c) -> auto& { return c.format; }),
+  });
+  return table;
+}
+
+const model::ParamTable<RecordingConfig>& recording_params() {
+  using R = RecordingConfig;
+  static const model::ParamTable<R> table({
+      text<R>("data_dir", "SWEEP directories are created below it, and only there",
+              [](auto& c) -> auto& { return c.data_dir; }, "a path"),
+      real<R>("sweep_rest_s", "s", {0, 1}, "command at rest before each trial's first cycle",
+              [](auto& c) -> auto& { return c.sweep_rest_s; }),
+      integer<R>("sweep_settle_cycles", "periods", 0, 1000, "rest recorded after each trial's last cycle",
+                 [](auto& c) -> auto& { return c.sweep_settle_cycles; }),
+      real<R>("sweep_span_m", "m", {0, 1, true}, "a trial farther than this from the sweep's start returns there first",
+              [](auto& c) -> auto& { return c.sweep_span_m; }),
+      integer<R>("sweep_max_trials", "count", 1, 10000000, "most trials in one SWEEP",
+                 [](auto& c) -> auto& { return c.sweep_max_trials; }),
+  });
+  return table;
+}
+
+const model::ParamTable<DeviceConfig>& device_params() {
+  using D = DeviceConfig;
+  const auto driver_section = [](const char* name) {
+    return custom<D>(name, "map", "drivers/README.md", "", "the driver's own keys (only for that driver)",
+                     [](D&, const Node& v, const std::string& f, const std::string& k) {
+                       if (!v.IsMap()) throw InputError(located(f, v, k, "expected a map"));
+                     });
+  };
+  static const model::ParamTable<D> table({
+      text<D>("driver", "the backend", [](auto& d) -> auto& { return d.driver; }, "sim, modbus, usb"),
+      real<D>("poll_interval_s", "s", {1e-5, 10}, "each axis's position is read this often at rest",
+              [](auto& d) -> auto& { return d.link.poll_interval_s; }),
+      real<D>("io_period_s", "s", {1e-6, 0.1}, "the device's I/O thread cycle",
+              [](auto& d) -> auto& { return d.link.io_period_s; }),
+      integer<D>("stream_every", "count", 1, 1000000, "in a burst, every Nth streamed reading goes to the controller",
+                 [](auto& d) -> auto& { return d.link.stream_every; }),
+      real<D>("reconnect_min_s", "s", {1e-3, 60}, "first retry after the device is lost (then doubling)",
+              [](auto& d) -> auto& { return d.link.reconnect_min_s; }),
+      real<D>("reconnect_max_s", "s", {1e-3, 3600}, "longest wait between retries",
+              [](auto& d) -> auto& { return d.link.reconnect_max_s; }),
+      real<D>("crosstalk_fraction", "1", {-1, 1}, "sim: a step of one axis moves the device's other axes by this share of it",
+              [](auto& d) -> auto& { return d.crosstalk_fraction; }),
+      driver_section("sim"),
+      driver_section("modbus"),
+      driver_section("usb"),
+  });
+  return table;
+}
+
+// ---- parsing ----
+
+int DaemonConfig::axis_index(const std::string& name) const {
+  for (std::size_t i = 0; i < axes.size(); ++i)
+    if (axes[i].name == name) return static_cast<int>(i);
+  return -1;
 }
 
 DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
   if (!root.IsDefined() || root.IsNull()) throw InputError(f + ": empty configuration");
   if (!root.IsMap()) throw InputError(located(f, root, "(top)", "expected a YAML map of sections"));
+  model::require_unique_keys(root, f);
+  const bool multi = present(child(root, "axes")) || present(child(root, "devices"));
+  static const char* const kCommon[] = {"server", "realtime", "logging", "recording"};
+  static const char* const kSingle[] = {"stage", "interferometer", "daq", "control", "sim"};
   for (const auto& kv : root) {
     const std::string name = kv.first.as<std::string>();
-    static const char* const kSections[] = {"stage",   "interferometer", "daq",       "control",
-                                            "server",  "realtime",       "logging",   "recording",
-                                            "sim"};
-    if (std::find(std::begin(kSections), std::end(kSections), name) == std::end(kSections))
+    const bool common = std::find(std::begin(kCommon), std::end(kCommon), name) != std::end(kCommon);
+    const bool single = std::find(std::begin(kSingle), std::end(kSingle), name) != std::end(kSingle);
+    const bool axes = name == "axes" || name == "devices";
+    if (common || (multi ? axes : single)) continue;
+    if (multi && single)
       throw InputError(located(f, kv.first, name,
-                               "unknown section, allowed stage, interferometer, daq, control, "
-                               "server, realtime, logging, recording, sim"));
+                               "with axes:, each axis has its own " + name +
+                                   ": (axes.NAME." + name + "); devices are declared under devices:"));
+    throw InputError(located(f, kv.first, name,
+                             multi ? "unknown section, allowed devices, axes, server, realtime, logging, recording"
+                                   : "unknown section, allowed stage, interferometer, daq, control, sim, "
+                                     "server, realtime, logging, recording (or devices: and axes:)"));
   }
   DaemonConfig c;
   c.file = f;
   c.root = root;
-  c.stage = model::parse_stage_yaml(root, f, {.strict = true, .require_dataset_keys = false});
-  at_section(root, "stage", f, [&] { model::validate(c.stage.stage, "stage"); });
-  // The interferometer section's full form (word format, air index); the model's view of it is
-  // the count and the noise.
-  const drivers::InterferometerConfig ifm = drivers::parse_interferometer_yaml(root, f);
-  c.stage.interferometer = ifm.sensor;
-  if (const YAML::Node sim = drivers::detail::child(root, "sim"); drivers::detail::present(sim))
-    c.sim = model::parse_sim_yaml(sim, f);
-  c.driver = drivers::parse_daq_driver(root, f);
-  // The backend's own parser checks daq.<driver> (no I/O before configure()).
-  (void)drivers::make_backend_from_config(root, f);
-  c.control = parse_control_config(root, f, c.stage);
-
-  auto& s = c.server;
-  read_section(root, "server", f, {
-      {"tcp_address", [&](auto& v, auto& k) { s.tcp_address = read_string(v, f, k); }},
-      {"tcp_port", [&](auto& v, auto& k) { s.tcp_port = read_int(v, f, k, 0, 65535); }},
-      {"unix_socket", [&](auto& v, auto& k) { s.unix_socket = read_string(v, f, k); }},
-      {"max_clients", [&](auto& v, auto& k) { s.max_clients = read_int(v, f, k, 1, 1024); }},
-  });
-  if (s.unix_socket.size() > 100)
-    throw InputError(located(f, drivers::detail::child(root, "server"), "server.unix_socket",
-                             "longer than 100 characters (sockaddr_un)"));
-
-  auto& r = c.realtime;
-  read_section(root, "realtime", f, {
-      {"period_s", [&](auto& v, auto& k) { r.period_s = read_double(v, f, k, 1e-5, 0.1); }},
-      {"sched_fifo", [&](auto& v, auto& k) { r.sched_fifo = read_bool(v, f, k); }},
-      {"priority", [&](auto& v, auto& k) { r.priority = read_int(v, f, k, 1, 99); }},
-      {"cpu", [&](auto& v, auto& k) { r.cpu = read_int(v, f, k, -1, 1023); }},
-      {"lock_memory", [&](auto& v, auto& k) { r.lock_memory = read_bool(v, f, k); }},
-      {"histogram_bin_s", [&](auto& v, auto& k) { r.histogram_bin_s = read_double(v, f, k, 1e-7, 1e-2); }},
-      {"watchdog_stall_s", [&](auto& v, auto& k) { r.watchdog_stall_s = read_double(v, f, k, 1e-3, 60); }},
-  });
-
-  auto& l = c.logging;
-  read_section(root, "logging", f, {
-      {"level", [&](auto& v, auto& k) {
-         l.level = read_choice(v, f, k, {"trace", "debug", "info", "warn", "error", "critical", "off"});
-       }},
-      {"format", [&](auto& v, auto& k) { l.format = read_choice(v, f, k, {"auto", "console", "journal"}); }},
-  });
-
-  auto& rec = c.recording;
-  read_section(root, "recording", f, {
-      {"data_dir", [&](auto& v, auto& k) { rec.data_dir = read_string(v, f, k); }},
-      {"sweep_rest_s", [&](auto& v, auto& k) { rec.sweep_rest_s = read_double(v, f, k, 0, 1); }},
-      {"sweep_settle_cycles", [&](auto& v, auto& k) { rec.sweep_settle_cycles = read_int(v, f, k, 0, 1000); }},
-      {"sweep_span_m", [&](auto& v, auto& k) { rec.sweep_span_m = read_double(v, f, k, 0, 1, true); }},
-      {"sweep_max_trials", [&](auto& v, auto& k) { rec.sweep_max_trials = read_int(v, f, k, 1, 10000000); }},
-  });
-  if (rec.data_dir.empty())
-    throw InputError(located(f, drivers::detail::child(root, "recording"), "recording.data_dir",
-                             "must not be empty"));
+  parse_globals(root, c);
+  if (multi)
+    parse_axes(root, c);
+  else
+    parse_single_axis(root, c);
   return c;
 }
 
 DaemonConfig load_daemon_config(const std::string& path) {
   return parse_daemon_config(model::load_yaml_file(path), path);
 }
+
+std::vector<ControlConfig> reload_control_configs(const YAML::Node& root, const std::string& f,
+                                                  const DaemonConfig& running) {
+  const DaemonConfig fresh = parse_daemon_config(root, f);
+  if (fresh.axes.size() != running.axes.size())
+    throw InputError(f + ": the axes changed (" + std::to_string(fresh.axes.size()) + " instead of " +
+                     std::to_string(running.axes.size()) + "): restart idmd to apply that");
+  std::vector<ControlConfig> out;
+  for (std::size_t i = 0; i < fresh.axes.size(); ++i) {
+    if (fresh.axes[i].name != running.axes[i].name)
+      throw InputError(f + ": axis " + std::to_string(i + 1) + " is now '" + fresh.axes[i].name +
+                       "', was '" + running.axes[i].name + "': restart idmd to apply that");
+    out.push_back(fresh.axes[i].control);
+  }
+  return out;
+}
+
+std::string config_reference() {
+  const auto section = [](const std::string& title, const std::string& rows) {
+    return "### " + title + "\n\n" + model::markdown_header() + rows + "\n";
+  };
+  return section("devices.NAME (single-axis form: daq)", device_params().markdown()) +
+         section("axes.NAME", axis_params().markdown()) +
+         section("control (axes.NAME.control)", control_params().markdown()) +
+         section("control.calibration", control::calibration_params().markdown("calibration.")) +
+         section("server", server_params().markdown()) +
+         section("realtime", realtime_params().markdown()) +
+         section("logging", logging_params().markdown()) +
+         section("recording", recording_params().markdown());
+}
+
+// ---- the map's limits ----
 
 control::DeviceLimits device_limits(const ControlConfig& c, const model::StageParams& stage,
                                     const drivers::OutputCapabilities& caps) {
@@ -223,8 +486,10 @@ control::DeviceLimits device_limits(const ControlConfig& c, const model::StagePa
   lim.min_freq_hz = c.min_freq_hz;
   double fmax = c.max_freq_hz;
   // A buffered output needs at least a few samples per period.
-  if (buffered) fmax = std::min(fmax, lim.output_sample_rate_hz / 4.0);
-  else fmax = std::min(fmax, caps.max_freq_hz);
+  if (buffered)
+    fmax = std::min(fmax, lim.output_sample_rate_hz / 4.0);
+  else
+    fmax = std::min(fmax, caps.max_freq_hz);
   lim.max_freq_hz = std::max(fmax, lim.min_freq_hz);
   double smax = c.max_stroke_m > 0 ? c.max_stroke_m : stage.stroke_m;
   smax = std::min(smax, caps.max_elongation_m());

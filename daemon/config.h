@@ -1,15 +1,34 @@
-// idmd's configuration file: the sections of DESIGN.md (stage, interferometer, daq, control,
-// server, realtime, logging, recording, sim), every key documented in config/README.md.
+// idmd's configuration file. Devices are declared once and the axes that use them name them:
 //
-// The sections other layers own are read by their parsers (model::parse_stage_yaml,
-// drivers::parse_interferometer_yaml, drivers::parse_daq_driver and the backend's own parser
-// through drivers::make_backend_from_config, model::parse_sim_yaml); this file reads control,
-// server, realtime, logging and recording. Unknown keys, wrong types and out-of-range values throw
-// model::InputError "FILE:LINE: section.key: what (allowed range)". Parsing does no I/O.
+//   devices:
+//     card:                      # any name
+//       driver: sim              # sim | modbus | usb
+//       poll_interval_s: 1e-3    # the device link's keys (table below)
+//       sim: {...}               # the driver's own section (drivers/README.md)
+//   axes:
+//     x:                         # 1..N axes, in this order (AXIS1 is the first)
+//       device: card             # (the only device, when there is one)
+//       channel: 0               # output channel and interferometer axis on the device
+//       stage: {...}             # with travel_m: [lower, upper], required
+//       interferometer: {...}
+//       sim: {...}               # this axis's simulated stage (sim devices)
+//       control: {...}
+//   server: / realtime: / logging: / recording:
+//
+// The single-axis form of earlier versions (stage:, interferometer:, daq:, control:, sim: at the
+// top) still works: it is one device `daq` and one axis `x`.
+//
+// Every section that is a struct of this file is read through its parameter table
+// (model/param_table.h): the check, the message and config/README.md's rows come from it. The
+// sections other layers own are read by their parsers (model::parse_stage_yaml,
+// drivers::parse_interferometer_yaml, model::parse_sim_yaml, the backend's own). Unknown keys,
+// wrong types and out-of-range values throw model::InputError "FILE:LINE: key: what (range)".
+// Parsing does no I/O.
 #pragma once
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include <yaml-cpp/yaml.h>
 
@@ -17,14 +36,17 @@
 #include "control/planner.h"
 #include "control/positioner.h"
 #include "control/region_map.h"
+#include "drivers/config.h"
 #include "drivers/interfaces.h"
+#include "drivers/link.h"
+#include "model/param_table.h"
 #include "model/simulation.h"
 #include "model/stage.h"
 
 namespace idm::daemon {
 
-// `control:`: the region map's grid and friction uncertainty, the planner, the positioner (the
-// motor record's RDBD/RTRY, soft limits) and the calibration.
+// An axis's `control:`: the region map's grid and friction uncertainty, the planner, the
+// positioner (the motor record's RDBD/RTRY, soft limits) and the calibration.
 struct ControlConfig {
   // Region map grid: frequencies every freq_step_hz over [min_freq_hz, max_freq_hz] (narrowed to
   // what the device plays), duties every duty_step, stroke_count strokes over
@@ -43,6 +65,7 @@ struct ControlConfig {
   control::CalibrationConfig calibration;
   std::string calibration_file;       // "" = no saved calibration
 };
+const model::ParamTable<ControlConfig>& control_params();
 
 // `server:`: where the command protocol listens.
 struct ListenConfig {
@@ -50,7 +73,10 @@ struct ListenConfig {
   int tcp_port = 5025;                    // 0 = any free port (printed at start)
   std::string unix_socket = "/run/idmd/idmd.sock";  // "" = no Unix socket
   int max_clients = 16;
+  int overflow_slots = 4;
+  double ready_timeout_s = 10.0;  // every axis must read a valid position within this at start
 };
+const model::ParamTable<ListenConfig>& server_params();
 
 // `realtime:`: the loop's period and the real-time setup it attempts.
 struct RealtimeConfig {
@@ -62,12 +88,14 @@ struct RealtimeConfig {
   double histogram_bin_s = 5e-6;  // wake-up latency histogram bin width
   double watchdog_stall_s = 0.5;  // no tick for this long: the loop is considered stalled
 };
+const model::ParamTable<RealtimeConfig>& realtime_params();
 
 // `logging:`
 struct LoggingConfig {
   std::string level = "info";   // trace, debug, info, warn, error, critical, off
   std::string format = "auto";  // auto (journal under systemd), console, journal
 };
+const model::ParamTable<LoggingConfig>& logging_params();
 
 // `recording:`
 struct RecordingConfig {
@@ -78,27 +106,57 @@ struct RecordingConfig {
                                     // start returns there first (closed-loop move)
   int sweep_max_trials = 100000;
 };
+const model::ParamTable<RecordingConfig>& recording_params();
+
+// `devices.NAME:` (or the single-axis form's `daq:`).
+struct DeviceConfig {
+  std::string name;
+  std::string driver = "sim";
+  drivers::LinkConfig link;
+  double crosstalk_fraction = 0.0;  // sim: a step of one axis displaces the others by this share
+  YAML::Node node;                  // the driver's own section (devices.NAME.<driver>)
+};
+const model::ParamTable<DeviceConfig>& device_params();
+
+// `axes.NAME:`.
+struct AxisConfig {
+  std::string name;
+  std::size_t device = 0;           // into DaemonConfig::devices
+  int channel = 0;                  // on the device
+  model::StageFile stage;           // stage: and the interferometer's model view; travel
+  model::SimConfig sim;             // sim: (the simulated stage of this axis)
+  ControlConfig control;
+  bool require_reference = false;
+  // The axis's sections as one document (stage, interferometer, sim, daq.<driver>) for the
+  // backend's factory (drivers::make_backend).
+  YAML::Node document;
+};
 
 struct DaemonConfig {
   std::string file;
-  model::StageFile stage;        // stage: and interferometer: (model's view)
-  std::string driver;            // daq.driver
-  model::SimConfig sim;          // sim:
-  ControlConfig control;
+  std::vector<DeviceConfig> devices;
+  std::vector<AxisConfig> axes;
   ListenConfig server;
   RealtimeConfig realtime;
   LoggingConfig logging;
   RecordingConfig recording;
-  YAML::Node root;               // the whole document, for drivers::make_backend_from_config
+  YAML::Node root;  // the whole document (reloads read control: again from the file)
+
+  // The index of the axis called `name`, or -1.
+  int axis_index(const std::string& name) const;
 };
 
-// Parses every section (constructs the device object to check daq:, without I/O).
+// Parses every section (constructs each device object to check its section, without I/O).
 DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& file);
 // load_yaml_file + parse_daemon_config.
 DaemonConfig load_daemon_config(const std::string& path);
-// Just the control: section (SIGHUP and *RST reload it from the file).
-ControlConfig parse_control_config(const YAML::Node& root, const std::string& file,
-                                   const model::StageFile& stage);
+// Every axis's control: section again, from a fresh read of the file (SIGHUP and *RST). The
+// axes, their order and their stages must be the ones of `running` (else InputError).
+std::vector<ControlConfig> reload_control_configs(const YAML::Node& root, const std::string& file,
+                                                  const DaemonConfig& running);
+
+// config/README.md's generated tables (idmd --config-reference), one per section.
+std::string config_reference();
 
 // The device limits the region map uses: the configured ranges narrowed by the output's
 // capabilities (read after configure: some devices report them only then).

@@ -41,6 +41,7 @@ void usage(std::FILE* to) {
                "usage: idmd [--config FILE] [--port N] [--unix PATH]\n"
                "       idmd --check-config FILE\n"
                "       idmd --version\n"
+               "       idmd --config-reference   (the generated key tables of config/README.md)\n"
                "  --config FILE        configuration (default %s)\n"
                "  --port N             TCP port of the command protocol (0: any free port)\n"
                "  --unix PATH          Unix socket of the command protocol (\"\": none)\n"
@@ -79,13 +80,32 @@ void setup_logging(const LoggingConfig& cfg) {
   spdlog::set_default_logger(logger);
 }
 
+// "axis x on card (sim), axis y on card (sim)"
+std::string axes_text(const DaemonConfig& c) {
+  std::string s;
+  for (const AxisConfig& a : c.axes) {
+    const DeviceConfig& d = c.devices[a.device];
+    s += (s.empty() ? "" : ", ") + std::string("axis ") + a.name + " on " + d.name + " (" + d.driver + ")";
+  }
+  return s;
+}
+
 std::string describe(const DaemonConfig& c) {
-  std::string s = "driver " + c.driver;
+  std::string s = axes_text(c);
   s += ", loop " + idm::model::format_number(1.0 / c.realtime.period_s) + " Hz";
   if (!c.server.tcp_address.empty())
     s += ", tcp " + c.server.tcp_address + ":" + std::to_string(c.server.tcp_port);
   if (!c.server.unix_socket.empty()) s += ", unix " + c.server.unix_socket;
   return s;
+}
+
+void log_notes(Daemon& daemon) {
+  for (const Housekeeping::Note& note : daemon.take_notes()) {
+    if (note.warning)
+      spdlog::warn("{}", note.text);
+    else
+      spdlog::info("{}", note.text);
+  }
 }
 
 bool parse_int(const std::string& text, long lo, long hi, int& out) {
@@ -130,6 +150,9 @@ int main(int argc, char** argv) {
       have_unix = true;
     } else if (a == "--version") {
       std::printf("idmd %s\n", IDM_VERSION);
+      return exit_code::kOk;
+    } else if (a == "--config-reference") {
+      std::fputs(config_reference().c_str(), stdout);
       return exit_code::kOk;
     } else if (a == "--help" || a == "-h") {
       usage(stdout);
@@ -179,7 +202,7 @@ int main(int argc, char** argv) {
   signal(SIGPIPE, SIG_IGN);
 
   spdlog::info("idmd {} starting: {} ({})", IDM_VERSION, config_path, describe(config));
-  notifier.status("Opening the " + config.driver + " device");
+  notifier.status("Opening the devices: " + axes_text(config));
   Daemon daemon(config);
   try {
     const std::string warning = daemon.start();
@@ -192,13 +215,14 @@ int main(int argc, char** argv) {
     spdlog::error("start: {}", e.what());
     return exit_code::kRuntimeError;
   }
-  if (std::string note = daemon.last_sweep_report(); !note.empty()) spdlog::warn("{}", note);
+  log_notes(daemon);  // calibrations that could not be loaded
 
   ServerConfig sc;
   sc.tcp_host = config.server.tcp_address;
   sc.tcp_port = config.server.tcp_port;
   sc.unix_path = config.server.unix_socket;
   sc.max_clients = config.server.max_clients;
+  sc.overflow_slots = config.server.overflow_slots;
   sc.log = [](std::string_view line) { spdlog::debug("{}", line); };  // "command server: ..."
   Server server(daemon, sc);
   if (const std::string err = server.start(); !err.empty()) {
@@ -214,25 +238,20 @@ int main(int argc, char** argv) {
   std::printf("idmd: listening on %s\n", where.c_str());
   std::fflush(stdout);
   spdlog::info("ready: listening on {}", where);
-  notifier.ready("Ready: " + config.driver + " device active, listening on " + where);
+  notifier.ready("Ready: " + axes_text(config) + ", listening on " + where);
   if (const double wd = notifier.start_watchdog([&daemon] { return daemon.loop_ticks(); }); wd > 0)
     spdlog::info("watchdog: every {} s while the real-time loop advances", idm::model::format_number(wd / 4));
 
   int exit_status = exit_code::kOk;
-  std::string last_report = daemon.last_sweep_report();
   for (bool running = true; running;) {
     pollfd pfd{sfd, POLLIN, 0};
-    const int r = poll(&pfd, 1, 500);
+    const int r = poll(&pfd, 1, 100);
     if (r < 0 && errno != EINTR) {
       spdlog::error("poll: {}", std::strerror(errno));
       exit_status = exit_code::kRuntimeError;
       break;
     }
-    for (const std::string& note : daemon.take_notes()) spdlog::warn("{}", note);
-    if (const std::string rep = daemon.last_sweep_report(); rep != last_report) {
-      spdlog::info("{}", rep);
-      last_report = rep;
-    }
+    log_notes(daemon);
     if (!daemon.loop_running()) {
       spdlog::error("the real-time loop has ended");
       exit_status = exit_code::kRuntimeError;
@@ -258,11 +277,15 @@ int main(int argc, char** argv) {
   notifier.stop_watchdog();
   server.stop();
   daemon.shutdown();
-  for (const std::string& note : daemon.take_notes()) spdlog::warn("{}", note);
-  const double xi = daemon.sim_output_m();
-  if (std::isnan(xi)) spdlog::info("stopped: output at zero, device shut down");
-  else spdlog::info("stopped: output at zero (commanded elongation {} m), device shut down",
-                    idm::model::format_number(xi));
+  log_notes(daemon);
+  std::string outputs;
+  for (int a = 0; a < daemon.axis_count(); ++a) {
+    const double xi = daemon.sim_output_m(a);
+    if (!std::isnan(xi))
+      outputs += (outputs.empty() ? " (commanded elongation " : ", ") + daemon.axis_name(a) + " " +
+                 idm::model::format_number(xi) + " m";
+  }
+  spdlog::info("stopped: every output at zero{}, devices shut down", outputs.empty() ? "" : outputs + ")");
   close(sfd);
   return exit_status;
 }

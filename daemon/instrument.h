@@ -24,24 +24,50 @@ inline constexpr int kNoError = 0;
 inline constexpr int kCommandError = -100;
 inline constexpr int kInvalidCharacter = -101;
 inline constexpr int kSyntaxError = -102;
+inline constexpr int kDataTypeError = -104;        // e.g. a quoted string where a number belongs
 inline constexpr int kParameterNotAllowed = -108;  // too many arguments
 inline constexpr int kMissingParameter = -109;     // too few arguments
 inline constexpr int kUndefinedHeader = -113;
+inline constexpr int kHeaderSuffixOutOfRange = -114;  // AXIS<n> with no axis n
 inline constexpr int kNumericDataError = -120;     // not a number, not finite
 inline constexpr int kExecutionError = -200;
 inline constexpr int kSettingsConflict = -221;     // e.g. a move while in FAULT or busy
 inline constexpr int kDataOutOfRange = -222;       // e.g. a target past the soft limits
+inline constexpr int kDataCorruptOrStale = -230;  // a position that cannot be trusted
 inline constexpr int kHardwareError = -240;
+inline constexpr int kHardwareMissing = -241;  // e.g. a simulation command on a real backend
 inline constexpr int kQueueOverflow = -350;
 inline constexpr int kInputBufferOverrun = -363;   // a line longer than the limit
-// Device faults (positive): the positioner's MotionFault reported as an error.
+// Device faults (positive): see kDeviceFaults.
 inline constexpr int kFaultInvalidSample = 101;
 inline constexpr int kFaultStall = 102;
 inline constexpr int kFaultRetryLimit = 103;
 inline constexpr int kFaultDriver = 104;
 inline constexpr int kFaultNoPlan = 105;
-inline constexpr int kSweepFailed = 110;
+inline constexpr int kFaultCaptureOverrun = 106;
+inline constexpr int kFaultDeviceLost = 107;
 }  // namespace error_code
+
+// The one table of device faults: the name a status reports (control::motion_fault_name), the
+// positive code a motion that ended in it queues, and the code's standard text.
+struct DeviceFault {
+  const char* name;
+  int code;
+  const char* text;
+};
+inline constexpr DeviceFault kDeviceFaults[] = {
+    {"invalid_sample", error_code::kFaultInvalidSample, "Invalid interferometer sample"},
+    {"stall", error_code::kFaultStall, "Stall"},
+    {"retry_limit", error_code::kFaultRetryLimit, "Retry limit"},
+    {"driver", error_code::kFaultDriver, "Driver error"},
+    {"no_plan", error_code::kFaultNoPlan, "No plan"},
+    {"capture_overrun", error_code::kFaultCaptureOverrun, "Capture overrun"},
+    {"device_lost", error_code::kFaultDeviceLost, "Device lost"},
+};
+
+// SWEEP's per-cell trials and per-trial cycles: the protocol's check and the daemon's.
+inline constexpr int kMaxSweepTrials = 100000;
+inline constexpr int kMaxSweepCycles = 100000;
 
 struct CommandError {
   int code = error_code::kNoError;
@@ -49,23 +75,36 @@ struct CommandError {
   bool ok() const { return code == error_code::kNoError; }
 };
 
-// A plain snapshot for STATus? and friends.
+// A plain snapshot of one axis for STATus? and friends.
 struct InstrumentStatus {
+  std::string name;       // the axis's name ("x")
   std::string state;      // "IDLE", "MOVING", "SETTLING", "FAULT"
   bool position_valid = false;
-  double position_m = 0;
+  double position_m = 0;  // meaningful only when position_valid
   double target_m = 0;
   std::string fault;      // "none", "invalid_sample", "stall", ...
   bool motion_done = true;
   double soft_lower_m = 0;
   double soft_upper_m = 0;
+  double resolution_m = 0;  // one interferometer count
+  bool referenced = false;  // the position is known against the stage (not only relative)
+  std::string device;       // the device link: "up", "lost"
   std::uint64_t moves = 0;
   std::uint64_t bursts = 0;
   std::uint64_t cycles = 0;
-  // The daemon core's last error, "" for none: the fault the last failed motion ended in (with
-  // the driver's message for a driver fault), a failed calibration save (file and reason), a
-  // sweep's failures, a deferred *RST that could not reload the settings. *RST clears it.
+  // The daemon core's last error for this axis, "" for none: the fault the last failed motion
+  // ended in (with the driver's message), a failed calibration save (file and reason), a sweep's
+  // failures, a deferred *RST that could not reload the settings, a device lost or back. *RST
+  // clears it.
   std::string last_error;
+};
+
+// The last (or running) sweep: SWEEP?.
+struct SweepStatus {
+  std::string state = "NONE";  // NONE, RUNNING, DONE, STOPPED, FAILED
+  int axis = -1;               // 0-based; -1 before the first sweep
+  std::uint64_t planned = 0, written = 0, failed = 0;
+  std::string directory;
 };
 
 // The real-time loop's timing, for the loop-statistics queries.
@@ -79,34 +118,58 @@ struct LoopStats {
   std::uint64_t bins[32] = {};
 };
 
+// `axis` is 0-based here (the protocol's AXIS1 is 0) and always < axis_count(): the protocol
+// layer checks it (-114) before it calls.
 class Instrument {
  public:
   virtual ~Instrument() = default;
 
   // *IDN? fields: maker, model ("idmd"), serial (or "0"), version.
   virtual std::string identity() = 0;
-  // *RST: stop motion, clear the fault, reload control settings.
+  virtual int axis_count() = 0;
+  virtual std::string axis_name(int axis) = 0;
+  // *RST: stop motion on every axis, clear the faults, reload control settings (soft limits a
+  // client set stay).
   virtual CommandError reset() = 0;
-  // *OPC? and MOVE:DONE?: every motion started before has finished.
+  // *OPC?: every motion started before, on every axis, has finished.
   virtual bool motion_done() = 0;
-  virtual InstrumentStatus status() = 0;
+  // MOVE:DONE? of one axis.
+  virtual bool motion_done(int axis) = 0;
+  virtual InstrumentStatus status(int axis) = 0;
+  // POSition:ALL?: every axis's position read at one instant (NaN where not valid).
+  virtual std::vector<double> positions() = 0;
 
-  virtual CommandError move_absolute(double target_m) = 0;
-  virtual CommandError move_relative(double distance_m) = 0;
-  // STEP n[,duty,freq_hz[,stroke_m]]; duty/freq/stroke 0 = the daemon's choice.
-  virtual CommandError step(std::int64_t cycles, double duty, double freq_hz, double stroke_m) = 0;
+  virtual CommandError move_absolute(int axis, double target_m) = 0;
+  virtual CommandError move_relative(int axis, double distance_m) = 0;
+  // STEP n[,duty,freq_hz[,stroke_m]]: n != 0; an omitted argument is NaN (duty and freq both
+  // omitted: the daemon's cell; stroke omitted: the largest stroke). Every given argument is used
+  // or the step is refused (-222 naming it and its range); so is a burst whose predicted end lies
+  // outside the soft limits.
+  virtual CommandError step(int axis, std::int64_t cycles, double duty, double freq_hz,
+                            double stroke_m) = 0;
+  // STOP: every axis (and a running sweep); AXIS<n>:STOP: that axis (and a sweep on it).
   virtual CommandError stop() = 0;
+  virtual CommandError stop(int axis) = 0;
 
-  virtual CommandError set_soft_limits(double lower_m, double upper_m) = 0;
+  virtual CommandError set_soft_limits(int axis, double lower_m, double upper_m) = 0;
 
   // REGion? f,duty[,stroke]: region name ("CUTOFF", "ONESTEP", "MULTISTEP") and predicted step.
-  virtual CommandError region(double freq_hz, double duty, double stroke_m, std::string& region,
-                              double& step_m) = 0;
+  // stroke_m NaN: the largest stroke.
+  virtual CommandError region(int axis, double freq_hz, double duty, double stroke_m,
+                              std::string& region, double& step_m) = 0;
 
-  // SWEEP dir,freqs,duties,trials[,cycles]: starts the characterization sweep in the background
-  // (motion_done() is false until it ends); errors of the arguments are returned at once.
-  virtual CommandError sweep(const std::string& dir, const std::vector<double>& freqs_hz,
+  // SWEEP dir,freqs,duties,trials[,cycles]: starts the characterization sweep of one axis in the
+  // background (motion_done() is false until it ends); errors of the arguments are returned at
+  // once.
+  virtual CommandError sweep(int axis, const std::string& dir, const std::vector<double>& freqs_hz,
                              const std::vector<double>& duties, int trials, int cycles) = 0;
+  virtual SweepStatus sweep_status() = 0;
+
+  // Simulated axes only (-241 on a real backend): SIMulation:PUSH displaces the slider by
+  // distance_m at once; SIMulation:FAULt sets an injected fault: beam_lost, stalled, glitches
+  // (value: probability per word), disconnect (1: pulled, 0: back), power_cycle, timeouts.
+  virtual CommandError sim_push(int axis, double distance_m) = 0;
+  virtual CommandError sim_fault(int axis, const std::string& fault, double value) = 0;
 
   virtual LoopStats loop_stats() = 0;
 };

@@ -11,9 +11,15 @@
 #include <string>
 #include <thread>
 
-#include "daemon/thread.h"
+#include "drivers/thread.h"
 
 namespace idm::daemon {
+
+using drivers::kLoopStackBytes;
+using drivers::kRecorderStackBytes;
+using drivers::kServerStackBytes;
+using drivers::kSmallStackBytes;
+using drivers::StackThread;
 
 class Notifier {
  public:

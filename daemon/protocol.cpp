@@ -1,5 +1,6 @@
 #include "daemon/protocol.h"
 
+#include <algorithm>
 #include <array>
 #include <charconv>
 #include <cmath>
@@ -42,6 +43,8 @@ bool iequals(std::string_view a, std::string_view b) {
   return true;
 }
 
+}  // namespace
+
 // User text echoed in an error: printable ASCII only, at most 40 characters.
 std::string echo(std::string_view text) {
   std::string out;
@@ -57,8 +60,6 @@ std::string replace_controls(std::string_view text) {
   return out;
 }
 
-}  // namespace
-
 // ---------------------------------------------------------------------------------------------
 // Pure functions
 
@@ -72,12 +73,16 @@ const char* standard_error_text(int code) {
       return "Invalid character";
     case ec::kSyntaxError:
       return "Syntax error";
+    case ec::kDataTypeError:
+      return "Data type error";
     case ec::kParameterNotAllowed:
       return "Parameter not allowed";
     case ec::kMissingParameter:
       return "Missing parameter";
     case ec::kUndefinedHeader:
       return "Undefined header";
+    case ec::kHeaderSuffixOutOfRange:
+      return "Header suffix out of range";
     case ec::kNumericDataError:
       return "Numeric data error";
     case ec::kExecutionError:
@@ -86,25 +91,19 @@ const char* standard_error_text(int code) {
       return "Settings conflict";
     case ec::kDataOutOfRange:
       return "Data out of range";
+    case ec::kDataCorruptOrStale:
+      return "Data corrupt or stale";
     case ec::kHardwareError:
       return "Hardware error";
+    case ec::kHardwareMissing:
+      return "Hardware missing";
     case ec::kQueueOverflow:
       return "Queue overflow";
     case ec::kInputBufferOverrun:
       return "Input buffer overrun";
-    case ec::kFaultInvalidSample:
-      return "Invalid interferometer sample";
-    case ec::kFaultStall:
-      return "Stall";
-    case ec::kFaultRetryLimit:
-      return "Retry limit";
-    case ec::kFaultDriver:
-      return "Driver error";
-    case ec::kFaultNoPlan:
-      return "No plan";
-    case ec::kSweepFailed:
-      return "Sweep failed";
     default:
+      for (const DeviceFault& f : kDeviceFaults)
+        if (f.code == code) return f.text;
       return "Error";
   }
 }
@@ -149,7 +148,7 @@ bool looks_like_query(std::string_view line) {
   while (i < line.size() && is_blank(line[i])) ++i;
   std::size_t end = i;
   while (end < line.size() && !is_blank(line[end]) && line[end] != '\r' && line[end] != '\n') ++end;
-  return end > i && line[end - 1] == '?';
+  return end > i && end <= kMaxLineBytes && line[end - 1] == '?';
 }
 
 CommandError parse_line(std::string_view line, ParsedLine& out) {
@@ -210,6 +209,7 @@ CommandError parse_line(std::string_view line, ParsedLine& out) {
       return make_error(ec::kSyntaxError, "text after a quoted string in argument " +
                                               std::to_string(out.args.size() + 1));
     out.args.emplace_back(arg);
+    out.quoted.push_back(was_string);
     current.clear();
     was_string = text_after_string = false;
     return {};
@@ -411,17 +411,8 @@ CommandError parse_list(std::string_view text, std::string_view what, std::vecto
 }
 
 CommandError fault_error(const std::string& fault_name) {
-  static const struct {
-    const char* name;
-    int code;
-  } kFaults[] = {{"invalid_sample", ec::kFaultInvalidSample},
-                 {"stall", ec::kFaultStall},
-                 {"retry_limit", ec::kFaultRetryLimit},
-                 {"driver", ec::kFaultDriver},
-                 {"no_plan", ec::kFaultNoPlan},
-                 {"sweep_failed", ec::kSweepFailed}};
   if (fault_name.empty() || fault_name == "none") return {};
-  for (const auto& f : kFaults)
+  for (const DeviceFault& f : kDeviceFaults)
     if (fault_name == f.name) return make_error(f.code, "motion ended in fault " + fault_name);
   return make_error(ec::kExecutionError, "motion ended in fault " + fault_name);
 }
@@ -452,427 +443,6 @@ CommandError ErrorQueue::pop() {
 void ErrorQueue::clear() {
   queue_.clear();
   last_code_ = ec::kNoError;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Session: the command table
-
-struct Session::Command {
-  CommandInfo info;
-  CommandError (Session::*handler)(const Args&, std::string&);
-};
-
-const std::vector<Session::Command>& Session::commands() {
-  static const std::vector<Command> kCommands = {
-      {{"*IDN", true, 0, 0, ""}, &Session::idn},
-      {{"*RST", false, 0, 0, ""}, &Session::rst},
-      {{"*CLS", false, 0, 0, ""}, &Session::cls},
-      {{"*OPC", true, 0, 0, ""}, &Session::opc_query},
-      {{"*WAI", false, 0, 0, ""}, &Session::wai},
-      {{"*TST", true, 0, 0, ""}, &Session::tst},
-      {{"SYSTem:ERRor[:NEXT]", true, 0, 0, ""}, &Session::error_next},
-      {{"SYSTem:ERRor:COUNt", true, 0, 0, ""}, &Session::error_count},
-      {{"SYSTem:ERRor:ALL", true, 0, 0, ""}, &Session::error_all},
-      {{"SYSTem:VERSion", true, 0, 0, ""}, &Session::version},
-      {{"SYSTem:LOOP", true, 0, 0, ""}, &Session::loop},
-      {{"POSition", true, 0, 0, ""}, &Session::position},
-      {{"MOVE[:ABSolute]", false, 1, 1, "<m>"}, &Session::move_absolute},
-      {{"MOVE[:ABSolute]", true, 0, 0, ""}, &Session::move_target},
-      {{"MOVE:RELative", false, 1, 1, "<m>"}, &Session::move_relative},
-      {{"MOVE:DONE", true, 0, 0, ""}, &Session::move_done},
-      {{"STOP", false, 0, 0, ""}, &Session::stop},
-      {{"ABORt", false, 0, 0, ""}, &Session::stop},
-      {{"STEP", false, 1, 4, "<n>[,<duty>,<freq_hz>[,<stroke_m>]]"}, &Session::step},
-      {{"REGion", true, 2, 3, "<freq_hz>,<duty>[,<stroke_m>]"}, &Session::region},
-      {{"LIMit:LOWer", false, 1, 1, "<m>"}, &Session::limit_lower},
-      {{"LIMit:UPPer", false, 1, 1, "<m>"}, &Session::limit_upper},
-      {{"LIMit:LOWer", true, 0, 0, ""}, &Session::limit_lower_query},
-      {{"LIMit:UPPer", true, 0, 0, ""}, &Session::limit_upper_query},
-      {{"LIMit", false, 2, 2, "<lower_m>,<upper_m>"}, &Session::limits},
-      {{"LIMit", true, 0, 0, ""}, &Session::limits_query},
-      {{"STATus", true, 0, 0, ""}, &Session::status},
-      {{"SWEEP", false, 4, 5, "<dir>,<freqs>,<duties>,<trials>[,<cycles>]"}, &Session::sweep},
-  };
-  return kCommands;
-}
-
-const std::vector<CommandInfo>& command_table() {
-  static const std::vector<CommandInfo> kTable = [] {
-    std::vector<CommandInfo> out;
-    for (const auto& c : Session::commands()) out.push_back(c.info);
-    return out;
-  }();
-  return kTable;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Session: framing
-
-Session::Session(Instrument& instrument) : instrument_(instrument) {}
-
-void Session::receive(std::string_view bytes, std::string& replies) {
-  const std::size_t newline = bytes.rfind('\n');
-  unterminated_ =
-      newline == std::string_view::npos ? unterminated_ + bytes.size() : bytes.size() - newline - 1;
-  if (discarding_ && wait_ == Wait::None && newline == std::string_view::npos) return;
-  input_.append(bytes);
-  process(replies);
-}
-
-void Session::end_of_input(std::string& replies) {
-  end_of_input_ = true;
-  process(replies);
-}
-
-void Session::poll(std::string& replies) {
-  if (wait_ == Wait::None) return;
-  std::string reply = "1";
-  try {
-    if (!instrument_.motion_done()) return;
-  } catch (const std::exception& e) {  // end the wait with the error rather than wait forever
-    push(make_error(ec::kExecutionError, e.what()));
-    reply.clear();
-  }
-  if (wait_ == Wait::OpcQuery) replies += reply + "\n";
-  wait_ = Wait::None;
-  process(replies);
-}
-
-void Session::process(std::string& replies) {
-  std::size_t pos = 0;
-  while (wait_ == Wait::None) {
-    const std::size_t newline = input_.find('\n', pos);
-    if (newline == std::string::npos) {
-      const std::size_t pending = input_.size() - pos;
-      if (discarding_) {
-        pos = input_.size();
-      } else if (pending > kMaxLineBytes + 1) {  // + 1: a CR may still come before the LF
-        line_too_long(std::string_view(input_).substr(pos), replies);
-        discarding_ = true;
-        pos = input_.size();
-      } else if (end_of_input_ && pending > 0) {
-        std::string_view line = std::string_view(input_).substr(pos);
-        pos = input_.size();
-        if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-        if (line.size() > kMaxLineBytes)
-          line_too_long(line, replies);
-        else
-          execute_line(line, replies);
-        continue;
-      }
-      break;
-    }
-    std::string_view line = std::string_view(input_).substr(pos, newline - pos);
-    pos = newline + 1;
-    if (discarding_) {  // the end of a too-long line, already reported
-      discarding_ = false;
-      continue;
-    }
-    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-    if (line.size() > kMaxLineBytes)
-      line_too_long(line, replies);
-    else
-      execute_line(line, replies);
-  }
-  input_.erase(0, pos);
-}
-
-void Session::line_too_long(std::string_view start, std::string& replies) {
-  push(make_error(ec::kInputBufferOverrun,
-                  "line longer than " + std::to_string(kMaxLineBytes) + " bytes, discarded"));
-  if (looks_like_query(start)) replies += "\n";
-}
-
-void Session::push(CommandError error) {
-  errors_.push(std::move(error));
-}
-
-void Session::started_motion(const CommandError& result) {
-  if (result.ok()) motion_started_ = true;
-}
-
-// A motion this session started has ended: a fault it ended in goes to this session's queue.
-void Session::notice_motion_end() {
-  if (!motion_started_ || !instrument_.motion_done()) return;
-  motion_started_ = false;
-  push(fault_error(instrument_.status().fault));
-}
-
-void Session::execute_line(std::string_view line, std::string& replies) {
-  try {
-    notice_motion_end();
-  } catch (const std::exception& e) {
-    push(make_error(ec::kExecutionError, e.what()));
-  }
-  const bool query = looks_like_query(line);
-  ParsedLine parsed;
-  CommandError error = parse_line(line, parsed);
-  if (error.ok() && parsed.header.empty()) return;  // a blank line
-  const Command* command = nullptr;
-  if (error.ok()) {
-    for (const Command& c : commands())
-      if (c.info.query == parsed.query && header_matches(c.info.pattern, parsed.header)) {
-        command = &c;
-        break;
-      }
-    if (!command)
-      error = make_error(ec::kUndefinedHeader, echo(parsed.header + (parsed.query ? "?" : "")));
-  }
-  if (command) {
-    const int n = static_cast<int>(parsed.args.size());
-    // Built only for an error: this is the path of every command.
-    const auto usage = [command] {
-      return std::string("usage: ") + command->info.pattern + (command->info.query ? "?" : "") +
-             (command->info.max_args > 0 ? " " : "") + command->info.arguments;
-    };
-    if (n > command->info.max_args)
-      error = make_error(ec::kParameterNotAllowed, usage());
-    else if (n < command->info.min_args)
-      error = make_error(ec::kMissingParameter, usage());
-  }
-  std::string reply;
-  if (error.ok()) {
-    try {
-      error = (this->*command->handler)(parsed.args, reply);
-    } catch (const std::exception& e) {  // an Instrument that throws must not end the server
-      error = make_error(ec::kExecutionError, e.what());
-    }
-    if (wait_ == Wait::OpcQuery) return;  // the reply comes from poll()
-  }
-  if (!error.ok()) {
-    push(std::move(error));
-    reply.clear();
-  }
-  if (query) replies += replace_controls(reply) + "\n";
-}
-
-// ---------------------------------------------------------------------------------------------
-// Session: the commands
-
-namespace {
-
-CommandError instrument_error(CommandError e) {
-  if (e.ok()) return e;
-  return make_error(e.code, e.text);
-}
-
-}  // namespace
-
-CommandError Session::idn(const Args&, std::string& reply) {
-  reply = instrument_.identity();
-  return {};
-}
-
-CommandError Session::rst(const Args&, std::string&) {
-  errors_.clear();
-  motion_started_ = false;
-  return instrument_error(instrument_.reset());
-}
-
-CommandError Session::cls(const Args&, std::string&) {
-  errors_.clear();
-  return {};
-}
-
-CommandError Session::opc_query(const Args&, std::string& reply) {
-  if (instrument_.motion_done())
-    reply = "1";
-  else
-    wait_ = Wait::OpcQuery;
-  return {};
-}
-
-CommandError Session::wai(const Args&, std::string&) {
-  if (!instrument_.motion_done()) wait_ = Wait::Wai;
-  return {};
-}
-
-CommandError Session::tst(const Args&, std::string& reply) {
-  const InstrumentStatus s = instrument_.status();
-  reply = (s.position_valid && (s.fault.empty() || s.fault == "none")) ? "0" : "1";
-  return {};
-}
-
-CommandError Session::error_next(const Args&, std::string& reply) {
-  reply = format_error(errors_.pop());
-  return {};
-}
-
-CommandError Session::error_count(const Args&, std::string& reply) {
-  reply = std::to_string(errors_.size());
-  return {};
-}
-
-CommandError Session::error_all(const Args&, std::string& reply) {
-  reply.clear();
-  do {
-    if (!reply.empty()) reply += ",";
-    reply += format_error(errors_.pop());
-  } while (!errors_.empty());
-  return {};
-}
-
-CommandError Session::version(const Args&, std::string& reply) {
-  reply = kScpiVersion;
-  return {};
-}
-
-CommandError Session::loop(const Args&, std::string& reply) {
-  const LoopStats s = instrument_.loop_stats();
-  reply = "period=" + format_value(s.period_s) + " wakeups=" + std::to_string(s.wakeups) +
-          " misses=" + std::to_string(s.deadline_misses) + " min=" + format_value(s.latency_min_s) +
-          " avg=" + format_value(s.latency_avg_s) + " max=" + format_value(s.latency_max_s) +
-          " bin_width=" + format_value(s.bin_width_s) + " hist=";
-  for (std::size_t k = 0; k < std::size(s.bins); ++k) {
-    if (k) reply += ";";
-    reply += std::to_string(s.bins[k]);
-  }
-  return {};
-}
-
-CommandError Session::position(const Args&, std::string& reply) {
-  const InstrumentStatus s = instrument_.status();
-  if (!s.position_valid)
-    return make_error(ec::kHardwareError, "no valid position (no interferometer reading)");
-  reply = format_value(s.position_m);
-  return {};
-}
-
-CommandError Session::move_absolute(const Args& args, std::string&) {
-  double target = 0;
-  if (CommandError e = parse_number(args[0], "MOVE:ABSolute target", target); !e.ok()) return e;
-  CommandError e = instrument_error(instrument_.move_absolute(target));
-  started_motion(e);
-  return e;
-}
-
-CommandError Session::move_target(const Args&, std::string& reply) {
-  reply = format_value(instrument_.status().target_m);
-  return {};
-}
-
-CommandError Session::move_relative(const Args& args, std::string&) {
-  double distance = 0;
-  if (CommandError e = parse_number(args[0], "MOVE:RELative distance", distance); !e.ok()) return e;
-  CommandError e = instrument_error(instrument_.move_relative(distance));
-  started_motion(e);
-  return e;
-}
-
-CommandError Session::move_done(const Args&, std::string& reply) {
-  reply = instrument_.motion_done() ? "1" : "0";
-  return {};
-}
-
-CommandError Session::stop(const Args&, std::string&) {
-  return instrument_error(instrument_.stop());
-}
-
-CommandError Session::step(const Args& args, std::string&) {
-  if (args.size() == 2)
-    return make_error(ec::kMissingParameter, "STEP takes <n> or <n>,<duty>,<freq_hz>[,<stroke_m>]");
-  std::int64_t cycles = 0;
-  double duty = 0, freq = 0, stroke = 0;
-  if (CommandError e = parse_integer(args[0], "STEP cycles", -1000000000, 1000000000, cycles);
-      !e.ok())
-    return e;
-  if (args.size() >= 3) {
-    if (CommandError e = parse_number(args[1], "STEP duty", duty); !e.ok()) return e;
-    if (CommandError e = parse_number(args[2], "STEP freq_hz", freq); !e.ok()) return e;
-  }
-  if (args.size() == 4)
-    if (CommandError e = parse_number(args[3], "STEP stroke_m", stroke); !e.ok()) return e;
-  CommandError e = instrument_error(instrument_.step(cycles, duty, freq, stroke));
-  started_motion(e);
-  return e;
-}
-
-CommandError Session::region(const Args& args, std::string& reply) {
-  double freq = 0, duty = 0, stroke = 0;
-  if (CommandError e = parse_number(args[0], "REGion freq_hz", freq); !e.ok()) return e;
-  if (CommandError e = parse_number(args[1], "REGion duty", duty); !e.ok()) return e;
-  if (args.size() == 3)
-    if (CommandError e = parse_number(args[2], "REGion stroke_m", stroke); !e.ok()) return e;
-  std::string name;
-  double step_m = 0;
-  if (CommandError e = instrument_.region(freq, duty, stroke, name, step_m); !e.ok())
-    return instrument_error(e);
-  reply = name + "," + format_value(step_m);
-  return {};
-}
-
-CommandError Session::limit_lower(const Args& args, std::string&) {
-  double lower = 0;
-  if (CommandError e = parse_number(args[0], "LIMit:LOWer", lower); !e.ok()) return e;
-  return instrument_error(instrument_.set_soft_limits(lower, instrument_.status().soft_upper_m));
-}
-
-CommandError Session::limit_upper(const Args& args, std::string&) {
-  double upper = 0;
-  if (CommandError e = parse_number(args[0], "LIMit:UPPer", upper); !e.ok()) return e;
-  return instrument_error(instrument_.set_soft_limits(instrument_.status().soft_lower_m, upper));
-}
-
-CommandError Session::limit_lower_query(const Args&, std::string& reply) {
-  reply = format_value(instrument_.status().soft_lower_m);
-  return {};
-}
-
-CommandError Session::limit_upper_query(const Args&, std::string& reply) {
-  reply = format_value(instrument_.status().soft_upper_m);
-  return {};
-}
-
-CommandError Session::limits(const Args& args, std::string&) {
-  double lower = 0, upper = 0;
-  if (CommandError e = parse_number(args[0], "LIMit lower", lower); !e.ok()) return e;
-  if (CommandError e = parse_number(args[1], "LIMit upper", upper); !e.ok()) return e;
-  return instrument_error(instrument_.set_soft_limits(lower, upper));
-}
-
-CommandError Session::limits_query(const Args&, std::string& reply) {
-  const InstrumentStatus s = instrument_.status();
-  reply = format_value(s.soft_lower_m) + "," + format_value(s.soft_upper_m);
-  return {};
-}
-
-CommandError Session::status(const Args&, std::string& reply) {
-  const InstrumentStatus s = instrument_.status();
-  // key=value words separated by blanks: a value never holds a blank
-  const auto word = [](const std::string& w) {
-    std::string out = w.empty() ? std::string("none") : w;
-    for (char& c : out)
-      if (is_blank(c)) c = '_';
-    return out;
-  };
-  reply = "state=" + word(s.state) + " done=" + (s.motion_done ? "1" : "0") +
-          " position=" + format_value(s.position_m) +
-          " position_valid=" + (s.position_valid ? "1" : "0") +
-          " target=" + format_value(s.target_m) + " fault=" + word(s.fault) +
-          " lower=" + format_value(s.soft_lower_m) + " upper=" + format_value(s.soft_upper_m) +
-          " moves=" + std::to_string(s.moves) + " bursts=" + std::to_string(s.bursts) +
-          " cycles=" + std::to_string(s.cycles) + " errors=" + std::to_string(errors_.size()) +
-          " last_error=" + std::to_string(errors_.last_code()) +
-          " daemon_error=" + word(replace_controls(s.last_error));
-  return {};
-}
-
-CommandError Session::sweep(const Args& args, std::string&) {
-  const std::string& dir = args[0];
-  if (dir.empty()) return make_error(ec::kDataOutOfRange, "SWEEP: empty directory");
-  std::vector<double> freqs, duties;
-  if (CommandError e = parse_list(args[1], "SWEEP freqs", freqs); !e.ok()) return e;
-  if (CommandError e = parse_list(args[2], "SWEEP duties", duties); !e.ok()) return e;
-  std::int64_t trials = 0, cycles = 12;
-  if (CommandError e = parse_integer(args[3], "SWEEP trials", 1, 1000000, trials); !e.ok())
-    return e;
-  if (args.size() == 5)
-    if (CommandError e = parse_integer(args[4], "SWEEP cycles", 1, 1000000, cycles); !e.ok())
-      return e;
-  CommandError e = instrument_error(
-      instrument_.sweep(dir, freqs, duties, static_cast<int>(trials), static_cast<int>(cycles)));
-  started_motion(e);
-  return e;
 }
 
 }  // namespace idm::daemon

@@ -46,6 +46,11 @@ const char* standard_error_text(int code);
 // kMaxErrorTextBytes.
 CommandError make_error(int code, std::string_view detail = {});
 
+// User text echoed in an error: 'text', printable ASCII only, at most 40 characters.
+std::string echo(std::string_view text);
+// Every byte outside printable ASCII replaced by a blank.
+std::string replace_controls(std::string_view text);
+
 // SCPI string: quoted, every " doubled.
 std::string quote(std::string_view text);
 // "<code>,\"<text>\"" as SYSTem:ERRor? replies.
@@ -55,14 +60,16 @@ std::string format_error(const CommandError& error);
 // +-infinity as SCPI's +-9.9e+37 and NaN as 9.91e+37, so that a reply is always a finite number.
 std::string format_value(double value);
 
-// Is this line a query (its first word ends in '?')? Decided on the raw bytes so that the server
-// and a client agree also on lines that fail to parse.
+// Is this line a query (its first word ends in '?' within the first kMaxLineBytes bytes)? Decided
+// on the raw bytes so that the server and a client agree also on lines that fail to parse, and on
+// lines too long, which the server judges by their first kMaxLineBytes + 2 bytes.
 bool looks_like_query(std::string_view line);
 
 struct ParsedLine {
   std::string header;  // as sent, without the leading ':' and the trailing '?'
   bool query = false;
   std::vector<std::string> args;  // trimmed; quoted strings unquoted
+  std::vector<bool> quoted;       // per argument: it was a "..." string (not a number)
 };
 // Splits "[:]HEADER[?][ ARG{,ARG}]" (no line terminator). An empty or all-blank line gives an
 // empty header. Errors: -101 (a byte outside printable ASCII and tab), -102 (a malformed header,
@@ -107,6 +114,10 @@ class ErrorQueue {
   int last_code_ = error_code::kNoError;
 };
 
+// Where a command applies: to the whole instrument (an AXIS<n>: prefix is -113), to one axis
+// (unprefixed: axis 1), or either (STOP: every axis unprefixed, one with AXIS<n>:).
+enum class CommandScope : std::uint8_t { Instrument, Axis, Either };
+
 // The commands a Session knows, as (pattern, query); for tests and documentation.
 struct CommandInfo {
   const char* pattern;  // "MOVE:ABSolute", "SYSTem:ERRor[:NEXT]"
@@ -114,8 +125,13 @@ struct CommandInfo {
   int min_args;
   int max_args;
   const char* arguments;  // "<m>", "<n>[,<duty>,<freq_hz>[,<stroke_m>]]", "" for none
+  CommandScope scope;
 };
 const std::vector<CommandInfo>& command_table();
+
+// "AXIS<n>:REST" -> n (1-based) and REST; false when the header has no such prefix. AXIS:COUNt has
+// none (it is an instrument command). n = 0 or a number past int's range gives n = 0.
+bool split_axis_prefix(std::string_view header, int& axis, std::string_view& rest);
 
 // ---------------------------------------------------------------------------------------------
 // One client's session: line framing, the error queue, the command table. Not thread-safe; the
@@ -126,7 +142,9 @@ class Session {
 
   // Bytes as they arrive (any split); replies (each ending in "\n") are appended to `replies`.
   void receive(std::string_view bytes, std::string& replies);
-  // The peer will send nothing more: a last line without its newline is executed.
+  // The peer will send nothing more. A last line without its newline is discarded, never
+  // executed: a line runs only once it is terminated (a client that dies mid-line must not move
+  // the stage with half a command).
   void end_of_input(std::string& replies);
   // While waiting() (*OPC? or *WAI): resumes once the instrument's motion is done.
   void poll(std::string& replies);
@@ -141,19 +159,38 @@ class Session {
   std::size_t unterminated_bytes() const { return unterminated_; }
 
   const ErrorQueue& errors() const { return errors_; }
+  // A stop-only session (the server's overflow slot): STOP, ABORt, *IDN?, *CLS and the error
+  // queries run; every other line is refused with -221 naming why.
+  void set_stop_only(bool stop_only) { stop_only_ = stop_only; }
 
  private:
   enum class Wait { None, OpcQuery, Wai };
   struct Command;
-  using Args = std::vector<std::string>;
+  struct Args {
+    std::vector<std::string> text;
+    std::vector<bool> quoted;
+    std::size_t size() const { return text.size(); }
+    const std::string& operator[](std::size_t i) const { return text[i]; }
+  };
+  using Handler = CommandError (Session::*)(const Args&, std::string&);
+  // A numeric argument: -104 when it was sent as a quoted string, else parse_number/parse_integer.
+  static CommandError number_arg(const Args& args, std::size_t i, std::string_view what,
+                                 double& value);
+  static CommandError integer_arg(const Args& args, std::size_t i, std::string_view what,
+                                  std::int64_t lo, std::int64_t hi, std::int64_t& value);
+  static CommandError list_arg(const Args& args, std::size_t i, std::string_view what,
+                               std::vector<double>& values);
 
   void process(std::string& replies);
   void execute_line(std::string_view line, std::string& replies);
+  // Finds the command and the axis of a parsed line; an error when there is none.
+  CommandError resolve(const ParsedLine& parsed, const Command*& command);
   void line_too_long(std::string_view start, std::string& replies);
   void push(CommandError error);
   void notice_motion_end();
   void started_motion(const CommandError& result);
 
+  // Instrument commands.
   CommandError idn(const Args&, std::string& reply);
   CommandError rst(const Args&, std::string& reply);
   CommandError cls(const Args&, std::string& reply);
@@ -165,12 +202,18 @@ class Session {
   CommandError error_all(const Args&, std::string& reply);
   CommandError version(const Args&, std::string& reply);
   CommandError loop(const Args&, std::string& reply);
+  CommandError axis_count(const Args&, std::string& reply);
+  CommandError positions(const Args&, std::string& reply);
+  CommandError sweep_query(const Args&, std::string& reply);
+  CommandError stop(const Args&, std::string& reply);
+  // Axis commands (axis_: the line's axis).
+  CommandError axis_name(const Args&, std::string& reply);
+  CommandError resolution(const Args&, std::string& reply);
   CommandError position(const Args&, std::string& reply);
   CommandError move_absolute(const Args&, std::string& reply);
   CommandError move_target(const Args&, std::string& reply);
   CommandError move_relative(const Args&, std::string& reply);
   CommandError move_done(const Args&, std::string& reply);
-  CommandError stop(const Args&, std::string& reply);
   CommandError step(const Args&, std::string& reply);
   CommandError region(const Args&, std::string& reply);
   CommandError limit_lower(const Args&, std::string& reply);
@@ -181,6 +224,8 @@ class Session {
   CommandError limits_query(const Args&, std::string& reply);
   CommandError status(const Args&, std::string& reply);
   CommandError sweep(const Args&, std::string& reply);
+  CommandError sim_push(const Args&, std::string& reply);
+  CommandError sim_fault(const Args&, std::string& reply);
 
   static const std::vector<Command>& commands();
   friend const std::vector<CommandInfo>& command_table();
@@ -192,7 +237,10 @@ class Session {
   bool discarding_ = false;  // inside a too-long line: drop up to the next newline
   bool end_of_input_ = false;
   Wait wait_ = Wait::None;
-  bool motion_started_ = false;  // this session started a motion whose end it has not seen
+  int axis_ = 0;                 // the axis of the line being executed (0-based)
+  bool axis_given_ = false;      // it came with an AXIS<n>: prefix
+  std::uint64_t started_axes_ = 0;  // axes (bits) whose motion this session started, not yet seen end
+  bool stop_only_ = false;
 };
 
 // The device fault a status reports ("stall", ...) as an error with its positive code

@@ -17,10 +17,18 @@
 
 #include "daemon/config.h"
 #include "daemon/instrument.h"
-#include "daemon/lockfree.h"
-#include "daemon/thread.h"
+#include "drivers/lockfree.h"
+#include "drivers/thread.h"
 
 namespace idm::daemon {
+
+using drivers::kLoopStackBytes;
+using drivers::kRecorderStackBytes;
+using drivers::kServerStackBytes;
+using drivers::kSmallStackBytes;
+using drivers::Seqlock;
+using drivers::SpscRing;
+using drivers::StackThread;
 
 class LoopBody {
  public:

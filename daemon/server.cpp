@@ -54,7 +54,11 @@ struct Client {
   std::string out;  // replies not yet written, from out_offset on
   std::size_t out_offset = 0;
   bool end_of_input = false;
+  bool overflow = false;     // a stop-only slot (the table was full when it came)
+  std::chrono::steady_clock::time_point since;  // accepted (overflow), or started draining
   std::uint32_t events = 0;  // current epoll interest
+  // Half-closed while it waits for a reply: it no longer holds a slot.
+  bool draining() const { return end_of_input && session.waiting(); }
   std::size_t pending_output() const { return out.size() - out_offset; }
 };
 
@@ -85,12 +89,12 @@ struct Server::Impl {
         }
         return;
       }
-      if (static_cast<int>(clients.size()) >= server.config_.max_clients) {
-        count(kRejected);  // before the close the client sees, so that the count is never behind
-        ::close(fd);
-        log("command server: refused a client: " + std::to_string(server.config_.max_clients) +
-            " clients already connected (server.max_clients)");
-        continue;
+      const bool overflow = live_clients() >= server.config_.max_clients;
+      if (overflow) {
+        count(kRejected);
+        if (count_if([](const Client& c) { return c.overflow; }) >= server.config_.overflow_slots)
+          drop_oldest([](const Client& c) { return c.overflow; }, kRejected,
+                      "closed: its stop-only slot went to a newer client");
       }
       std::string peer = "unix socket";
       if (listener == server.tcp_fd_) {
@@ -105,6 +109,9 @@ struct Server::Impl {
         peer = "tcp " + host_port(host, std::atoi(port));
       }
       auto client = std::make_unique<Client>(fd, peer, server.instrument_);
+      client->overflow = overflow;
+      client->since = std::chrono::steady_clock::now();
+      client->session.set_stop_only(overflow);
       epoll_event ev{};
       ev.events = EPOLLIN;
       ev.data.fd = fd;
@@ -117,8 +124,54 @@ struct Server::Impl {
       clients.emplace(fd, std::move(client));
       server.clients_.store(static_cast<int>(clients.size()));
       count(kAccepted);
-      log("command server: client connected (" + peer + ")");
+      if (overflow)
+        log("command server: client connected (" + peer + ") in a stop-only slot: " +
+            std::to_string(server.config_.max_clients) +
+            " clients already connected (server.max_clients)");
+      else
+        log("command server: client connected (" + peer + ")");
     }
+  }
+
+  template <typename Pred>
+  int count_if(Pred pred) const {
+    int n = 0;
+    for (const auto& [fd, c] : clients) n += pred(*c) ? 1 : 0;
+    return n;
+  }
+  int live_clients() const {
+    return count_if([](const Client& c) { return !c.overflow && !c.draining(); });
+  }
+  template <typename Pred>
+  void drop_oldest(Pred pred, Counter why, const std::string& text) {
+    Client* oldest = nullptr;
+    for (const auto& [fd, c] : clients)
+      if (pred(*c) && (!oldest || c->since < oldest->since)) oldest = c.get();
+    if (oldest) drop(*oldest, why, text);
+  }
+
+  // Stop-only clients past their linger time are closed (their last replies flushed first, as
+  // far as the socket takes them). Returns the ms until the next one is due, -1: none.
+  int expire_overflow() {
+    const auto now = std::chrono::steady_clock::now();
+    const auto linger = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+        std::chrono::duration<double>(server.config_.overflow_linger_s));
+    std::vector<int> due;
+    auto next = std::chrono::steady_clock::time_point::max();
+    for (const auto& [fd, c] : clients) {
+      if (!c->overflow) continue;
+      if (now - c->since >= linger) due.push_back(fd);
+      else next = std::min(next, c->since + linger);
+    }
+    for (int fd : due) {
+      auto it = clients.find(fd);
+      if (it == clients.end()) continue;
+      flush(*it->second);
+      if (clients.count(fd)) drop(*it->second, kClosedByPeer, "closed: its stop-only time is over");
+    }
+    if (next == std::chrono::steady_clock::time_point::max()) return -1;
+    return static_cast<int>(
+        std::chrono::duration_cast<std::chrono::milliseconds>(next - now).count() + 1);
   }
 
   void set_listener_events(std::uint32_t events) {
@@ -175,6 +228,14 @@ struct Server::Impl {
       } else if (n == 0) {
         c.end_of_input = true;
         c.session.end_of_input(c.out);
+        if (c.draining()) {
+          c.since = std::chrono::steady_clock::now();
+          if (count_if([](const Client& x) { return x.draining(); }) > server.config_.max_clients) {
+            const int self = c.fd;
+            drop_oldest([self](const Client& x) { return x.draining() && x.fd != self; },
+                        kClosedByPeer, "closed: too many half-closed clients waiting for *OPC?");
+          }
+        }
       } else if (errno == EINTR) {
         continue;
       } else if (errno == EAGAIN || errno == EWOULDBLOCK) {
@@ -249,7 +310,11 @@ struct Server::Impl {
     if (events & (EPOLLIN | EPOLLHUP)) {
       if (c.events & EPOLLIN) {
         if (!read_some(c)) return;
-      } else if (events & EPOLLHUP) {  // gone while we were not reading
+      }
+      // Hang-up: the peer can neither send nor receive (both directions shut, or reset). Nobody
+      // is left to read a reply, so a waiting session does not keep its slot until the motion
+      // ends.
+      if ((events & EPOLLHUP) && (!(c.events & EPOLLIN) || c.end_of_input)) {
         drop(c, kClosedByPeer, "disconnected (hang-up)");
         return;
       }
@@ -282,8 +347,8 @@ struct Server::Impl {
     const int poll_ms =
         std::max(1, static_cast<int>(std::lround(server.config_.wait_poll_s * 1000)));
     for (;;) {
-      int timeout = -1;
-      if (any_waiting()) timeout = poll_ms;
+      int timeout = expire_overflow();
+      if (any_waiting()) timeout = timeout < 0 ? poll_ms : std::min(timeout, poll_ms);
       if (listeners_paused) timeout = timeout < 0 ? 100 : std::min(timeout, 100);
       const int n = epoll_wait(server.epoll_fd_, events, 64, timeout);
       if (n < 0 && errno != EINTR) {

@@ -18,9 +18,15 @@
 #include <thread>
 
 #include "daemon/instrument.h"
-#include "daemon/thread.h"
+#include "drivers/thread.h"
 
 namespace idm::daemon {
+
+using drivers::kLoopStackBytes;
+using drivers::kRecorderStackBytes;
+using drivers::kServerStackBytes;
+using drivers::kSmallStackBytes;
+using drivers::StackThread;
 
 struct ServerConfig {
   // TCP listener; an empty host: none. Port 0 picks a free port (tcp_port() says which).
@@ -30,8 +36,16 @@ struct ServerConfig {
   // path that is not a socket, is an error); the file is unlinked at stop.
   std::string unix_path;
   unsigned unix_mode = 0660;
-  // Clients beyond this are accepted and closed at once.
-  int max_clients = 64;
+  // Clients that may send any command. A client that has closed its sending side while it waits
+  // for a reply (*OPC?) no longer counts: it is draining (at most max_clients of those; past that
+  // the oldest is closed).
+  int max_clients = 16;
+  // With the table full, a new client still gets one of these stop-only slots: it may send
+  // STOP/ABORt (and read the error queue) for overflow_linger_s, then it is closed; any other
+  // command is refused with -221. Past overflow_slots the oldest such client is closed, so that
+  // a STOP always gets through.
+  int overflow_slots = 4;
+  double overflow_linger_s = 2.0;
   // Bytes a client may send without any newline before it is disconnected.
   std::size_t max_unterminated_bytes = std::size_t{1} << 20;
   // Replies a client has not read; more and it is disconnected.
@@ -47,7 +61,7 @@ struct ServerConfig {
 
 struct ServerCounters {
   std::uint64_t accepted = 0;
-  std::uint64_t rejected_max_clients = 0;
+  std::uint64_t rejected_max_clients = 0;  // served in a stop-only slot (table full)
   std::uint64_t closed_by_peer = 0;
   std::uint64_t dropped_no_newline = 0;   // streamed past max_unterminated_bytes
   std::uint64_t dropped_slow_reader = 0;  // output past max_output_bytes

@@ -125,6 +125,13 @@ DriverStatus HardwareComponent::shutdown() {
   return first;
 }
 
+void HardwareComponent::cleanup() {
+  if (state_ == LifecycleState::Finalized || state_ == LifecycleState::Unconfigured) return;
+  if (state_ == LifecycleState::Active) on_deactivate();
+  on_shutdown();
+  state_ = LifecycleState::Unconfigured;
+}
+
 // ---- Capabilities ----
 
 const char* output_mode_name(OutputMode mode) {
@@ -265,6 +272,16 @@ DriverStatus Interferometer::read_stream(TimedWord* out, std::size_t capacity, s
   return tagged("read_stream", do_read_stream(out, capacity, n));
 }
 
+DriverStatus Interferometer::count_epoch(std::uint64_t& epoch) {
+  if (DriverStatus s = require_state("count_epoch", true); !s.ok()) return s;
+  return tagged("count_epoch", do_count_epoch(epoch));
+}
+
+DriverStatus Interferometer::do_count_epoch(std::uint64_t&) {
+  return DriverStatus::failure(DriverError::Unsupported,
+                               "the device cannot tell whether it kept its position count");
+}
+
 // ---- Device ----
 
 namespace {
@@ -291,6 +308,11 @@ DriverStatus Device::deactivate() {
   if (!both(*this)) return missing(*this);
   if (DriverStatus s = output->deactivate(); !s.ok()) return s;
   return interferometer->deactivate();
+}
+
+void Device::cleanup() {
+  if (output) output->cleanup();
+  if (interferometer) interferometer->cleanup();
 }
 
 DriverStatus Device::shutdown() {

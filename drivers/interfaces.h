@@ -9,6 +9,7 @@
 //     -> activate()    Inactive -> Active: output enabled
 //     -> deactivate()  Active -> Inactive: output to zero, disabled
 //     -> shutdown()    any -> Finalized: close (deactivates first when active)
+//     cleanup()        any but Finalized -> Unconfigured: close, to configure again (reconnect)
 //
 // Every step and every call returns a DriverStatus: ok, or an error code and a message that says
 // which component, which call and what failed ("sim waveform output: start: no burst loaded").
@@ -71,6 +72,9 @@ class HardwareComponent {
   DriverStatus activate();
   DriverStatus deactivate();
   DriverStatus shutdown();
+  // Back to Unconfigured from any state but Finalized (deactivates and closes first, failures
+  // ignored): a lost device is cleaned up this way before it is configured again.
+  void cleanup();
 
   LifecycleState state() const { return state_; }
   // What this is, for messages: "sim waveform output", "modbus interferometer (127.0.0.1:1502)".
@@ -186,11 +190,17 @@ class Interferometer : public HardwareComponent {
   // The stream restarts at every start() of the device's output; n = 0 when nothing is waiting.
   // On an error, out[0..n) still holds the samples moved before it. Inactive or active.
   DriverStatus read_stream(TimedWord* out, std::size_t capacity, std::size_t& n);
+  // An identifier of the device's position count that changes whenever the device may have lost
+  // it (a power cycle, a counter reset): equal before and after a reconnect means the count went
+  // on. Unsupported when the device cannot tell (then a reconnect is taken as having lost it).
+  // Inactive or active.
+  DriverStatus count_epoch(std::uint64_t& epoch);
 
  protected:
   using HardwareComponent::HardwareComponent;
   virtual DriverStatus do_latch(std::uint64_t& word) = 0;
   virtual DriverStatus do_read_stream(TimedWord* out, std::size_t capacity, std::size_t& n) = 0;
+  virtual DriverStatus do_count_epoch(std::uint64_t& epoch);
 };
 
 // ---- One device: both interfaces, one owner ----
@@ -214,6 +224,7 @@ struct Device {
   DriverStatus activate();
   DriverStatus deactivate();
   DriverStatus shutdown();  // both, always; the first failure is returned
+  void cleanup();           // both back to unconfigured (to reconnect)
 };
 
 }  // namespace idm::drivers

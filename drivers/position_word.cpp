@@ -243,6 +243,14 @@ void PositionDecoder::reset(std::optional<std::int64_t> next_count) {
   lost_ = 0;
 }
 
+void PositionDecoder::continue_from(const PositionDecoder& other) {
+  reset();
+  if (other.need_reference_) return;
+  need_reference_ = false;
+  last_raw_ = other.last_raw_;
+  count_ = other.count_;
+}
+
 void PositionDecoder::set_air_index(double air_index) {
   PositionWordConfig c = config_;
   c.air_index = air_index;

@@ -145,6 +145,9 @@ class PositionDecoder {
   void reset(std::optional<std::int64_t> next_count = std::nullopt);
 
   PositionSample decode(std::uint64_t word);
+  // Carry on from where `other` (a decoder of the same word format, e.g. a burst's stream) left
+  // off: its last accepted word and count become this decoder's reference.
+  void continue_from(const PositionDecoder& other);
 
   // Decodes n consecutive words: position_m[i] (NaN when invalid) and status[i] (0 = valid).
   // Same results as calling decode() n times; no allocation, branch-light.

@@ -4,15 +4,26 @@
 
 namespace idm::model {
 
+namespace {
+struct RegionNames {
+  Region region;
+  const char* name;
+  const char* protocol;
+};
+constexpr RegionNames kRegionNames[] = {{Region::Cutoff, "cutoff", "CUTOFF"},
+                                        {Region::OneStep, "one-step", "ONESTEP"},
+                                        {Region::MultiStep, "multi-step", "MULTISTEP"}};
+}  // namespace
+
 const char* region_name(Region region) {
-  switch (region) {
-    case Region::Cutoff:
-      return "cutoff";
-    case Region::OneStep:
-      return "one-step";
-    case Region::MultiStep:
-      return "multi-step";
-  }
+  for (const RegionNames& r : kRegionNames)
+    if (r.region == region) return r.name;
+  return "?";
+}
+
+const char* region_protocol_name(Region region) {
+  for (const RegionNames& r : kRegionNames)
+    if (r.region == region) return r.protocol;
   return "?";
 }
 

@@ -14,8 +14,10 @@ namespace idm::model {
 
 enum class Region { Cutoff, OneStep, MultiStep };
 
-// "cutoff", "one-step", "multi-step" (the names of the specs and of idm-model).
+// The one table of region names: "cutoff", "one-step", "multi-step" (the specs, idm-model, the
+// calibration file) and the protocol's words "CUTOFF", "ONESTEP", "MULTISTEP" (REGion?).
 const char* region_name(Region region);
+const char* region_protocol_name(Region region);
 
 // beta = m S / ((M+m) mu g T^2), eq 18.
 double impulse_ratio(const StageParams& stage, double freq_hz, double stroke_m);

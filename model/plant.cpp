@@ -1,5 +1,6 @@
 #include "model/plant.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace idm::model {
@@ -12,6 +13,20 @@ std::unique_ptr<Plant> make_plant(ActuatorKind kind, const StageParams& stage,
 
 // ---------------------------------------------------------------------------------------------
 // Rigid actuator
+
+bool Plant::apply_end_stops(double& x_m, double& v_m_s) const {
+  if (x_m < stop_low_m_) {  // false for NaN: no stop
+    x_m = stop_low_m_;
+    v_m_s = std::max(v_m_s, 0.0);
+    return true;
+  }
+  if (x_m > stop_high_m_) {
+    x_m = stop_high_m_;
+    v_m_s = std::min(v_m_s, 0.0);
+    return true;
+  }
+  return false;
+}
 
 RigidPlant::RigidPlant(const StageParams& stage, const FrictionLaw& friction)
     : Plant(stage, friction) {}
@@ -54,6 +69,7 @@ void RigidPlant::step(double dt_s, double xi_end_m) {
     }
   }
   slide(dt_s);
+  apply_end_stops(x_m_, v_m_s_);
 }
 
 void RigidPlant::slide(double dt_s) {
@@ -250,6 +266,7 @@ void CompliantPlant::step(double dt_s, double xi_end_m) {
   }
   xi_m_ = xi_end_m;
   // e is relative to the command: keep it consistent with the command at the step end
+  if (apply_end_stops(x_m_, v_m_s_) && v_m_s_ == 0.0) direction_ = 0;  // stuck on the stop
 }
 
 void CompliantPlant::advance_stuck(double& remaining) {

@@ -15,6 +15,7 @@
 
 #include <cmath>
 #include <complex>
+#include <limits>
 #include <memory>
 
 #include "model/friction.h"
@@ -35,6 +36,16 @@ class Plant {
   virtual double velocity_m_s() const = 0;
   // Actual actuator length (counter mass relative to slider); equals the command when rigid.
   virtual double actuator_length_m() const = 0;
+  // An external push: the slider, and the counter mass with it, moves by dx_m at once.
+  virtual void displace(double dx_m) = 0;
+  // Hard end stops: the slider cannot pass them; one that reaches a stop stays on it with its
+  // velocity into the stop gone. NaN for none (the default).
+  void set_end_stops(double low_m, double high_m) {
+    stop_low_m_ = low_m;
+    stop_high_m_ = high_m;
+  }
+  double stop_low_m() const { return stop_low_m_; }
+  double stop_high_m() const { return stop_high_m_; }
   // A held (stalled) slider does not move whatever the forces: identification, fault injection.
   void set_slider_held(bool held) { held_ = held; }
   bool slider_held() const { return held_; }
@@ -44,9 +55,14 @@ class Plant {
  protected:
   Plant(const StageParams& stage, const FrictionLaw& friction)
       : stage_(stage), friction_(friction) {}
+  // After a step: a slider past a stop is put on it and its velocity into the stop is dropped.
+  // Returns true when it is on a stop.
+  bool apply_end_stops(double& x_m, double& v_m_s) const;
   StageParams stage_;
   FrictionLaw friction_;
   bool held_ = false;
+  double stop_low_m_ = std::numeric_limits<double>::quiet_NaN();
+  double stop_high_m_ = std::numeric_limits<double>::quiet_NaN();
 };
 
 std::unique_ptr<Plant> make_plant(ActuatorKind kind, const StageParams& stage,
@@ -60,6 +76,7 @@ class RigidPlant final : public Plant {
   double position_m() const override { return x_m_; }
   double velocity_m_s() const override { return v_m_s_; }
   double actuator_length_m() const override { return xi_m_; }
+  void displace(double dx_m) override { x_m_ += dx_m; }
 
  private:
   void slide(double dt_s);
@@ -113,6 +130,7 @@ class CompliantPlant final : public Plant {
   double position_m() const override { return x_m_; }
   double velocity_m_s() const override { return v_m_s_; }
   double actuator_length_m() const override { return xi_m_ + e_m_; }
+  void displace(double dx_m) override { x_m_ += dx_m; }
   double spring_force_n() const;
 
  private:

@@ -150,6 +150,17 @@ SimConfig parse_sim_yaml(const YAML::Node& node, const std::string& file) {
       c.noise_m = read_double(v, file, "sim.noise_m", 0, 1e-6);
     } else if (key == "internal_rate_hz") {
       c.internal_rate_hz = read_double(v, file, "sim.internal_rate_hz", 1e3, 1e8);
+    } else if (key == "start_position_m") {
+      c.start_position_m = read_double(v, file, "sim.start_position_m", -10, 10);
+    } else if (key == "reference_mark_m") {
+      c.reference_mark_m = read_double(v, file, "sim.reference_mark_m", -10, 10);
+    } else if (key == "end_stops_m") {
+      if (!v.IsSequence() || v.size() != 2)
+        throw InputError(located(file, v, "sim.end_stops_m", "expected [low, high] in metres"));
+      c.end_stop_low_m = read_double(v[0], file, "sim.end_stops_m[0]", -10, 10);
+      c.end_stop_high_m = read_double(v[1], file, "sim.end_stops_m[1]", -10, 10);
+      if (!(c.end_stop_low_m < c.end_stop_high_m))
+        throw InputError(located(file, v, "sim.end_stops_m", "low must be below high"));
     } else if (key == "effects") {
       if (!v.IsMap()) throw InputError(located(file, v, "sim.effects", "expected a map NAME: {PARAM: value}"));
       for (const auto& e : v) {
@@ -169,7 +180,8 @@ SimConfig parse_sim_yaml(const YAML::Node& node, const std::string& file) {
       }
     } else {
       throw InputError(located(file, kv.first, "sim." + key,
-                               "unknown key, allowed plant, effects, seed, noise_m, internal_rate_hz"));
+                               "unknown key, allowed plant, effects, seed, noise_m, internal_rate_hz, "
+                               "start_position_m, end_stops_m, reference_mark_m"));
     }
   }
   if (c.plant == PlantKind::Impulse && !c.effects.empty())
@@ -207,6 +219,7 @@ SimulatedStage::SimulatedStage(const StageParams& stage, const InterferometerPar
   const bool compliant = config.plant == PlantKind::MassDamperSpring || config.has("actuator_compliance");
   plant_ = make_plant(compliant ? ActuatorKind::MassDamperSpring : ActuatorKind::Rigid, stage_,
                       friction_law(stage_, config));
+  plant_->set_end_stops(config.end_stop_low_m, config.end_stop_high_m);
   // The actuator chain in signal order: DAC, amplifier, hysteresis, creep.
   for (const char* name : {"quantization", "amplifier", "hysteresis", "creep"}) {
     const EffectSpec* e = config.find(name);
@@ -231,6 +244,13 @@ void SimulatedStage::reset(double x_m, std::uint64_t noise_seed) {
   xi_cmd_m_ = 0.0;
   noise_rng_.seed(noise_seed);
   normal_.reset();
+}
+
+void SimulatedStage::displace(double dx_m) {
+  plant_->displace(dx_m);
+  const double x = plant_->position_m();
+  if (x < plant_->stop_low_m()) plant_->displace(plant_->stop_low_m() - x);  // not through a stop
+  if (x > plant_->stop_high_m()) plant_->displace(plant_->stop_high_m() - x);
 }
 
 void SimulatedStage::advance(double dt_s, double xi_cmd_end_m) {

@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <map>
+#include <limits>
 #include <memory>
 #include <random>
 #include <string>
@@ -54,10 +55,16 @@ struct SimConfig {
   std::uint64_t seed = 1;
   double noise_m = 0.0;             // interferometer noise, rms (before quantization)
   double internal_rate_hz = 1e6;    // plant rate when actuator effects smooth the command
+  // Where the simulated slider is and what bounds it (the daemon's simulated device):
+  double start_position_m = 0.0;    // at rest here when the device is first opened
+  double end_stop_low_m = std::numeric_limits<double>::quiet_NaN();   // hard stops (NaN: none)
+  double end_stop_high_m = std::numeric_limits<double>::quiet_NaN();
+  double reference_mark_m = std::numeric_limits<double>::quiet_NaN(); // an index mark (NaN: none)
   bool has(const std::string& effect) const;
   const EffectSpec* find(const std::string& effect) const;
 };
-// The `sim:` section: plant, effects {NAME: {PARAM: value}}, seed, noise_m. Unknown keys: errors.
+// The `sim:` section: plant, effects {NAME: {PARAM: value}}, seed, noise_m, internal_rate_hz,
+// start_position_m, end_stops_m [low, high], reference_mark_m. Unknown keys: errors.
 SimConfig parse_sim_yaml(const YAML::Node& node, const std::string& file);
 
 // One trial's time series, as in specs/sweep-dataset.md.
@@ -81,6 +88,8 @@ class SimulatedStage {
                  TrialSamples& out);
 
   double position_m() const { return plant_->position_m(); }  // true position
+  // An external push: the slider moves by dx_m at once (then the end stops hold it).
+  void displace(double dx_m);
   double velocity_m_s() const { return plant_->velocity_m_s(); }
   double measured_m();  // interferometer reading: noise, then quantized to one count
   Plant& plant() { return *plant_; }

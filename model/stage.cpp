@@ -83,6 +83,20 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
       out.stage.*k.member =
           read_double(value, file, std::string("stage.") + k.name, k.lo, k.hi, k.lo_open);
     }
+    known.insert("travel_m");
+    if (const YAML::Node travel = stage["travel_m"]) {
+      const std::string key = "stage.travel_m";
+      if (!travel.IsSequence() || travel.size() != 2)
+        throw InputError(located(file, travel, key,
+                                 "expected [lower, upper] in metres, e.g. [-5e-3, 5e-3]"));
+      out.travel_lower_m = read_double(travel[0], file, key + "[0]", -10.0, 10.0);
+      out.travel_upper_m = read_double(travel[1], file, key + "[1]", -10.0, 10.0);
+      if (!(out.travel_lower_m < out.travel_upper_m))
+        throw InputError(located(file, travel, key,
+                                 "[" + format_number(out.travel_lower_m) + ", " +
+                                     format_number(out.travel_upper_m) +
+                                     "] is not a range: lower must be below upper"));
+    }
     if (options.strict) {
       for (const auto& kv : stage) {
         const std::string key = kv.first.as<std::string>();
@@ -115,6 +129,7 @@ std::string to_yaml(const StageFile& f) {
   out.precision(17);
   out << "stage:\n";
   for (const StageKey& k : kStageKeys) out << "  " << k.name << ": " << f.stage.*k.member << "\n";
+  if (f.has_travel()) out << "  travel_m: [" << f.travel_lower_m << ", " << f.travel_upper_m << "]\n";
   out << "interferometer:\n";
   out << "  resolution_m: " << f.interferometer.resolution_m << "\n";
   out << "  noise_m: " << f.interferometer.noise_m << "\n";

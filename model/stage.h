@@ -1,6 +1,8 @@
 // Stage parameters (the paper's Table 1 by default) and their YAML form.
 #pragma once
 
+#include <cmath>
+#include <limits>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -43,6 +45,11 @@ struct InterferometerParams {
 struct StageFile {
   StageParams stage;
   InterferometerParams interferometer;
+  // stage.travel_m: [lower, upper], the stage's mechanical range in interferometer coordinates
+  // (m). NaN when the file does not give it (datasets need not; idmd requires it).
+  double travel_lower_m = std::numeric_limits<double>::quiet_NaN();
+  double travel_upper_m = std::numeric_limits<double>::quiet_NaN();
+  bool has_travel() const { return !std::isnan(travel_lower_m) && !std::isnan(travel_upper_m); }
 };
 
 // Throws InputError naming the parameter and the allowed range when a value is out of range.

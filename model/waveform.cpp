@@ -1,5 +1,6 @@
 #include "model/waveform.h"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -76,6 +77,68 @@ void sample(const TriangleWave& w, double sample_rate_hz, double t_start_s, std:
   out.resize(count);
   const double dt = 1.0 / sample_rate_hz;
   for (std::size_t k = 0; k < count; ++k) out[k] = w.xi_m(t_start_s + static_cast<double>(k) * dt);
+}
+
+ClockedWave snap_to_sample_clock(double rate_hz, double freq_hz, double duty) {
+  ClockedWave w;
+  const double p = std::max(2.0, std::round(rate_hz / freq_hz));
+  const double k = std::clamp(std::round(duty * p), 1.0, p - 1);
+  w.period_samples = static_cast<std::uint32_t>(p);
+  w.extension_samples = static_cast<std::uint32_t>(k);
+  w.freq_hz = rate_hz / p;
+  w.duty = k / p;
+  return w;
+}
+
+std::size_t Segment::sample_count() const {
+  return static_cast<std::size_t>(rest_samples) +
+         static_cast<std::size_t>(cycles) * period_samples + settle_samples + 1;
+}
+
+double Segment::start_offset_s() const {
+  return clocked() ? static_cast<double>(rest_samples) / sample_rate_hz : 0.0;
+}
+
+TriangleWave Segment::wave() const {
+  TriangleWave w;
+  w.freq_hz = freq_hz;
+  w.duty = duty;
+  w.stroke_m = stroke_m;
+  w.cycles = static_cast<int>(std::min<std::uint64_t>(cycles, 100000000));
+  return w;
+}
+
+Segment make_segment(double freq_hz, double duty, double stroke_m, std::uint64_t cycles,
+                     double sample_rate_hz, double rest_s, double settle_s) {
+  Segment s;
+  s.stroke_m = stroke_m;
+  s.cycles = cycles;
+  s.sample_rate_hz = sample_rate_hz;
+  if (sample_rate_hz > 0) {
+    const ClockedWave w = snap_to_sample_clock(sample_rate_hz, freq_hz, duty);
+    s.freq_hz = w.freq_hz;
+    s.duty = w.duty;
+    s.period_samples = w.period_samples;
+    s.extension_samples = w.extension_samples;
+    s.rest_samples = static_cast<std::uint32_t>(std::lround(rest_s * sample_rate_hz));
+    s.settle_samples = static_cast<std::uint32_t>(std::lround(settle_s * sample_rate_hz));
+  } else {
+    s.freq_hz = freq_hz;
+    s.duty = duty;
+  }
+  return s;
+}
+
+void fill_samples(const Segment& seg, double* out) {
+  std::size_t i = 0;
+  for (std::uint32_t j = 0; j < seg.rest_samples; ++j) out[i++] = 0.0;
+  const std::uint32_t P = seg.period_samples, k = seg.extension_samples;
+  const double rise = seg.stroke_m / k, fall = seg.stroke_m / (P - k);
+  for (std::uint64_t c = 0; c < seg.cycles; ++c) {
+    for (std::uint32_t j = 0; j < k; ++j) out[i++] = rise * j;
+    for (std::uint32_t j = k; j < P; ++j) out[i++] = fall * (P - j);
+  }
+  for (std::uint32_t j = 0; j <= seg.settle_samples; ++j) out[i++] = 0.0;
 }
 
 }  // namespace idm::model

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -39,5 +40,53 @@ void validate(const TriangleWave& wave);
 // k = 0..count-1, written to out (resized). For output devices and simulated sweeps.
 void sample(const TriangleWave& wave, double sample_rate_hz, double t_start_s, std::size_t count,
             std::vector<double>& out);
+
+// A waveform on an output's sample clock: f = rate / P, duty = k / P.
+struct ClockedWave {
+  double freq_hz = 0;
+  double duty = 0;
+  std::uint32_t period_samples = 0;     // P
+  std::uint32_t extension_samples = 0;  // k, 1 <= k <= P - 1
+};
+// The playable waveform nearest to (freq_hz, duty): P = round(rate / f) (at least 2), k =
+// round(duty P) clamped to [1, P-1]. The corners then lie on samples, so the ideal model of the
+// played waveform is exact; a cell is evaluated at the snapped values, not the requested ones.
+ClockedWave snap_to_sample_clock(double sample_rate_hz, double freq_hz, double duty);
+
+// One burst as a controller hands it to an output: `cycles` whole cycles of one triangle, with
+// the command at rest before and after. On a sample-clocked output (sample_rate_hz > 0) the period
+// and the extension are whole samples (snap_to_sample_clock) and the burst is rest_samples of 0,
+// the cycles, settle_samples of 0 and a final 0; a parameter output (sample_rate_hz = 0) plays the
+// triangle itself and the sample fields are unused. Trivially copyable: it crosses lock-free
+// queues between the real-time loop and a device's I/O thread.
+struct Segment {
+  double freq_hz = 0;
+  double duty = 0;
+  double stroke_m = 0;
+  std::uint64_t cycles = 0;
+  double sample_rate_hz = 0;
+  std::uint32_t period_samples = 0;     // P
+  std::uint32_t extension_samples = 0;  // k
+  std::uint32_t rest_samples = 0;
+  std::uint32_t settle_samples = 0;
+
+  bool clocked() const { return sample_rate_hz > 0; }
+  // Samples of the whole burst: rest + cycles P + settle + 1 (the final zero).
+  std::size_t sample_count() const;
+  // Time from the burst's first sample to the start of its first extension.
+  double start_offset_s() const;
+  // The same triangle as a TriangleWave (t = 0 at the first extension's start).
+  TriangleWave wave() const;
+};
+
+// A segment of `cycles` cycles of (freq_hz, duty, stroke_m); on a clock (sample_rate_hz > 0) the
+// frequency and duty are snapped to it. rest_s and settle_s are rounded to whole samples.
+Segment make_segment(double freq_hz, double duty, double stroke_m, std::uint64_t cycles,
+                     double sample_rate_hz, double rest_s = 0, double settle_s = 0);
+
+// The one triangle generator: writes segment.sample_count() samples into out (the caller's
+// buffer, at least that long). Rising edge rise j for j in [0, k), falling fall (P - j) for
+// j in [k, P): every corner on a sample, the command exactly 0 at every cycle's start.
+void fill_samples(const Segment& segment, double* out);
 
 }  // namespace idm::model

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <map>
 #include <sstream>
 
 #include "model/stage.h"
@@ -94,17 +95,66 @@ std::string read_string(const YAML::Node& node, const std::string& file, const s
   return node.Scalar();
 }
 
+namespace {
+
+constexpr int kMaxYamlDepth = 32;
+
+// What every reader of a section takes for granted: every key is a plain name (a scalar, not a
+// map, a list or nothing) and appears once in its map, and the document is a tree of bounded
+// depth (an alias to a node that holds it would be endless).
+void check_document(const YAML::Node& node, const std::string& file, const std::string& path,
+                    int depth) {
+  if (depth > kMaxYamlDepth)
+    throw InputError(located(file, node, path.empty() ? "(document)" : path,
+                             "nested deeper than " + std::to_string(kMaxYamlDepth) +
+                                 " levels (an alias to a node that holds it?)"));
+  if (node.IsSequence()) {
+    for (std::size_t i = 0; i < node.size(); ++i)
+      check_document(node[i], file, path + "[" + std::to_string(i) + "]", depth + 1);
+    return;
+  }
+  if (!node.IsMap()) return;
+  std::map<std::string, int> seen;  // key -> 1-based line of its first appearance
+  for (const auto& kv : node) {
+    if (!kv.first.IsScalar())
+      throw InputError(located(file, kv.first, path.empty() ? "(key)" : path + ".(key)",
+                               "a key must be a plain name, not a map, a list or nothing"));
+    const std::string key = kv.first.Scalar();
+    const std::string full = path.empty() ? key : path + "." + key;
+    const int line = kv.first.Mark().line + 1;
+    const auto [it, fresh] = seen.emplace(key, line);
+    if (!fresh)
+      throw InputError(located(file, kv.first, full,
+                               "duplicate key: also at line " + std::to_string(it->second) +
+                                   " (YAML would silently keep one of them; remove the other)"));
+    check_document(kv.second, file, full, depth + 1);
+  }
+}
+
+}  // namespace
+
+void require_unique_keys(const YAML::Node& root, const std::string& file) {
+  check_document(root, file, "", 0);
+}
+
+YAML::Node load_yaml_text(const std::string& text, const std::string& name) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw InputError(name + ":" + std::to_string(e.mark.line + 1) + ": YAML syntax error: " +
+                     e.msg);
+  }
+  require_unique_keys(root, name);
+  return root;
+}
+
 YAML::Node load_yaml_file(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw InputError(path + ": cannot open file");
   std::stringstream text;
   text << in.rdbuf();
-  try {
-    return YAML::Load(text.str());
-  } catch (const YAML::Exception& e) {
-    throw InputError(path + ":" + std::to_string(e.mark.line + 1) + ": YAML syntax error: " +
-                     e.msg);
-  }
+  return load_yaml_text(text.str(), path);
 }
 
 }  // namespace idm::model

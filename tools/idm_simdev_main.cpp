@@ -1,6 +1,6 @@
 // idm-simdev: a simulated Modbus TCP waveform generator with a position counter.
 //
-//   idm-simdev --port N [--host ADDR] [--config FILE]
+//   idm-simdev --port N [--host ADDR] [--config FILE] [--channels N]
 //
 // The simulated stage of drivers/sim (stage:, interferometer:, sim:, daq.sim: of FILE; wall clock
 // and burst parameters unless FILE says otherwise) behind the register map of
@@ -9,7 +9,10 @@
 // command register plays a burst with the parameters in the registers; STOP (2) ends it; any
 // other command value is an ILLEGAL_DATA_VALUE exception. Before every answer the position
 // record, the status and the capture records are brought up to date, so every read sees the
-// stage as it is now. Several clients may be connected at once.
+// stage as it is now. Several clients may be connected at once. With --channels N it is a card of
+// N channels, each a simulated stage of its own (the sim seed + channel) answering as Modbus unit
+// unit_id + channel. The boot_id register holds a random value chosen at start (a restarted
+// device has a new one, and lost its position count).
 //
 // --port 0 picks a free port. Once listening it prints "idm-simdev: listening on ADDR:PORT" on
 // stdout. SIGTERM or SIGINT: the output is brought to zero and it exits 0. Bad arguments or
@@ -19,6 +22,7 @@
 #include <netinet/in.h>
 #include <signal.h>
 #include <sys/select.h>
+#include <sys/signalfd.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -27,6 +31,8 @@
 #include <cstdio>
 #include <cstring>
 #include <iostream>
+#include <memory>
+#include <random>
 #include <set>
 #include <string>
 #include <vector>
@@ -43,14 +49,25 @@ namespace mb = idm::drivers::modbus;
 
 namespace {
 
-const char* kUsage = "usage: idm-simdev --port N [--host ADDR] [--config FILE]\n";
+const char* kUsage = "usage: idm-simdev --port N [--host ADDR] [--config FILE] [--channels N]\n";
 
-volatile sig_atomic_t g_stop = 0;
-void on_signal(int) { g_stop = 1; }
+// SIGTERM and SIGINT arrive as a readable signalfd among the sockets (as in idmd), not through a
+// handler and a flag: nothing to miss between the flag's check and select, and nothing held back
+// by ThreadSanitizer, which runs a handler only at the process's next intercepted call (a select
+// that blocks makes none, so a SIGTERM was never seen there).
+int stop_signal_fd() {
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  if (sigprocmask(SIG_BLOCK, &signals, nullptr) != 0) return -1;
+  return signalfd(-1, &signals, SFD_CLOEXEC);
+}
 
 class SimModbusDevice {
  public:
-  SimModbusDevice(const sim::SimDeviceConfig& sim_config, const mb::ModbusConfig& modbus_config)
+  SimModbusDevice(const sim::SimDeviceConfig& sim_config, const mb::ModbusConfig& modbus_config,
+                  std::uint16_t boot_id)
       : map_(modbus_config.registers),
         width_(sim_config.interferometer.word.width),
         record_(mb::RegisterMap::position_registers(width_)),
@@ -62,6 +79,7 @@ class SimModbusDevice {
     std::uint16_t* r = mapping_->tab_registers;
     mb::encode_value(map_.capture_rate_hz, sim_config.stream_rate_hz, map_.word_order,
                      r + map_.capture_rate_hz.address);
+    if (map_.boot_id >= 0) r[map_.boot_id] = boot_id;
   }
   ~SimModbusDevice() {
     device_.shutdown();
@@ -174,7 +192,8 @@ class SimModbusDevice {
   bool started_ = false, parameter_error_ = false, overrun_ = false;
 };
 
-int serve(const std::string& host, int port, SimModbusDevice& device, int unit_id) {
+int serve(const std::string& host, int port, std::vector<std::unique_ptr<SimModbusDevice>>& devices,
+          int unit_id, int stop_fd) {
   modbus_t* ctx = modbus_new_tcp(host.c_str(), port);
   if (!ctx) {
     std::cerr << "idm-simdev: " << modbus_strerror(errno) << "\n";
@@ -196,11 +215,12 @@ int serve(const std::string& host, int port, SimModbusDevice& device, int unit_i
   std::set<int> clients;
   std::vector<std::uint8_t> query(MODBUS_TCP_MAX_ADU_LENGTH);
   const int header_length = modbus_get_header_length(ctx);
-  while (!g_stop) {
+  for (;;) {
     fd_set read_set;
     FD_ZERO(&read_set);
     FD_SET(listen_fd, &read_set);
-    int max_fd = listen_fd;
+    FD_SET(stop_fd, &read_set);
+    int max_fd = std::max(listen_fd, stop_fd);
     for (int fd : clients) {
       FD_SET(fd, &read_set);
       max_fd = std::max(max_fd, fd);
@@ -210,6 +230,7 @@ int serve(const std::string& host, int port, SimModbusDevice& device, int unit_i
       std::cerr << "idm-simdev: select: " << std::strerror(errno) << "\n";
       break;
     }
+    if (FD_ISSET(stop_fd, &read_set)) break;  // SIGTERM or SIGINT
     if (FD_ISSET(listen_fd, &read_set)) {
       const int fd = accept(listen_fd, nullptr, nullptr);
       if (fd >= 0) clients.insert(fd);
@@ -229,6 +250,13 @@ int serve(const std::string& host, int port, SimModbusDevice& device, int unit_i
       }
       ++it;
       if (rc == 0) continue;  // not for this unit
+      // The unit addressed (the MBAP header's last byte): one channel of the card.
+      const int unit = query[static_cast<std::size_t>(header_length) - 1] - unit_id;
+      if (unit < 0 || static_cast<std::size_t>(unit) >= devices.size()) {
+        modbus_reply_exception(ctx, query.data(), MODBUS_EXCEPTION_GATEWAY_TARGET);
+        continue;
+      }
+      SimModbusDevice& device = *devices[static_cast<std::size_t>(unit)];
       if (device.sim().faults().timeouts) continue;  // injected fault: no answer at all
       device.refresh();
       const int cmd = device.command_written(query.data(), header_length);
@@ -258,7 +286,8 @@ int main(int argc, char** argv) {
       return 0;
     }
   try {
-    const tools::Flags flags(argc, argv, 1, {"port", "host", "config"});
+    const tools::Flags flags(argc, argv, 1, {"port", "host", "config", "channels"});
+    const int channels = flags.has("channels") ? static_cast<int>(flags.integer("channels", 1, 64)) : 1;
     const int port = static_cast<int>(flags.integer("port", 0, 65535));
     const std::string host = flags.has("host") ? flags.text("host") : "127.0.0.1";
     std::string file = "(defaults)";
@@ -278,18 +307,25 @@ int main(int argc, char** argv) {
     const mb::ModbusConfig modbus_config = mb::parse_modbus_yaml(root, file);
     sim_config.stream_capacity = modbus_config.registers.capture_capacity;
 
-    SimModbusDevice device(sim_config, modbus_config);
-    if (DriverStatus s = device.bring_up(); !s.ok()) {
-      std::cerr << "idm-simdev: " << s.message << "\n";
+    std::random_device entropy;
+    const auto boot_id = static_cast<std::uint16_t>(1 + entropy() % 65535);
+    std::vector<std::unique_ptr<SimModbusDevice>> devices;
+    for (int k = 0; k < channels; ++k) {
+      sim::SimDeviceConfig channel = sim_config;
+      channel.sim.seed += static_cast<std::uint64_t>(k);
+      devices.push_back(std::make_unique<SimModbusDevice>(channel, modbus_config, boot_id));
+      if (DriverStatus s = devices.back()->bring_up(); !s.ok()) {
+        std::cerr << "idm-simdev: " << s.message << "\n";
+        return 1;
+      }
+    }
+    const int stop_fd = stop_signal_fd();
+    if (stop_fd < 0) {
+      std::cerr << "idm-simdev: signalfd: " << std::strerror(errno) << "\n";
       return 1;
     }
-    struct sigaction sa {};
-    sa.sa_handler = on_signal;
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGTERM, &sa, nullptr);
-    sigaction(SIGINT, &sa, nullptr);
     signal(SIGPIPE, SIG_IGN);
-    return serve(host, port, device, modbus_config.unit_id);
+    return serve(host, port, devices, modbus_config.unit_id, stop_fd);
   } catch (const model::InputError& e) {
     std::cerr << "idm-simdev: " << e.what() << "\n" << kUsage;
     return 2;

@@ -1,6 +1,7 @@
 // idmctl: the command-line client of idmd (../shared/specs/command-protocol.md).
 //
-//   idmctl [--host H] [--port N] [--unix PATH] [--timeout S] [--no-wait] [COMMAND [ARG...]]
+//   idmctl [--host H] [--port N] [--unix PATH] [--axis NAME|N] [--timeout S] [--no-wait]
+//          [COMMAND [ARG...]]
 //
 // One-shot verbs send one protocol line each, then drain the session's error queue
 // (SYSTem:ERRor?): every error is printed on stderr and the exit status is 1. Moves (move, rel,
@@ -35,9 +36,11 @@ using idm::model::InputError;
 namespace {
 
 const char* kUsage =
-    "usage: idmctl [--host H] [--port N] [--unix PATH] [--timeout S] [--no-wait] [COMMAND "
-    "[ARG...]]\n"
+    "usage: idmctl [--host H] [--port N] [--unix PATH] [--axis NAME|N] [--timeout S] [--no-wait]\n"
+    "              [COMMAND [ARG...]]\n"
     "connects to idmd (default TCP 127.0.0.1:5025; --unix PATH for its Unix socket)\n"
+    "--axis: the axis the commands below address, by name (x) or number (1 = the first);\n"
+    "        default axis 1 (stop without --axis stops every axis)\n"
     "commands (lengths in m, frequencies in Hz):\n"
     "  pos                         the position\n"
     "  move X                      closed-loop move to X (absolute); waits, prints the position\n"
@@ -58,6 +61,8 @@ const char* kUsage =
     "wait for moves. Exit status: 0 ok, 1 error (printed), 2 bad usage, 130 interrupted.\n";
 
 volatile sig_atomic_t g_interrupted = 0;
+// "AXIS<n>:" for the per-axis verbs ("" without --axis).
+std::string g_axis;
 void on_sigint(int) {
   g_interrupted = 1;
 }
@@ -195,7 +200,7 @@ void wait_done(Connection& c, bool stop_on_interrupt) {
   for (;;) {
     std::string done;
     try {
-      done = c.query("MOVE:DONE?", true);
+      done = c.query(g_axis + "MOVE:DONE?", true);
     } catch (const Interrupted&) {
       done = c.read_line();
     }
@@ -203,8 +208,8 @@ void wait_done(Connection& c, bool stop_on_interrupt) {
     if (done != "0") throw std::runtime_error("MOVE:DONE? answered '" + done + "'");
     if (g_interrupted) {
       if (stop_on_interrupt) {
-        c.send_line("STOP");
-        std::fprintf(stderr, "idmctl: interrupted, sent STOP\n");
+        c.send_line(g_axis + "STOP");
+        std::fprintf(stderr, "idmctl: interrupted, sent %sSTOP\n", g_axis.c_str());
       }
       throw Interrupted{};
     }
@@ -278,7 +283,7 @@ int motion(Connection& c, const std::string& line, bool wait, bool print_positio
   if (!wait) return drain_errors(c) > 0 ? 1 : 0;
   wait_done(c, true);
   if (drain_errors(c) > 0) return 1;
-  return print_position ? print_query(c, "POS?") : 0;
+  return print_position ? print_query(c, g_axis + "POS?") : 0;
 }
 
 int interactive(Connection& c) {
@@ -297,35 +302,55 @@ int interactive(Connection& c) {
   return 0;
 }
 
+// --axis: a number is taken as it is (the daemon checks it: -114); a name is looked up with
+// AXIS:COUNt? and AXIS<n>:NAME?.
+int resolve_axis(Connection& c, const std::string& axis) {
+  if (axis.find_first_not_of("0123456789") == std::string::npos) {
+    const double n = idm::tools::parse_number(axis, "--axis");
+    if (n < 1 || n > 1e6) throw InputError("--axis: " + axis + " is out of range, allowed 1 and up");
+    return static_cast<int>(n);
+  }
+  const std::string count = c.query("AXIS:COUNt?");
+  if (drain_errors(c) > 0 || count.empty()) throw std::runtime_error("the daemon does not know axes");
+  const int n = static_cast<int>(idm::tools::parse_number(count, "AXIS:COUNt?"));
+  std::string names;
+  for (int k = 1; k <= n; ++k) {
+    const std::string name = c.query("AXIS" + std::to_string(k) + ":NAME?");
+    if (name == axis) return k;
+    names += (names.empty() ? "" : ", ") + name;
+  }
+  throw InputError("--axis: no axis '" + axis + "', the daemon has " + names);
+}
+
 int run(const std::vector<std::string>& a, Connection& c, bool wait) {
   const std::string& verb = a[0];
   if (verb == "pos") {
-    return print_query(c, "POS?");
+    return print_query(c, g_axis + "POS?");
   }
   if (verb == "move") {
-    return motion(c, "MOVE:ABS " + a[1], wait, true);
+    return motion(c, g_axis + "MOVE:ABS " + a[1], wait, true);
   }
   if (verb == "rel" || verb == "moverel") {
-    return motion(c, "MOVE:REL " + a[1], wait, true);
+    return motion(c, g_axis + "MOVE:REL " + a[1], wait, true);
   }
   if (verb == "step") {
-    return motion(c, "STEP " + join(a, 1, ","), wait, false);
+    return motion(c, g_axis + "STEP " + join(a, 1, ","), wait, false);
   }
   if (verb == "stop") {
-    return command(c, "STOP");
+    return command(c, g_axis + "STOP");
   }
   if (verb == "wait") {
     wait_done(c, false);
     return drain_errors(c) > 0 ? 1 : 0;
   }
   if (verb == "status") {
-    return print_query(c, "STAT?");
+    return print_query(c, g_axis + "STAT?");
   }
   if (verb == "region") {
-    return print_query(c, "REG? " + join(a, 1, ","));
+    return print_query(c, g_axis + "REG? " + join(a, 1, ","));
   }
   if (verb == "limits") {
-    return a.size() == 1 ? print_query(c, "LIM?") : command(c, "LIM " + join(a, 1, ","));
+    return a.size() == 1 ? print_query(c, g_axis + "LIM?") : command(c, g_axis + "LIM " + join(a, 1, ","));
   }
   if (verb == "loop") {
     return print_query(c, "SYST:LOOP?");
@@ -360,6 +385,7 @@ int main(int argc, char** argv) {
   double timeout_s = 60;
   bool wait = true;
   std::vector<std::string> args;
+  std::string axis;
   try {
     int i = 1;
     bool host_given = false, port_given = false;
@@ -373,9 +399,10 @@ int main(int argc, char** argv) {
         wait = false;
         continue;
       }
-      if (flag != "--host" && flag != "--port" && flag != "--unix" && flag != "--timeout")
-        throw InputError(
-            flag + ": unknown flag, allowed --host, --port, --unix, --timeout, --no-wait, --help");
+      if (flag != "--host" && flag != "--port" && flag != "--unix" && flag != "--timeout" &&
+          flag != "--axis")
+        throw InputError(flag + ": unknown flag, allowed --host, --port, --unix, --axis, --timeout, "
+                                "--no-wait, --help");
       if (i + 1 >= argc) throw InputError(flag + ": missing value");
       const std::string value = argv[++i];
       if (flag == "--host") {
@@ -383,6 +410,10 @@ int main(int argc, char** argv) {
         host_given = true;
       } else if (flag == "--unix") {
         unix_path = value;
+      } else if (flag == "--axis") {
+        if (value.empty() || value.find_first_of(" \t:;,?") != std::string::npos)
+          throw InputError("--axis: '" + value + "' is not an axis name or number");
+        axis = value;
       } else if (flag == "--port") {
         const double p = idm::tools::parse_number(value, "--port");
         if (p != static_cast<int>(p) || p < 1 || p > 65535)
@@ -416,6 +447,7 @@ int main(int argc, char** argv) {
 
   try {
     Connection c(host, port, unix_path, timeout_s);
+    if (!axis.empty()) g_axis = "AXIS" + std::to_string(resolve_axis(c, axis)) + ":";
     return args.empty() ? interactive(c) : run(args, c, wait);
   } catch (const InputError& e) {
     std::fprintf(stderr, "idmctl: %s\n", e.what());

@@ -63,6 +63,14 @@ ModbusConfig parse_modbus_yaml(const YAML::Node& root, const std::string& file) 
     }
   }
   c.registers = parse_register_map(registers, file, c.interferometer.word.width);
+  // The daemon's document for one axis names its channel on the card: channel k is unit
+  // unit_id + k (a multi-channel Modbus device answers each channel as its own unit).
+  if (const YAML::Node ch = detail::child(root, "channel"); detail::present(ch)) {
+    const long channel = model::read_integer(ch, file, "channel", 0, 63);
+    if (c.unit_id + channel > 247)
+      throw InputError(located(file, ch, "channel", "unit_id + channel must be <= 247"));
+    c.unit_id += static_cast<int>(channel);
+  }
   return c;
 }
 
@@ -306,6 +314,17 @@ DriverStatus ModbusInterferometer::on_configure() {
 
 DriverStatus ModbusInterferometer::on_shutdown() {
   link_->close();
+  return DriverStatus::success();
+}
+
+DriverStatus ModbusInterferometer::do_count_epoch(std::uint64_t& epoch) {
+  const RegisterMap& m = link_->config().registers;
+  if (m.boot_id < 0)
+    return DriverStatus::failure(DriverError::Unsupported,
+                                 "the register map has no boot_id: a reconnect may have lost the count");
+  std::uint16_t id = 0;
+  if (DriverStatus s = link_->read(static_cast<std::uint16_t>(m.boot_id), 1, &id); !s.ok()) return s;
+  epoch = id;
   return DriverStatus::success();
 }
 

@@ -28,7 +28,7 @@ namespace idm::drivers::modbus {
 struct ModbusConfig {
   std::string host = "127.0.0.1";
   int port = 502;
-  int unit_id = 1;
+  int unit_id = 1;                // of channel 0; channel k of a card is unit unit_id + k
   double timeout_s = 0.5;        // response (and connect) timeout
   double poll_interval_s = 2e-3; // wait_done polls the status this often
   RegisterMap registers;
@@ -107,6 +107,7 @@ class ModbusInterferometer final : public Interferometer {
   DriverStatus on_shutdown() override;
   DriverStatus do_latch(std::uint64_t& word) override;
   DriverStatus do_read_stream(TimedWord* out, std::size_t capacity, std::size_t& n) override;
+  DriverStatus do_count_epoch(std::uint64_t& epoch) override;  // the boot_id register
 
   std::shared_ptr<ModbusLink> link_;
   InterferometerCapabilities caps_;

@@ -1,7 +1,9 @@
 #include "drivers/modbus/register_map.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <vector>
 
 #include "drivers/config.h"
@@ -45,7 +47,7 @@ struct Span {
 };
 
 std::vector<Span> spans(const RegisterMap& m, WordWidth width) {
-  return {{"command", m.command, 1},
+  std::vector<Span> out = {{"command", m.command, 1},
           {"status", m.status, 1},
           {"burst_id", m.burst_id, 1},
           {"freq_hz", m.freq_hz.address, register_count(m.freq_hz.format)},
@@ -57,6 +59,8 @@ std::vector<Span> spans(const RegisterMap& m, WordWidth width) {
           {"capture_rate_hz", m.capture_rate_hz.address, register_count(m.capture_rate_hz.format)},
           {"capture_base", m.capture_base,
            std::size_t{m.capture_capacity} * RegisterMap::position_registers(width)}};
+  if (m.boot_id >= 0) out.push_back({"boot_id", static_cast<std::size_t>(m.boot_id), 1});
+  return out;
 }
 
 void put32(std::uint32_t v, WordOrder order, std::uint16_t* regs) {
@@ -104,7 +108,7 @@ RegisterMap parse_register_map(const YAML::Node& node, const std::string& file, 
     return m;
   }
   detail::check_keys(node, file, w,
-                     {"word_order", "command", "status", "burst_id", "freq_hz", "duty",
+                     {"word_order", "command", "status", "burst_id", "boot_id", "freq_hz", "duty",
                       "stroke_m", "cycles", "position", "capture_count", "capture_rate_hz",
                       "capture_base", "capture_capacity"});
   auto address = [&](const char* key, std::uint16_t& out) {
@@ -139,6 +143,12 @@ RegisterMap parse_register_map(const YAML::Node& node, const std::string& file, 
   address("command", m.command);
   address("status", m.status);
   address("burst_id", m.burst_id);
+  if (const YAML::Node v = node["boot_id"]) {
+    if (v.IsScalar() && v.Scalar() == "none")
+      m.boot_id = -1;
+    else
+      m.boot_id = static_cast<int>(model::read_integer(v, file, w + ".boot_id", 0, 65535));
+  }
   field("freq_hz", m.freq_hz);
   field("duty", m.duty);
   field("stroke_m", m.stroke_m);
@@ -181,8 +191,11 @@ bool encode_value(const ScaledField& f, double value, WordOrder order, std::uint
       return true;
     }
     case ValueFormat::Float32: {
-      if (std::fabs(scaled) > 3.4e38) return false;
-      const float fl = static_cast<float>(scaled);
+      // Every value that rounds to a finite float32, up to halfway between its largest and 2^128:
+      // the largest a device sends, read back through a scale, can come back a rounding above it.
+      constexpr double kFloatMax = std::numeric_limits<float>::max();
+      if (!(std::fabs(scaled) < 0x1.ffffffp127)) return false;
+      const float fl = static_cast<float>(std::clamp(scaled, -kFloatMax, kFloatMax));
       std::uint32_t bits = 0;
       std::memcpy(&bits, &fl, sizeof bits);
       put32(bits, order, regs);

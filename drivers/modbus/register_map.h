@@ -52,6 +52,9 @@ struct RegisterMap {
   std::uint16_t command = 0;                              // u16, write: 1 START, 2 STOP
   std::uint16_t status = 1;                               // u16, read: status_bit
   std::uint16_t burst_id = 2;                             // u16: +1 at every START
+  // u16 that changes whenever the device restarts (and so its position count): the same value
+  // before and after a reconnect means the count went on. -1: the map has none.
+  int boot_id = 3;
   ScaledField freq_hz{4, ValueFormat::U32, 1e3};          // mHz
   ScaledField duty{6, ValueFormat::U32, 1e6};             // parts per million
   ScaledField stroke_m{8, ValueFormat::U32, 1e12};        // pm
@@ -78,6 +81,7 @@ void validate(const RegisterMap& map, WordWidth width, const std::string& where)
 // `daq.modbus.registers` (unknown keys are errors with file:line):
 //   word_order: high_first | low_first
 //   command, status, burst_id, position, capture_count, capture_base, capture_capacity: integers
+//   boot_id: an address, or none
 //   freq_hz, duty, stroke_m, cycles, capture_rate_hz: {address, format: u16|u32|i32|float32, scale}
 RegisterMap parse_register_map(const YAML::Node& node, const std::string& file, WordWidth width);
 

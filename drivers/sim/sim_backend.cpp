@@ -45,8 +45,6 @@ void validate(const SimDeviceConfig& c) {
   check_range(c.settle_s >= 0 && c.settle_s <= 10, where, "settle_s", c.settle_s, "[0, 10]");
   check_range(c.stop_ramp_s > 0 && c.stop_ramp_s <= 1, where, "stop_ramp_s", c.stop_ramp_s,
               "(0, 1]");
-  check_range(std::fabs(c.start_position_m) <= 1, where, "start_position_m", c.start_position_m,
-              "[-1, 1]");
   check_range(c.timeout_s >= 0 && c.timeout_s <= 60, where, "timeout_s", c.timeout_s, "[0, 60]");
   check_range(c.faults.glitch_probability >= 0 && c.faults.glitch_probability <= 1, where,
               "faults.glitch_probability", c.faults.glitch_probability, "[0, 1]");
@@ -105,8 +103,6 @@ SimDeviceConfig parse_sim_device_yaml(const YAML::Node& root, const std::string&
       c.settle_s = read_double(v, file, k, 0, 10);
     } else if (key == "stop_ramp_s") {
       c.stop_ramp_s = read_double(v, file, k, 0, 1, true);
-    } else if (key == "start_position_m") {
-      c.start_position_m = read_double(v, file, k, -1, 1);
     } else if (key == "timeout_s") {
       c.timeout_s = read_double(v, file, k, 0, 60);
     } else if (key == "faults") {
@@ -128,7 +124,7 @@ SimDeviceConfig parse_sim_device_yaml(const YAML::Node& root, const std::string&
       throw InputError(located(file, kv.first, k,
                                std::string("unknown key, allowed clock, output, stream_rate_hz, "
                                            "stream_capacity, settle_s, stop_ramp_s, "
-                                           "start_position_m, timeout_s, faults, ") +
+                                           "timeout_s, faults, ") +
                                    detail::kOutputCapabilityKeys));
     }
   }
@@ -138,6 +134,13 @@ SimDeviceConfig parse_sim_device_yaml(const YAML::Node& root, const std::string&
     throw InputError(located(file, node, "daq.sim", e.what()));
   }
   return c;
+}
+
+// ---- SimCrosstalk ----
+
+void SimCrosstalk::moved(const SimBackend* source, double dx_m) {
+  for (SimBackend* m : members_)
+    if (m != source) m->stage().displace(fraction_ * dx_m);
 }
 
 // ---- SimBackend ----
@@ -178,6 +181,23 @@ void SimBackend::disconnect() {
   faults_.disconnected = true;
 }
 
+void SimBackend::power_cycle() {
+  if (users_ > 0) {
+    sync();
+    abort_burst();
+  }
+  powered_ = false;  // the next open starts over from the start position
+  ++count_epoch_;
+  faults_.disconnected = true;
+}
+
+void SimBackend::push(double dx_m) {
+  if (users_ > 0) sync();
+  const double before = stage_.position_m();
+  stage_.displace(dx_m);
+  if (crosstalk_) crosstalk_->moved(this, stage_.position_m() - before);
+}
+
 void SimBackend::advance_s(double dt_s) {
   detail::check_range(dt_s >= 0 && dt_s <= 1e4, "sim", "advance_s", dt_s, "[0, 1e4]");
   if (config_.clock != ClockMode::Synthetic)
@@ -188,12 +208,19 @@ void SimBackend::advance_s(double dt_s) {
 DriverStatus SimBackend::open() {
   if (faults_.disconnected) return disconnected_error();
   if (users_++ > 0) return DriverStatus::success();
-  stage_.reset(config_.start_position_m, config_.sim.seed);
-  stage_.plant().set_slider_held(faults_.slider_stalled);
-  fault_rng_.seed(config_.sim.seed * 0x9E3779B97F4A7C15ull + 0x5EED);
-  t_s_ = 0.0;
+  if (!powered_) {
+    // Power on: the slider at its start, the count from there. A re-open after a disconnect
+    // finds the device as it was (it kept its count, and the slider where it is).
+    stage_.reset(config_.sim.start_position_m, config_.sim.seed);
+    stage_.plant().set_slider_held(faults_.slider_stalled);
+    fault_rng_.seed(config_.sim.seed * 0x9E3779B97F4A7C15ull + 0x5EED);
+    t_s_ = 0.0;
+    epoch_s_ = monotonic_s();
+    powered_ = true;
+  } else {
+    sync();
+  }
   xi_cmd_m_ = 0.0;
-  epoch_s_ = monotonic_s();
   running_ = false;
   burst_t_s_.clear();
   burst_xi_m_.clear();
@@ -218,7 +245,7 @@ DriverStatus SimBackend::check_connected() const {
 
 DriverStatus SimBackend::check_timeout() {
   if (!faults_.timeouts) return DriverStatus::success();
-  if (config_.clock == ClockMode::Wall) sleep_until_s(monotonic_s() + config_.timeout_s);
+  // Not slept: the caller learns at once (a real device would keep it waiting timeout_s).
   return DriverStatus::failure(DriverError::Timeout, "no answer from the simulated device within " +
                                                          model::format_number(config_.timeout_s) +
                                                          " s (injected timeout)");
@@ -238,6 +265,15 @@ double SimBackend::command_at(double t_s) const {
 }
 
 void SimBackend::advance_to(double target_s) {
+  const double before = stage_.position_m();
+  advance_plant_to(target_s);
+  if (crosstalk_) {
+    const double moved = stage_.position_m() - before;
+    if (moved != 0.0) crosstalk_->moved(this, moved);
+  }
+}
+
+void SimBackend::advance_plant_to(double target_s) {
   while (t_s_ < target_s) {
     double t_next = target_s;
     if (running_) {

@@ -51,7 +51,6 @@ struct SimDeviceConfig {
   double settle_s = 2e-3;           // the plant runs (and the stream records) this long after
                                     // the burst's last sample before the burst is done
   double stop_ramp_s = 1e-4;        // stop(): the output ramps to zero over this time
-  double start_position_m = 0.0;    // slider position at configure
   double timeout_s = 0.1;           // an injected timeout waits this long (wall clock only)
   SimFaults faults;
 };
@@ -62,6 +61,23 @@ SimDeviceConfig parse_sim_device_yaml(const YAML::Node& root, const std::string&
 
 class SimOutput;
 class SimInterferometer;
+class SimBackend;
+
+// Stacked stages couple: a step of one axis's slider displaces the sliders of the others by
+// `fraction` of it (the devices of one simulated card share one group). Not thread-safe: the
+// group's backends are driven from one thread (the card's I/O thread).
+class SimCrosstalk {
+ public:
+  explicit SimCrosstalk(double fraction) : fraction_(fraction) {}
+  void add(SimBackend* backend) { members_.push_back(backend); }
+  double fraction() const { return fraction_; }
+  // `source` moved by dx_m: the others are displaced by fraction dx_m.
+  void moved(const SimBackend* source, double dx_m);
+
+ private:
+  double fraction_;
+  std::vector<SimBackend*> members_;
+};
 
 // The device behind both interfaces. Tests and tools reach it through Device::sim for fault
 // injection and time; the interfaces reach it for everything else.
@@ -77,8 +93,17 @@ class SimBackend {
   void set_slider_stalled(bool stalled);
   void set_friction_scale(double scale);  // (0, 100]
   // Aborts a running burst (the output ramps to zero), then every call fails until reconnect().
+  // The device keeps its state (a cable pulled): after reconnect its count goes on.
   void disconnect();
   void reconnect() { faults_.disconnected = false; }
+  // A power cycle: disconnected like disconnect(), and once reconnected it starts over (slider
+  // at sim.start_position_m, the count from there) with a new count_epoch.
+  void power_cycle();
+  std::uint64_t count_epoch() const { return count_epoch_; }
+  // An external push (SIMulation:PUSH): the slider moves by dx_m at once, stops permitting.
+  void push(double dx_m);
+  // Crosstalk (stacked stages): every move of this slider displaces the others of the group.
+  void set_crosstalk(std::shared_ptr<class SimCrosstalk> group) { crosstalk_ = std::move(group); }
   void set_timeouts(bool on) { faults_.timeouts = on; }
   const SimFaults& faults() const { return faults_; }
 
@@ -104,7 +129,8 @@ class SimBackend {
   DriverStatus check_connected() const;
   DriverStatus check_timeout();
   void sync();                         // wall clock: catch up with CLOCK_MONOTONIC
-  void advance_to(double t_s);
+  void advance_to(double t_s);         // the plant, then the crosstalk of what it moved
+  void advance_plant_to(double t_s);
   double command_at(double t_s) const;
   void capture(double t_rel_s);
   std::uint64_t make_word();
@@ -127,6 +153,9 @@ class SimBackend {
   std::mt19937_64 fault_rng_;
 
   int users_ = 0;            // open interfaces
+  bool powered_ = false;     // opened since construction or the last power cycle
+  std::uint64_t count_epoch_ = 1;
+  std::shared_ptr<class SimCrosstalk> crosstalk_;
   double epoch_s_ = 0.0;     // CLOCK_MONOTONIC at open (wall clock)
   double t_s_ = 0.0;         // simulated time
   double xi_cmd_m_ = 0.0;    // output now
@@ -177,6 +206,11 @@ class SimInterferometer final : public Interferometer {
   DriverStatus on_deactivate() override { return DriverStatus::success(); }
   DriverStatus on_shutdown() override;
   DriverStatus do_latch(std::uint64_t& word) override { return backend_->latch(word); }
+  DriverStatus do_count_epoch(std::uint64_t& epoch) override {
+    if (DriverStatus s = backend_->check_connected(); !s.ok()) return s;
+    epoch = backend_->count_epoch();
+    return DriverStatus::success();
+  }
   DriverStatus do_read_stream(TimedWord* out, std::size_t capacity, std::size_t& n) override {
     return backend_->read_stream(out, capacity, n);
   }

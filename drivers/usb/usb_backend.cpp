@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "drivers/range_check.h"
+#include "drivers/clock.h"
 #include "model/yaml_util.h"
 
 namespace idm::drivers::usb {
@@ -30,6 +31,9 @@ UsbDeviceConfig parse_usb_device_yaml(const YAML::Node& root, const std::string&
   UsbDeviceConfig c;
   c.interferometer = parse_interferometer_yaml(root, file);
   const YAML::Node node = detail::child(detail::child(root, "daq"), "usb");
+  if (const YAML::Node ch = detail::child(root, "channel"); detail::present(ch) && ch.as<std::string>() != "0")
+    throw InputError(located(file, ch, "channel", "the USB bridge has one channel (0); give each "
+                                                  "axis on USB its own device"));
   if (detail::present(node)) {
     if (!node.IsMap()) throw InputError(located(file, node, "daq.usb", "expected a map"));
     for (const auto& kv : node) {
@@ -188,6 +192,21 @@ DriverStatus UsbInterferometer::on_configure() {
 
 DriverStatus UsbInterferometer::on_shutdown() {
   shared_->close();
+  return DriverStatus::success();
+}
+
+DriverStatus UsbInterferometer::do_count_epoch(std::uint64_t& epoch) {
+  BridgeStatus status;
+  if (DriverStatus s = shared_->transport.get_status(status); !s.ok()) return s;
+  const double tick_hz = static_cast<double>(shared_->transport.info().tick_hz);
+  const double power_up = monotonic_s() - static_cast<double>(status.device_time_ticks) / tick_hz;
+  // More than a second apart: the bridge's clock started over (drift and USB latency are far
+  // below that).
+  if (shared_->have_power_up && std::fabs(power_up - shared_->power_up_host_s) > 1.0)
+    ++shared_->count_epoch;
+  shared_->have_power_up = true;
+  shared_->power_up_host_s = power_up;
+  epoch = shared_->count_epoch;
   return DriverStatus::success();
 }
 

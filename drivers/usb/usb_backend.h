@@ -45,6 +45,11 @@ struct UsbShared {
   UsbTransport transport;
   int users = 0;
   std::uint64_t bursts_started = 0;  // the stream restarts when this changes
+  // The count epoch: the bridge's clock counts from its power-up, so the host time of that
+  // power-up moves when (and only when) the bridge restarted (and its axis board with it).
+  bool have_power_up = false;
+  double power_up_host_s = 0;
+  std::uint64_t count_epoch = 1;
   DriverStatus open();
   void close();
 };
@@ -83,6 +88,7 @@ class UsbInterferometer final : public Interferometer {
   DriverStatus on_shutdown() override;
   DriverStatus do_latch(std::uint64_t& word) override;
   DriverStatus do_read_stream(TimedWord* out, std::size_t capacity, std::size_t& n) override;
+  DriverStatus do_count_epoch(std::uint64_t& epoch) override;
 
   std::shared_ptr<UsbShared> shared_;
   InterferometerCapabilities caps_;

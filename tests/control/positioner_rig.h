@@ -1,10 +1,14 @@
-// A positioner on the real `sim` backend (synthetic clock) for the control tests.
+// A positioner on the real `sim` backend (synthetic clock) for the control tests
+// (daemon/sim_axis.h), and the maps and plants they use.
 #pragma once
 
 #include <memory>
+#include <stdexcept>
+#include <vector>
 
 #include "control/calibration.h"
 #include "control/positioner.h"
+#include "daemon/sim_axis.h"
 #include "drivers/sim/sim_backend.h"
 
 namespace idm::control::test_rig {
@@ -21,38 +25,7 @@ inline RegionMapConfig rig_map_config(double step_correction) {
   return c;
 }
 
-struct Rig {
-  drivers::Device device;
-  drivers::sim::SimBackend* sim = nullptr;
-  std::unique_ptr<Positioner> positioner;
-
-  Rig(const RegionMap& map, drivers::sim::SimDeviceConfig device_config,
-      PositionerConfig config = {}, Calibration* calibration = nullptr) {
-    device = drivers::sim::make_sim_device(device_config);
-    sim = device.sim.get();
-    if (!device.configure().ok() || !device.activate().ok()) throw std::runtime_error("sim device");
-    positioner = std::make_unique<Positioner>(map, PlannerConfig{}, config, *device.output,
-                                              *device.interferometer, calibration);
-    positioner->tick(sim->now_s());  // reads the position
-  }
-  ~Rig() { device.shutdown(); }
-
-  MotionState run(double timeout_s = 60) {
-    return run_until_rest(
-        *positioner, [this] { return sim->now_s(); }, [this](double dt) { sim->advance_s(dt); },
-        timeout_s);
-  }
-  // Ticks until pred() holds or the positioner is at rest; returns pred().
-  template <class Pred>
-  bool run_until(Pred&& pred, double timeout_s = 60) {
-    const double t0 = sim->now_s();
-    while (!pred() && !positioner->at_rest() && sim->now_s() - t0 < timeout_s) {
-      sim->advance_s(1e-4);
-      positioner->tick(sim->now_s());
-    }
-    return pred();
-  }
-};
+using Rig = daemon::SimAxis;
 
 // The ideal plant: the rigid plant is the impulse model's event simulation (alpha = 1).
 inline drivers::sim::SimDeviceConfig ideal_device() {

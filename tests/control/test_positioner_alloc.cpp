@@ -1,33 +1,10 @@
 // The positioner's loop (tick and the commands) does not allocate on the simulated stage once it
-// is constructed: a counting operator new around a loop of moves, stops and steps.
+// is constructed: a counting operator new (tests/counting_new.h) around a loop of moves, stops and
+// steps.
 #include <gtest/gtest.h>
 
-#include <atomic>
-#include <cstdlib>
-#include <new>
-
 #include "positioner_rig.h"
-
-// The replacement pairs malloc with free on purpose; GCC cannot see that across inlining.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-#endif
-
-namespace {
-std::atomic<bool> g_counting{false};
-std::atomic<std::uint64_t> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t n) { return operator new(n); }
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+#include "tests/counting_new.h"
 
 using namespace idm;
 using namespace idm::control;
@@ -37,27 +14,22 @@ TEST(PositionerAlloc, LoopDoesNotAllocate) {
   Calibration calibration(map.config().stage);
   test_rig::Rig rig(map, test_rig::ideal_device(), {}, &calibration);
   Positioner& p = *rig.positioner;
-  auto now = [&] { return rig.sim->now_s(); };
-  auto advance = [&](double dt) { rig.sim->advance_s(dt); };
   ASSERT_EQ(p.set_soft_limits(-0.1, 0.1), Refusal::None);
-  g_allocations = 0;
-  g_counting = true;
+  idm::test_alloc::allocations = 0;
+  idm::test_alloc::t_counting = true;
   Refusal r1 = p.move_relative(1.2e-3);
-  MotionState s1 = run_until_rest(p, now, advance, 60);
+  MotionState s1 = rig.run();
   Refusal r2 = p.move_relative(-3.3e-7);
-  MotionState s2 = run_until_rest(p, now, advance, 60);
+  MotionState s2 = rig.run();
   Refusal r3 = p.move_relative(-5e-4);
-  for (int i = 0; i < 200 && p.status().bursts < 20; ++i) {
-    advance(1e-4);
-    p.tick(now());
-  }
+  rig.run_until([&] { return p.status().bursts >= 20; }, 0.02);
   p.stop();
-  MotionState s3 = run_until_rest(p, now, advance, 60);
+  MotionState s3 = rig.run();
   Refusal r4 = p.step_open_loop(-30);
-  MotionState s4 = run_until_rest(p, now, advance, 60);
+  MotionState s4 = rig.run();
   Refusal r5 = p.move_absolute(0.2);  // refused: outside the soft limits
-  g_counting = false;
-  EXPECT_EQ(g_allocations.load(), 0u);
+  idm::test_alloc::t_counting = false;
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 0);
   EXPECT_EQ(r1, Refusal::None);
   EXPECT_EQ(r2, Refusal::None);
   EXPECT_EQ(r3, Refusal::None);

@@ -2,57 +2,37 @@
 // and the Daemon (Instrument) on the simulated stage, with an allocation-counting hook showing
 // that the loop thread allocates nothing during a full move.
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <new>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include "control/calibration.h"
 #include "daemon/config.h"
 #include "daemon/daemon.h"
-#include "daemon/lockfree.h"
+#include "drivers/lockfree.h"
 #include "daemon/rt_loop.h"
 #include "model/yaml_util.h"
 #include "recording/dataset.h"
-
-// ---- allocation counter: global operator new/delete, counting only on a flagged thread ----------
-namespace {
-thread_local bool t_count_allocations = false;
-std::atomic<long> g_loop_allocations{0};
-std::atomic<long> g_loop_frees{0};
-}  // namespace
-
-void* operator new(std::size_t n) {
-  if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t n) { return operator new(n); }
-void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
-  if (t_count_allocations) g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
-  return std::malloc(n ? n : 1);
-}
-void* operator new[](std::size_t n, const std::nothrow_t& t) noexcept { return operator new(n, t); }
-void operator delete(void* p) noexcept {
-  if (p && t_count_allocations) g_loop_frees.fetch_add(1, std::memory_order_relaxed);
-  std::free(p);
-}
-void operator delete[](void* p) noexcept { operator delete(p); }
-void operator delete(void* p, std::size_t) noexcept { operator delete(p); }
-void operator delete[](void* p, std::size_t) noexcept { operator delete(p); }
+#include "tests/counting_new.h"  // counts allocations on the loop thread
 
 namespace {
 
 using namespace idm::daemon;
 using idm::model::InputError;
 
-void count_on_this_thread(bool entering) { t_count_allocations = entering; }
+void count_on_this_thread(bool entering) { idm::test_alloc::t_counting = entering; }
 
 YAML::Node yaml(const std::string& text) { return YAML::Load(text); }
 
@@ -69,7 +49,7 @@ void expect_config_error(const std::string& text, std::initializer_list<const ch
 
 // A small, fast configuration of the simulated stage (coarse map grid, no real-time setup).
 std::string sim_config(const std::string& clock = "wall", const std::string& extra = "") {
-  return "stage:\n  step_correction: 1.0\n"
+  return "stage:\n  step_correction: 1.0\n  travel_m: [-5e-3, 5e-3]\n"
          "interferometer:\n  max_velocity_m_s: 1\n"
          "daq:\n  driver: sim\n  sim:\n    clock: " + clock + "\n"
          "sim:\n  plant: " + std::string(std::getenv("IDM_TEST_PLANT") ? std::getenv("IDM_TEST_PLANT") : "rigid") + "\n  seed: 3\n"
@@ -78,6 +58,15 @@ std::string sim_config(const std::string& clock = "wall", const std::string& ext
          "server:\n  unix_socket: \"\"\n"
          "recording:\n  data_dir: " + (std::filesystem::temp_directory_path() / "idmd-test-data").string() + "\n" +
          extra;
+}
+
+std::filesystem::path write_config(const std::string& name, const std::string& text) {
+  const auto file = std::filesystem::temp_directory_path() /
+                    ("idmd-" + name + "-" + std::to_string(::getpid()) + ".yaml");
+  std::FILE* f = std::fopen(file.c_str(), "w");
+  std::fwrite(text.data(), 1, text.size(), f);
+  std::fclose(f);
+  return file;
 }
 
 bool wait_for(const std::function<bool()>& cond, double timeout_s) {
@@ -96,22 +85,53 @@ TEST(DaemonConfig, ShippedConfigsParse) {
     const std::string path = std::string(IDM_SOURCE_DIR) + "/config/" + name;
     SCOPED_TRACE(path);
     const DaemonConfig c = load_daemon_config(path);
-    EXPECT_FALSE(c.driver.empty());
+    EXPECT_FALSE(c.devices[0].driver.empty());
   }
   const DaemonConfig c = load_daemon_config(std::string(IDM_SOURCE_DIR) + "/config/idmd.yaml");
-  EXPECT_EQ(c.driver, "sim");
-  EXPECT_DOUBLE_EQ(c.stage.stage.slider_mass_kg, 0.16557);  // Table 1
-  EXPECT_DOUBLE_EQ(c.stage.stage.stroke_m, 20.35e-6);
+  EXPECT_EQ(c.devices[0].driver, "sim");
+  EXPECT_DOUBLE_EQ(c.axes[0].stage.stage.slider_mass_kg, 0.16557);  // Table 1
+  EXPECT_DOUBLE_EQ(c.axes[0].stage.stage.stroke_m, 20.35e-6);
   EXPECT_EQ(c.server.tcp_port, 5025);
   EXPECT_DOUBLE_EQ(c.realtime.period_s, 1e-4);
 }
 
+// Found by tests/fuzz/fuzz_config: a key that is a map ("{a: 1}: 2") escaped as yaml-cpp's
+// BadConversion instead of an error naming the file and line; an alias to a node that holds it
+// would recurse without end.
+TEST(DaemonConfig, AKeyThatIsNoPlainNameAndEndlessNestingNameTheFileAndLine) {
+  for (const auto& [name, text, line] :
+       std::vector<std::tuple<std::string, std::string, std::string>>{
+           {"map-key", "{a: 1}: 2\n", ":1:"},
+           {"list-key", "server:\n  [1, 2]: 3\n", ":2:"},
+           {"null-key", "server:\n  ? \n  : 3\n", ":3:"},
+           {"alias-loop", "stage: &a\n  - *a\n", ":"},
+       }) {
+    SCOPED_TRACE(name);
+    const auto file = std::filesystem::temp_directory_path() /
+                      ("idmd-fuzz-" + name + "-" + std::to_string(::getpid()) + ".yaml");
+    std::FILE* f = std::fopen(file.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fwrite(text.data(), 1, text.size(), f);
+    std::fclose(f);
+    try {
+      load_daemon_config(file.string());
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const InputError& e) {
+      EXPECT_EQ(std::string(e.what()).rfind(file.string() + line, 0), 0u) << e.what();
+    }
+    std::filesystem::remove(file);
+  }
+}
+
 TEST(DaemonConfig, DefaultsWhenSectionsAreMissing) {
-  const DaemonConfig c = parse_daemon_config(yaml("daq:\n  driver: sim\n"), "t.yaml");
+  const DaemonConfig c =
+      parse_daemon_config(yaml("stage:\n  travel_m: [-2e-3, 3e-3]\ndaq:\n  driver: sim\n"), "t.yaml");
   EXPECT_EQ(c.server.tcp_address, "127.0.0.1");
   EXPECT_EQ(c.realtime.priority, 80);
-  EXPECT_TRUE(std::isinf(c.control.positioner.soft_lower_m));
-  EXPECT_DOUBLE_EQ(c.control.planner.resolution_m, c.stage.interferometer.resolution_m);
+  // The soft limits default to the travel.
+  EXPECT_DOUBLE_EQ(c.axes[0].control.positioner.soft_lower_m, -2e-3);
+  EXPECT_DOUBLE_EQ(c.axes[0].control.positioner.soft_upper_m, 3e-3);
+  EXPECT_DOUBLE_EQ(c.axes[0].control.planner.resolution_m, c.axes[0].stage.interferometer.resolution_m);
 }
 
 TEST(DaemonConfig, UnknownSectionNamesKeyAndLine) {
@@ -141,6 +161,53 @@ TEST(DaemonConfig, OutOfRangeNamesKeyLineAndRange) {
   expect_config_error("control:\n  min_freq_hz: 500\n  max_freq_hz: 100\n", {"control.min_freq_hz"});
 }
 
+TEST(DaemonConfig, TheTravelIsRequiredAndBoundsTheSoftLimits) {
+  expect_config_error("daq:\n  driver: sim\n", {"stage.travel_m", "missing", "travel_m: [-5e-3, 5e-3]"});
+  expect_config_error("stage:\n  travel_m: [1e-3, -1e-3]\n", {"t.yaml:2", "stage.travel_m", "lower must be below upper"});
+  expect_config_error("stage:\n  travel_m: 5e-3\n", {"t.yaml:2", "stage.travel_m", "[lower, upper]"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_upper_m: 2e-3\n",
+                      {"t.yaml:4", "control.soft_upper_m", "outside the stage's travel [-0.001, 0.001]"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: -2e-3\n",
+                      {"control.soft_lower_m", "outside"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: 5e-4\n  soft_upper_m: 5e-4\n",
+                      {"control.soft_lower_m", "must be below soft_upper_m"});
+}
+
+TEST(DaemonConfig, ADuplicateKeyIsRefusedNamingBothLines) {
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  max_retries: 3\n  settle_s: 0.01\n  max_retries: 30\n",
+                      {"t.yaml:6", "control.max_retries", "duplicate key", "line 4"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\nserver:\n  tcp_port: 1\nserver:\n  tcp_port: 2\n",
+                      {"t.yaml:5", "server", "also at line 3"});
+  // Through the file loader too (idmd --check-config, SIGHUP).
+  const auto file = std::filesystem::temp_directory_path() / ("idmd-dup-" + std::to_string(::getpid()) + ".yaml");
+  { std::ofstream(file) << "stage:\n  stroke_m: 2e-5\n  stroke_m: 3e-5\n"; }
+  try {
+    load_daemon_config(file.string());
+    ADD_FAILURE() << "a duplicate key was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(":3: stage.stroke_m: duplicate key: also at line 2"), std::string::npos) << e.what();
+  }
+  std::filesystem::remove(file);
+}
+
+TEST(DaemonConfig, AChunkThatCannotFitTheCaptureIsRefusedAtStart) {
+  // 0.1 s at the simulated device's 100 kHz stream is 10001 records; it holds 8192.
+  const std::string text = sim_config("synthetic", "") ;
+  std::string bad = text;
+  bad.replace(bad.find("    clock: synthetic\n"), 21, "    clock: synthetic\n    stream_capacity: 8192\n");
+  bad.replace(bad.find("  max_freq_hz: 2000\n"), 20, "  max_freq_hz: 2000\n  max_chunk_s: 0.1\n  min_freq_hz: 20\n");
+  Daemon daemon(parse_daemon_config(yaml(bad), "t.yaml"));
+  try {
+    daemon.start();
+    ADD_FAILURE() << "started with a chunk longer than the capture";
+  } catch (const StartError& e) {
+    EXPECT_EQ(e.exit_code(), exit_code::kBadConfig);
+    const std::string what = e.what();
+    EXPECT_NE(what.find("control.max_chunk_s"), std::string::npos) << what;
+    EXPECT_NE(what.find("8192"), std::string::npos) << what;
+  }
+}
+
 TEST(DaemonConfig, UnknownDriverListsKnownOnes) {
   expect_config_error("daq:\n  driver: gpib\n", {"t.yaml:2", "daq.driver", "sim, modbus, usb"});
 }
@@ -154,7 +221,7 @@ TEST(DaemonConfig, DeviceLimitsNarrowToTheOutput) {
   idm::drivers::OutputCapabilities caps;
   caps.max_sample_rate_hz = 2e4;
   caps.max_voltage_v = 2.0;  // 2 V / 2.5e5 V/m = 8 um
-  const auto lim = device_limits(c.control, c.stage.stage, caps);
+  const auto lim = device_limits(c.axes[0].control, c.axes[0].stage.stage, caps);
   EXPECT_DOUBLE_EQ(lim.output_sample_rate_hz, 2e4);
   EXPECT_LE(lim.max_freq_hz, 2e4 / 4);
   EXPECT_DOUBLE_EQ(lim.max_stroke_m, 8e-6);
@@ -272,13 +339,13 @@ TEST(RtLoop, RealtimeRefusalIsOneWarningThatSaysWhy) {
 }
 
 TEST(AllocationHook, CountsOnTheFlaggedThreadOnly) {
-  g_loop_allocations = 0;
+  idm::test_alloc::allocations = 0;
   count_on_this_thread(true);
   auto* v = new std::vector<int>(100);
   count_on_this_thread(false);
   delete v;
   std::thread([] { std::vector<int> w(100); }).join();
-  EXPECT_EQ(g_loop_allocations.load(), 2);  // the vector object and its buffer
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 2);  // the vector object and its buffer
 }
 
 // ---- the daemon on the simulated stage ---------------------------------------------------------
@@ -293,13 +360,13 @@ class DaemonSim : public ::testing::Test {
 TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
   auto d = make(sim_config(std::getenv("IDM_TEST_CLOCK") ? std::getenv("IDM_TEST_CLOCK") : "wall"));
   d->set_loop_thread_hook(&count_on_this_thread);
-  g_loop_allocations = 0;
+  idm::test_alloc::allocations = 0;
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  const double start = d->status().position_m;
-  ASSERT_TRUE(d->move_relative(3e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  const double start = d->status(0).position_m;
+  ASSERT_TRUE(d->move_relative(0, 3e-6).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
-  const InstrumentStatus s = d->status();
+  const InstrumentStatus s = d->status(0);
   EXPECT_EQ(s.state, "IDLE") << s.fault;
   EXPECT_EQ(s.moves, 1u);
   EXPECT_GT(s.bursts, 0u);
@@ -308,41 +375,196 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingDuringAFullMove) {
   d->shutdown();
   EXPECT_GT(d->loop_stats().wakeups, 10u);
   // The hook counted on the loop thread only, from its first tick to its last.
-  EXPECT_EQ(g_loop_allocations.load(), 0) << "the real-time loop allocated";
-  EXPECT_EQ(g_loop_frees.load(), 0);
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 0) << "the real-time loop allocated";
+  EXPECT_EQ(idm::test_alloc::frees.load(), 0);
   EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
+}
+
+// The same on a Modbus device (idm-simdev on loopback), with a device lost and back on the way:
+// the loop never calls a driver, whatever the backend, so it never allocates either.
+TEST_F(DaemonSim, LoopThreadAllocatesNothingOnModbusEvenThroughALossAndReconnect) {
+  int out[2];
+  ASSERT_EQ(pipe(out), 0);
+  const std::string simdev = std::string(IDM_BUILD_DIR) + "/tools/idm-simdev";
+  const pid_t pid = fork();
+  if (pid == 0) {
+    dup2(out[1], 1);
+    execl(simdev.c_str(), simdev.c_str(), "--port", "0", static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  close(out[1]);
+  char buf[256] = {};
+  ASSERT_GT(read(out[0], buf, sizeof buf - 1), 0);
+  const std::string line = buf;
+  const int port = std::atoi(line.substr(line.rfind(':') + 1).c_str());
+  ASSERT_GT(port, 0) << line;
+  const std::string text =
+      "stage:\n  step_correction: 1.0\n  travel_m: [-5e-3, 5e-3]\n"
+      "interferometer:\n  max_velocity_m_s: 1\n"
+      "daq:\n  driver: modbus\n  modbus:\n    port: " + std::to_string(port) + "\n    timeout_s: 0.2\n"
+      "control:\n  freq_step_hz: 50\n  stroke_count: 3\n  min_freq_hz: 20\n  max_chunk_s: 0.05\n"
+      "realtime:\n  period_s: 1e-3\n  sched_fifo: false\n  lock_memory: false\n"
+      "server:\n  unix_socket: \"\"\n";
+  auto d = make(text);
+  d->set_loop_thread_hook(&count_on_this_thread);
+  idm::test_alloc::allocations = 0;
+  idm::test_alloc::frees = 0;
+  d->start();
+  ASSERT_TRUE(d->move_relative(0, 20e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
+  // The server stalls: the device is lost (the loop sees the events), then back.
+  kill(pid, SIGSTOP);
+  ASSERT_TRUE(wait_for([&] { return d->status(0).fault == "device_lost"; }, 10));
+  kill(pid, SIGCONT);
+  ASSERT_TRUE(wait_for([&] { return d->status(0).state == "IDLE" && d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(0, -10e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
+  d->shutdown();
+  kill(pid, SIGTERM);
+  waitpid(pid, nullptr, 0);
+  EXPECT_GT(d->loop_stats().wakeups, 10u);
+  EXPECT_EQ(idm::test_alloc::allocations.load(), 0) << "the real-time loop allocated";
+  EXPECT_EQ(idm::test_alloc::frees.load(), 0);
 }
 
 TEST_F(DaemonSim, RefusalsBecomeProtocolErrors) {
   auto d = make(sim_config("wall", ""));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  EXPECT_EQ(d->move_absolute(std::nan("")).code, error_code::kNumericDataError);
-  ASSERT_TRUE(d->set_soft_limits(-1e-3, 1e-3).ok());
-  const CommandError e = d->move_absolute(2e-3);
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  EXPECT_EQ(d->move_absolute(0, std::nan("")).code, error_code::kNumericDataError);
+  ASSERT_TRUE(d->set_soft_limits(0, -1e-3, 1e-3).ok());
+  const CommandError e = d->move_absolute(0, 2e-3);
   EXPECT_EQ(e.code, error_code::kDataOutOfRange) << e.text;
   EXPECT_NE(e.text.find("soft limits"), std::string::npos);
-  EXPECT_DOUBLE_EQ(d->status().soft_upper_m, 1e-3);
-  EXPECT_EQ(d->set_soft_limits(1, -1).code, error_code::kDataOutOfRange);
-  EXPECT_EQ(d->step(0, 0, 0, 0).code, error_code::kDataOutOfRange);
+  EXPECT_DOUBLE_EQ(d->status(0).soft_upper_m, 1e-3);
+  EXPECT_EQ(d->set_soft_limits(0, 1, -1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->step(0, 0, 0, 0, 0).code, error_code::kDataOutOfRange);
   std::string region;
   double step = 0;
-  ASSERT_TRUE(d->region(200, 0.1, 0, region, step).ok());
+  ASSERT_TRUE(d->region(0, 200, 0.1, std::nan(""), region, step).ok());
   EXPECT_FALSE(region.empty());
   EXPECT_EQ(d->identity().rfind("idm,idmd,", 0), 0u);
   d->shutdown();
 }
 
+TEST_F(DaemonSim, StepUsesEveryArgumentOrRefusesIt) {
+  auto d = make(sim_config("wall"));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  const double nan = std::nan("");
+  const auto refused = [&](std::int64_t n, double duty, double f, double s, const char* names) {
+    const CommandError e = d->step(0, n, duty, f, s);
+    EXPECT_EQ(e.code, error_code::kDataOutOfRange) << n << "," << duty << "," << f << "," << s << ": " << e.text;
+    EXPECT_NE(e.text.find(names), std::string::npos) << e.text;
+  };
+  refused(10, 1.5, 200, nan, "STEP duty: 1.5");
+  refused(10, -0.1, 200, 2e-5, "STEP duty: -0.1");
+  refused(10, 0.1, -200, nan, "STEP freq_hz: -200");
+  refused(10, 0.1, 200, -1e-6, "STEP stroke_m: -1e-06");
+  refused(10, 0.1, 200, 0, "STEP stroke_m: 0");
+  refused(1000000000, nan, nan, nan, "outside the soft limits");
+  EXPECT_EQ(d->status(0).cycles, 0u);  // nothing was played
+  // Given duty and frequency are the ones played: the slider moves the way REG? predicts.
+  std::string region;
+  double step_m = 0;
+  ASSERT_TRUE(d->region(0, 200, 0.1, std::nan(""), region, step_m).ok());
+  ASSERT_NE(region, "CUTOFF");
+  const double start = d->status(0).position_m;
+  ASSERT_TRUE(d->step(0, 10, 0.1, 200, nan).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 20));
+  const InstrumentStatus s = d->status(0);
+  EXPECT_EQ(s.state, "IDLE") << s.fault;
+  EXPECT_EQ(s.cycles, 10u);
+  const double moved = s.position_m - start;
+  EXPECT_GT(moved * step_m, 0) << "moved " << moved << ", REG? step " << step_m;
+  EXPECT_NEAR(moved, 10 * step_m, 0.3 * std::fabs(10 * step_m));
+  d->shutdown();
+}
+
+TEST_F(DaemonSim, TheTravelBoundsMovesLimitsAndResetKeepsLimitsSetByClients) {
+  const auto file = write_config("travel", sim_config("wall"));  // *RST re-reads it
+  auto d = std::make_unique<Daemon>(load_daemon_config(file.string()));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  const InstrumentStatus s0 = d->status(0);
+  EXPECT_DOUBLE_EQ(s0.soft_lower_m, -5e-3);  // the travel, by default
+  EXPECT_DOUBLE_EQ(s0.soft_upper_m, 5e-3);
+  EXPECT_NEAR(s0.target_m, s0.position_m, 1e-12);  // before any move: the target is the position
+  // A unit typo (1 km) is refused before anything moves, naming the target it would reach.
+  CommandError e = d->move_relative(0, 1e3);
+  EXPECT_EQ(e.code, error_code::kDataOutOfRange);
+  EXPECT_NE(e.text.find("target 1000"), std::string::npos) << e.text;
+  EXPECT_EQ(d->move_absolute(0, -1e3).code, error_code::kDataOutOfRange);
+  e = d->move_relative(0, 4e-3 - s0.position_m + 2e-3);  // ends at 6 mm
+  EXPECT_NE(e.text.find("target 0.006"), std::string::npos) << e.text;
+  EXPECT_EQ(d->status(0).bursts, 0u);
+  e = d->set_soft_limits(0, -1e-3, 1e3);
+  EXPECT_EQ(e.code, error_code::kDataOutOfRange);
+  EXPECT_NE(e.text.find("upper limit 1000 m lies outside the stage's travel"), std::string::npos) << e.text;
+  e = d->set_soft_limits(0, 1e-6, 1e-6);
+  EXPECT_EQ(e.code, error_code::kDataOutOfRange);
+  EXPECT_NE(e.text.find("must be below the upper limit"), std::string::npos) << e.text;
+  // Limits set by a client survive another client's *RST, and so does the target.
+  ASSERT_TRUE(d->set_soft_limits(0, -1e-3, 2e-3).ok());
+  ASSERT_TRUE(d->move_relative(0, 2e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 20));
+  const double target = d->status(0).target_m;
+  ASSERT_TRUE(d->reset().ok());
+  const InstrumentStatus s1 = d->status(0);
+  EXPECT_DOUBLE_EQ(s1.soft_lower_m, -1e-3);
+  EXPECT_DOUBLE_EQ(s1.soft_upper_m, 2e-3);
+  EXPECT_DOUBLE_EQ(s1.target_m, target);
+  EXPECT_EQ(s1.moves, 1u);
+  d->shutdown();
+  std::filesystem::remove(file);
+}
+
+TEST_F(DaemonSim, SweepsStayInsideTheDataDirectoryAndNeverOverwrite) {
+  namespace fs = std::filesystem;
+  const fs::path root = fs::temp_directory_path() / ("idmd-confine-" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  const fs::path data = root / "data", outside = root / "outside";
+  fs::create_directories(data);
+  fs::create_directories(outside);
+  { std::ofstream(outside / "precious.txt") << "keep me\n"; }
+  fs::create_symlink(outside, data / "link");
+  fs::create_directories(data / "old");
+  { std::ofstream(data / "old" / "sweep.csv") << "trial\n"; }
+  std::string text = sim_config("wall");
+  text.replace(text.find("recording:\n  data_dir: "), std::string::npos,
+               "recording:\n  data_dir: " + data.string() + "\n");
+  auto d = make(text);
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  for (const std::string& dir : {std::string("../outside/x"), outside.string() + "/x",
+                                std::string("link/x"), std::string("link"), std::string("old"),
+                                std::string("a/../../outside"), std::string("./x"), std::string("a//b")}) {
+    const CommandError e = d->sweep(0, dir, {500}, {0.1}, 1, 2);
+    EXPECT_EQ(e.code, error_code::kDataOutOfRange) << dir << ": " << e.text;
+  }
+  EXPECT_TRUE(d->motion_done());
+  EXPECT_EQ(std::distance(fs::directory_iterator(outside), fs::directory_iterator{}), 1);
+  EXPECT_EQ(fs::file_size(outside / "precious.txt"), 8u);
+  EXPECT_EQ(fs::file_size(data / "old" / "sweep.csv"), 6u);
+  // A new name, with new parents, is fine; the same name again is refused.
+  ASSERT_TRUE(d->sweep(0, "2026/run1", {500}, {0.1}, 1, 2).ok());
+  ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 30));
+  EXPECT_TRUE(fs::exists(data / "2026" / "run1" / "sweep.csv"));
+  EXPECT_EQ(d->sweep(0, "2026/run1", {500}, {0.1}, 1, 2).code, error_code::kDataOutOfRange);
+  d->shutdown();
+  fs::remove_all(root);
+}
+
 TEST_F(DaemonSim, StopMidMoveBringsTheOutputToRest) {
   auto d = make(sim_config("wall"));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  ASSERT_TRUE(d->move_relative(-200e-6).ok());
-  ASSERT_TRUE(wait_for([&] { return d->status().bursts > 0; }, 10));
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(0, -200e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status(0).bursts > 0; }, 10));
   EXPECT_FALSE(d->motion_done());
   ASSERT_TRUE(d->stop().ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 5));
-  EXPECT_EQ(d->status().state, "IDLE");
+  EXPECT_EQ(d->status(0).state, "IDLE");
   d->shutdown();
   EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
 }
@@ -350,25 +572,27 @@ TEST_F(DaemonSim, StopMidMoveBringsTheOutputToRest) {
 TEST_F(DaemonSim, ShutdownMidMoveEndsAtRestWithZeroOutput) {
   auto d = make(sim_config("wall"));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  ASSERT_TRUE(d->move_relative(200e-6).ok());
-  ASSERT_TRUE(wait_for([&] { return d->status().bursts > 0; }, 10));
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(0, 200e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status(0).bursts > 0; }, 10));
   d->shutdown();
   EXPECT_FALSE(d->loop_running());
   EXPECT_DOUBLE_EQ(d->sim_output_m(), 0.0);
-  EXPECT_EQ(d->device().output->state(), idm::drivers::LifecycleState::Finalized);
+  EXPECT_EQ(d->link_of(0).device(0).output->state(), idm::drivers::LifecycleState::Finalized);
 }
 
 TEST_F(DaemonSim, SweepWritesADatasetFromTheLoopsSamples) {
-  const auto dir = std::filesystem::temp_directory_path() / ("idmd-sweep-" + std::to_string(::getpid()));
+  const std::string name = "idmd-sweep-" + std::to_string(::getpid());
+  const auto dir = std::filesystem::temp_directory_path() / "idmd-test-data" / name;
+  std::filesystem::create_directories(dir.parent_path());
   std::filesystem::remove_all(dir);
   auto d = make(sim_config("wall"));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  const CommandError e = d->sweep(dir.string(), {500, 1000}, {0.1, 0.9}, 2, 3);
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  const CommandError e = d->sweep(0, name, {500, 1000}, {0.1, 0.9}, 2, 3);
   ASSERT_TRUE(e.ok()) << e.text;
   EXPECT_FALSE(d->motion_done());
-  EXPECT_EQ(d->sweep(dir.string(), {500}, {0.1}, 1, 1).code, error_code::kSettingsConflict);
+  EXPECT_EQ(d->sweep(0, name + "-b", {500}, {0.1}, 1, 1).code, error_code::kSettingsConflict);
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
   d->shutdown();
   EXPECT_NE(d->last_sweep_report().find("8 trials written, 0 failed"), std::string::npos)
@@ -394,15 +618,16 @@ TEST_F(DaemonSim, SweepWritesADatasetFromTheLoopsSamples) {
 TEST_F(DaemonSim, SweepArgumentsCheckedAtOnce) {
   auto d = make(sim_config("wall"));
   d->start();
-  EXPECT_EQ(d->sweep("", {100}, {0.1}, 1, 1).code, error_code::kMissingParameter);
-  EXPECT_EQ(d->sweep("x", {1e6}, {0.1}, 1, 1).code, error_code::kDataOutOfRange);
-  EXPECT_EQ(d->sweep("x", {100}, {1.5}, 1, 1).code, error_code::kDataOutOfRange);
-  EXPECT_EQ(d->sweep("x", {100}, {0.1}, 0, 1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep(0, "", {100}, {0.1}, 1, 1).code, error_code::kMissingParameter);
+  EXPECT_EQ(d->sweep(0, "x", {1e6}, {0.1}, 1, 1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep(0, "x", {100}, {1.5}, 1, 1).code, error_code::kDataOutOfRange);
+  EXPECT_EQ(d->sweep(0, "x", {100}, {0.1}, 0, 1).code, error_code::kDataOutOfRange);
   d->shutdown();
 }
 
 TEST_F(DaemonSim, MissingDeviceIsANoHardwareStartError) {
   const std::string text =
+      "stage:\n  travel_m: [-1e-3, 1e-3]\n"
       "daq:\n  driver: modbus\n  modbus:\n    host: 127.0.0.1\n    port: 1\n    timeout_s: 0.2\n"
       "realtime:\n  sched_fifo: false\n  lock_memory: false\n";
   Daemon daemon(parse_daemon_config(yaml(text), "t.yaml"));
@@ -425,6 +650,8 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   Daemon d(load_daemon_config(file.string()));
   d.start();
+  // A move is judged against the limits only once there is a position to move from.
+  ASSERT_TRUE(wait_for([&] { return d.status(0).position_valid; }, 10));
   {
     std::FILE* f = std::fopen(file.c_str(), "w");
     std::string changed = sim_config("wall");
@@ -434,8 +661,11 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   std::string error;
   ASSERT_TRUE(d.reload_control(error)) << error;
-  EXPECT_DOUBLE_EQ(d.status().soft_upper_m, 5e-4);
-  EXPECT_EQ(d.move_absolute(1e-3).code, error_code::kDataOutOfRange);
+  // The positioner has the new limits when reload_control returns; the status shows them from
+  // the loop's next publication on.
+  EXPECT_EQ(d.move_absolute(0, 1e-3).code, error_code::kDataOutOfRange);
+  EXPECT_TRUE(wait_for([&] { return d.status(0).soft_upper_m == 5e-4; }, 10))
+      << d.status(0).soft_upper_m;
   {
     std::FILE* f = std::fopen(file.c_str(), "w");
     const std::string bad = "control:\n  max_retries: oops\n";
@@ -444,7 +674,7 @@ TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
   }
   EXPECT_FALSE(d.reload_control(error));
   EXPECT_NE(error.find("control.max_retries"), std::string::npos) << error;
-  EXPECT_DOUBLE_EQ(d.status().soft_upper_m, 5e-4);  // the old settings stay
+  EXPECT_DOUBLE_EQ(d.status(0).soft_upper_m, 5e-4);  // the old settings stay
   d.shutdown();
   std::filesystem::remove(file);
 }
@@ -456,33 +686,24 @@ std::string with_calibration_file(const std::string& path) {
   return text;
 }
 
-std::filesystem::path write_config(const std::string& name, const std::string& text) {
-  const auto file = std::filesystem::temp_directory_path() /
-                    ("idmd-" + name + "-" + std::to_string(::getpid()) + ".yaml");
-  std::FILE* f = std::fopen(file.c_str(), "w");
-  std::fwrite(text.data(), 1, text.size(), f);
-  std::fclose(f);
-  return file;
-}
-
 TEST_F(DaemonSim, CalibrationIsSavedAfterTheMoveThatChangedIt) {
   const auto cal = std::filesystem::temp_directory_path() /
                    ("idmd-cal-" + std::to_string(::getpid()) + ".txt");
   std::filesystem::remove(cal);
   auto d = make(with_calibration_file(cal.string()));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
-  ASSERT_TRUE(d->move_relative(5e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(d->move_relative(0, 5e-6).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
   // Saved by the housekeeping thread while the daemon runs, not only at shutdown.
   ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(cal); }, 10))
       << "no calibration file after a move";
-  idm::control::Calibration loaded(d->config().stage.stage, d->config().control.calibration);
+  idm::control::Calibration loaded(d->config().axes[0].stage.stage, d->config().axes[0].control.calibration);
   std::string error;
   ASSERT_TRUE(loaded.load(cal.string(), error)) << error;
   EXPECT_GT(loaded.total_updates(), 0u);
   EXPECT_TRUE(d->take_notes().empty());
-  EXPECT_EQ(d->status().last_error, "");
+  EXPECT_EQ(d->status(0).last_error, "");
   d->shutdown();
   std::filesystem::remove(cal);
 }
@@ -491,18 +712,18 @@ TEST_F(DaemonSim, AFailedCalibrationSaveIsLoggedOnceWithTheFileAndReason) {
   const std::string cal = "/nonexistent-idmd-dir/cal.txt";
   auto d = make(with_calibration_file(cal));
   d->start();
-  ASSERT_TRUE(wait_for([&] { return d->status().position_valid; }, 10));
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
   std::vector<std::string> notes;
   for (double step : {5e-6, -5e-6}) {
-    ASSERT_TRUE(d->move_relative(step).ok());
+    ASSERT_TRUE(d->move_relative(0, step).ok());
     ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
     ASSERT_TRUE(wait_for([&] {
-      for (auto& n : d->take_notes()) notes.push_back(n);
+      for (auto& n : d->take_notes()) notes.push_back(n.text);
       return !notes.empty();
     }, 10));
   }
   d->shutdown();
-  for (auto& n : d->take_notes()) notes.push_back(n);
+  for (auto& n : d->take_notes()) notes.push_back(n.text);
   ASSERT_EQ(notes.size(), 1u) << "the same failure is logged once";
   EXPECT_NE(notes[0].find(cal), std::string::npos) << notes[0];
   EXPECT_NE(notes[0].find("cannot save the calibration"), std::string::npos) << notes[0];
@@ -513,40 +734,42 @@ TEST_F(DaemonSim, StatusCarriesTheLastFailedSaveUntilReset) {
       "lasterr", with_calibration_file("/nonexistent-idmd-dir/cal.txt"));
   Daemon d(load_daemon_config(file.string()));
   d.start();
-  ASSERT_TRUE(wait_for([&] { return d.status().position_valid; }, 10));
-  EXPECT_EQ(d.status().last_error, "");
-  ASSERT_TRUE(d.move_relative(5e-6).ok());
-  ASSERT_TRUE(wait_for([&] { return !d.status().last_error.empty(); }, 60));
-  EXPECT_NE(d.status().last_error.find("/nonexistent-idmd-dir/cal.txt"), std::string::npos)
-      << d.status().last_error;
+  ASSERT_TRUE(wait_for([&] { return d.status(0).position_valid; }, 10));
+  EXPECT_EQ(d.status(0).last_error, "");
+  ASSERT_TRUE(d.move_relative(0, 5e-6).ok());
+  ASSERT_TRUE(wait_for([&] { return !d.status(0).last_error.empty(); }, 60));
+  EXPECT_NE(d.status(0).last_error.find("/nonexistent-idmd-dir/cal.txt"), std::string::npos)
+      << d.status(0).last_error;
   const CommandError e = d.reset();
   ASSERT_TRUE(e.ok()) << e.text;
-  EXPECT_EQ(d.status().last_error, "");
+  EXPECT_EQ(d.status(0).last_error, "");
   d.shutdown();
   std::filesystem::remove(file);
 }
 
 TEST_F(DaemonSim, ResetDuringASweepLetsTheSweepWindDownInTheBackground) {
-  const auto dir = std::filesystem::temp_directory_path() / ("idmd-rst-sweep-" + std::to_string(::getpid()));
+  const std::string name = "idmd-rst-sweep-" + std::to_string(::getpid());
+  const auto dir = std::filesystem::temp_directory_path() / "idmd-test-data" / name;
   std::filesystem::remove_all(dir);
   const auto file = write_config("rst", sim_config("wall"));
   Daemon d(load_daemon_config(file.string()));
   d.start();
-  ASSERT_TRUE(wait_for([&] { return d.status().position_valid; }, 10));
-  ASSERT_TRUE(d.sweep(dir.string(), {500, 1000}, {0.1, 0.9}, 200, 3).ok());
+  ASSERT_TRUE(wait_for([&] { return d.status(0).position_valid; }, 10));
+  ASSERT_TRUE(d.sweep(0, name, {500, 1000}, {0.1, 0.9}, 200, 3).ok());
   ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(dir / "sweep.csv"); }, 30));
   const CommandError e = d.reset();
   ASSERT_TRUE(e.ok()) << e.text;
   // *OPC? semantics: not done until the sweep has ended and the settings are reloaded.
   ASSERT_TRUE(wait_for([&] { return d.motion_done(); }, 60));
   EXPECT_NE(d.last_sweep_report().find("stopped"), std::string::npos) << d.last_sweep_report();
-  EXPECT_EQ(d.status().last_error, "");
-  EXPECT_TRUE(d.take_notes().empty());
+  EXPECT_EQ(d.status(0).last_error, "");
+  EXPECT_EQ(d.sweep_status().state, "STOPPED");
+  for (const auto& note : d.take_notes()) EXPECT_FALSE(note.warning) << note.text;
   // The daemon moves again after the reset.
-  const CommandError m = d.move_relative(2e-6);
+  const CommandError m = d.move_relative(0, 2e-6);
   EXPECT_TRUE(m.ok()) << m.text;
   ASSERT_TRUE(wait_for([&] { return d.motion_done(); }, 60));
-  EXPECT_EQ(d.status().state, "IDLE");
+  EXPECT_EQ(d.status(0).state, "IDLE");
   d.shutdown();
   std::filesystem::remove(file);
   std::filesystem::remove_all(dir);

@@ -66,7 +66,7 @@ TEST_F(IdmctlTest, QueriesPrintTheirReply) {
   r = idmctl("region 200 0.1");
   EXPECT_EQ(r.status, 0) << r.out;
   EXPECT_EQ(r.out, "ONESTEP,-2e-07\n");
-  EXPECT_EQ(fake_.last_call(), "region(200,0.1,0)");
+  EXPECT_EQ(fake_.last_call(), "region(200,0.1,9.91e+37)");
   r = idmctl("status");
   EXPECT_EQ(r.status, 0) << r.out;
   EXPECT_EQ(r.out.rfind("state=IDLE done=1 position=0 ", 0), 0u) << r.out;
@@ -93,7 +93,7 @@ TEST_F(IdmctlTest, MovesWaitUntilDoneThenPrintThePosition) {
   r = idmctl("step -100 0.9 250");
   EXPECT_EQ(r.status, 0) << r.out;
   EXPECT_EQ(r.out, "");
-  EXPECT_EQ(fake_.last_call(), "step(-100,0.9,250,0)");
+  EXPECT_EQ(fake_.last_call(), "step(-100,0.9,250,9.91e+37)");
   r = idmctl("limits -2e-3 2e-3");
   EXPECT_EQ(r.status, 0) << r.out;
   EXPECT_EQ(fake_.last_call(), "set_soft_limits(-0.002,0.002)");

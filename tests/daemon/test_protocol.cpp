@@ -311,11 +311,11 @@ INSTANTIATE_TEST_SUITE_P(
                     ""},
         CommandCase{{"MOVE:DONE?", "move:done?"}, "", "1"},
         CommandCase{{"STOP", "stop", "ABOR", "ABORT", "abort"}, "stop", ""},
-        CommandCase{{"STEP 100", "step 1e2"}, "step(100,0,0,0)", ""},
-        CommandCase{{"STEP -5,0.9,250", "step -5, 0.9, 250"}, "step(-5,0.9,250,0)", ""},
+        CommandCase{{"STEP 100", "step 1e2"}, "step(100,9.91e+37,9.91e+37,9.91e+37)", ""},
+        CommandCase{{"STEP -5,0.9,250", "step -5, 0.9, 250"}, "step(-5,0.9,250,9.91e+37)", ""},
         CommandCase{{"STEP 3,0.1,200,1.5e-5"}, "step(3,0.1,200,1.5e-05)", ""},
         CommandCase{{"REG? 200,0.1", "REGION? 200,0.1", "region? 200, 0.1"},
-                    "region(200,0.1,0)",
+                    "region(200,0.1,9.91e+37)",
                     "ONESTEP,-2e-07"},
         CommandCase{{"REG? 2000,0.1,2e-5"}, "region(2000,0.1,2e-05)", "CUTOFF,-2e-06"},
         CommandCase{{"LIM:LOW -5e-4", "LIMIT:LOWER -5e-4", "limit:low -0.0005"},
@@ -330,7 +330,7 @@ INSTANTIATE_TEST_SUITE_P(
             {"STAT?", "STATUS?", "status?"},
             "",
             "state=IDLE done=1 position=0 position_valid=1 target=0 fault=none lower=-0.001 "
-            "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none"},
+            "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none axis=x referenced=0 device=up"},
         CommandCase{
             {"SWEEP /tmp/s,100:300:100,0.1;0.2,3", "sweep \"/tmp/s\", 100:300:100, 0.1;0.2, 3"},
             "sweep(/tmp/s,100;200;300,0.1;0.2,3,12)",
@@ -367,20 +367,40 @@ TEST(ProtocolSession, BlankLinesAreIgnored) {
   EXPECT_EQ(h.line("SYST:ERR:COUN?"), "0\n");
 }
 
-TEST(ProtocolSession, AFinalLineWithoutNewlineRunsAtEndOfInput) {
+TEST(ProtocolSession, AFinalLineWithoutNewlineNeverRuns) {
+  // A client that dies mid-line (or a script whose last line lacks its newline) must not move
+  // the stage with what it sent: a line runs only once it is terminated.
   Harness h;
-  EXPECT_EQ(h.send("POS?"), "");
+  EXPECT_EQ(h.send("POS?\nMOVE:REL 1"), "0\n");
   std::string out;
   h.session.end_of_input(out);
-  EXPECT_EQ(out, "0\n");
+  EXPECT_EQ(out, "");
   EXPECT_TRUE(h.session.idle());
+  EXPECT_EQ(h.fake.motion_calls(), 0u);
+  EXPECT_TRUE(h.fake.calls().empty() || h.fake.calls().back().rfind("move", 0) != 0);
 }
 
-TEST(ProtocolSession, PositionQueryFailsWhenThePositionIsNotValid) {
+TEST(ProtocolSession, AStopOnlySessionRefusesEverythingButStop) {
+  Harness h;
+  h.session.set_stop_only(true);
+  EXPECT_EQ(h.line("MOVE:ABS 1e-6"), "");
+  EXPECT_EQ(h.next_error(), ec::kSettingsConflict);
+  EXPECT_EQ(h.line("POS?"), "\n");
+  EXPECT_EQ(h.next_error(), ec::kSettingsConflict);
+  EXPECT_EQ(h.line("STOP"), "");
+  EXPECT_EQ(h.line("*IDN?"), "idm,idmd,0,test\n");
+  EXPECT_EQ(h.line("SYST:ERR?"), "0,\"No error\"\n");
+  EXPECT_EQ(h.fake.motion_calls(), 0u);
+  EXPECT_EQ(h.fake.calls().back(), "stop");
+}
+
+TEST(ProtocolSession, AnUntrustedPositionIsNotANumberWithMinus230) {
   Harness h;
   h.fake.set_position(1e-6, false);
-  EXPECT_EQ(h.line("POS?"), "\n");  // one line, empty: the error is in the queue
-  EXPECT_EQ(h.next_error(), ec::kHardwareError);
+  // SCPI's not-a-number, never the last good value, never an empty line; -230 says why.
+  EXPECT_EQ(h.line("POS?"), "9.91E37\n");
+  EXPECT_EQ(h.next_error(), ec::kDataCorruptOrStale);
+  EXPECT_NE(h.line("STAT?").find(" position=9.91E37 position_valid=0 "), std::string::npos);
   h.fake.set_position(1.25e-6, true);
   EXPECT_EQ(h.line("POS?"), "1.25e-06\n");
 }
@@ -465,6 +485,16 @@ INSTANTIATE_TEST_SUITE_P(
                       MalformedCase{"STEP 1.5", ec::kDataOutOfRange},
                       MalformedCase{"STEP 1e12", ec::kDataOutOfRange},
                       MalformedCase{"STEP nan", ec::kNumericDataError},
+                      MalformedCase{"STEP 0", ec::kDataOutOfRange},
+                      MalformedCase{"STEP \"10\"", ec::kDataTypeError},
+                      MalformedCase{"STEP 10,\"0.1\",200", ec::kDataTypeError},
+                      MalformedCase{"MOVE:REL \"1e-6\"", ec::kDataTypeError},
+                      MalformedCase{"MOVE:ABS \"1e-6\"", ec::kDataTypeError},
+                      MalformedCase{"LIM:UPP \"1e-3\"", ec::kDataTypeError},
+                      MalformedCase{"LIM \"-1e-3\",1e-3", ec::kDataTypeError},
+                      MalformedCase{"REG? \"200\",0.1", ec::kDataTypeError},
+                      MalformedCase{"SWEEP d,\"100;200\",0.1,3", ec::kDataTypeError},
+                      MalformedCase{"SWEEP d,100,0.1,\"3\"", ec::kDataTypeError},
                       MalformedCase{"STEP 10,inf,200", ec::kNumericDataError},
                       MalformedCase{"REG? 200", ec::kMissingParameter},
                       MalformedCase{"REG? 200,0.1,1e-5,4", ec::kParameterNotAllowed},
@@ -527,6 +557,27 @@ TEST(ProtocolSession, TooLongQueryStillGetsItsOneReplyLine) {
   EXPECT_EQ(h.session.held_bytes(), 0u);
   EXPECT_EQ(h.session.unterminated_bytes(), long_query.size() + 100000);
   EXPECT_EQ(h.send("\n*IDN?\n"), "idm,idmd,0,test\n");
+}
+
+// Found by tests/fuzz/fuzz_protocol: a first word longer than the line limit, ending in '?'. The
+// session judges a too-long line by its start (the '?' had not arrived), the client by the whole
+// line, so the client waited for a reply that never came. Such a word is no query for either.
+TEST(ProtocolSession, AQueryWordLongerThanTheLineLimitIsNoQueryForServerOrClient) {
+  const std::string long_word = "STAT" + std::string(5910, 'U') + "?";
+  EXPECT_FALSE(looks_like_query(long_word));
+  EXPECT_FALSE(looks_like_query(long_word + " 1"));
+  EXPECT_TRUE(looks_like_query(std::string(kMaxLineBytes - 1, 'X') + "?"));
+  EXPECT_FALSE(looks_like_query(std::string(kMaxLineBytes, 'X') + "?"));
+  for (std::size_t piece : {std::size_t{1}, std::size_t{256}, std::size_t{100000}}) {
+    SCOPED_TRACE(piece);
+    Harness h;
+    const std::string stream = "POS?\n" + long_word + "\n*IDN?\n";
+    std::string out;
+    for (std::size_t at = 0; at < stream.size(); at += piece)
+      h.session.receive(std::string_view(stream).substr(at, piece), out);
+    EXPECT_EQ(out, "0\nidm,idmd,0,test\n");
+    EXPECT_EQ(h.next_error(), ec::kInputBufferOverrun);
+  }
 }
 
 TEST(ProtocolSession, RandomLinesGetOneReplyPerQueryAndNeverMove) {
@@ -592,9 +643,9 @@ TEST(ProtocolSession, StatusShowsTheDaemonsLastErrorAsOneWord) {
   Harness h;
   h.fake.set_last_error("fault driver: read\ttimed out\n");
   const std::string stat = h.line("STAT?");
-  EXPECT_NE(stat.find(" daemon_error=fault_driver:_read_timed_out_\n"), std::string::npos) << stat;
+  EXPECT_NE(stat.find(" daemon_error=fault_driver:_read_timed_out_ "), std::string::npos) << stat;
   h.fake.set_last_error("");
-  EXPECT_NE(h.line("STAT?").find(" daemon_error=none\n"), std::string::npos);
+  EXPECT_NE(h.line("STAT?").find(" daemon_error=none "), std::string::npos);
 }
 
 TEST(ProtocolSession, AMotionThatEndsInAFaultLeavesItsPositiveCode) {
@@ -623,7 +674,12 @@ TEST(ProtocolSession, FaultNamesMapToTheirCodes) {
   EXPECT_EQ(fault_error("retry_limit").code, ec::kFaultRetryLimit);
   EXPECT_EQ(fault_error("driver").code, ec::kFaultDriver);
   EXPECT_EQ(fault_error("no_plan").code, ec::kFaultNoPlan);
-  EXPECT_EQ(fault_error("sweep_failed").code, ec::kSweepFailed);
+  EXPECT_EQ(fault_error("capture_overrun").code, ec::kFaultCaptureOverrun);
+  // Every device fault's code has its own text, from the one table.
+  for (const DeviceFault& f : kDeviceFaults) {
+    EXPECT_EQ(fault_error(f.name).code, f.code);
+    EXPECT_STREQ(standard_error_text(f.code), f.text);
+  }
   EXPECT_EQ(fault_error("something_new").code, ec::kExecutionError);
 }
 

@@ -77,7 +77,9 @@ TEST_F(ServerTest, AnswersOnTcpAndOnTheUnixSocketWithMode0660) {
 }
 
 TEST_F(ServerTest, ManyClientsAtOnceEachGetTheirOwnRepliesAndErrors) {
-  start();
+  ServerConfig config24 = config();
+  config24.max_clients = 24;
+  start(config24);
   std::vector<LineClient> clients;
   for (int k = 0; k < 24; ++k) {
     clients.push_back(k % 2 ? tcp() : unix_client());
@@ -179,18 +181,95 @@ TEST_F(ServerTest, OpcQueryWaitsForTheMotionWithoutBlockingOtherClients) {
   EXPECT_EQ(mover.line(), "idm,idmd,0,test");
 }
 
-TEST_F(ServerTest, AHalfClosedClientStillGetsItsReplies) {
+TEST_F(ServerTest, AHalfClosedClientStillGetsItsRepliesButItsUnterminatedLineNeverRuns) {
   start();
   LineClient t = tcp();
-  ASSERT_TRUE(t.send("POS?\n*IDN?"));  // the last line without its newline
+  ASSERT_TRUE(t.send("POS?\n*IDN?\nMOVE:REL 1"));  // the last line without its newline
   shutdown(t.fd(), SHUT_WR);
   EXPECT_EQ(t.line(), "0");
   EXPECT_EQ(t.line(), "idm,idmd,0,test");
   EXPECT_EQ(t.line(), "<eof>");
   EXPECT_TRUE(eventually([&] { return server_->clients() == 0; }));
+  EXPECT_EQ(fake_.motion_calls(), 0u);
 }
 
-TEST_F(ServerTest, ClientsPastTheLimitAreClosed) {
+TEST_F(ServerTest, AHalfClosedClientWaitingForOpcGetsItsReplyAndFreesItsSlot) {
+  ServerConfig c = config();
+  c.max_clients = 1;
+  start(c);
+  fake_.set_polls_until_done(1 << 30);  // a motion that does not end by itself
+  LineClient waiter = tcp();
+  ASSERT_TRUE(waiter.send("MOVE:ABS 2e-6\n*OPC?\n"));
+  shutdown(waiter.fd(), SHUT_WR);  // like `printf ... | nc -N`
+  ASSERT_TRUE(eventually([&] { return fake_.motion_calls() == 1; }));
+  // The half-closed waiter no longer holds the one slot: a new client is served in full.
+  LineClient next = tcp();
+  EXPECT_EQ(next.ask("*IDN?"), "idm,idmd,0,test");
+  ASSERT_TRUE(next.send("STOP\n"));
+  EXPECT_EQ(waiter.line(), "1");  // and the waiter still gets its reply
+  EXPECT_EQ(waiter.line(), "<eof>");
+}
+
+TEST_F(ServerTest, ClientsThatVanishWhileWaitingForOpcFreeTheirSlotsAtOnce) {
+  ServerConfig c = config();
+  c.max_clients = 3;
+  start(c);
+  fake_.set_polls_until_done(1 << 30);
+  {
+    LineClient a = unix_client(), b = unix_client(), t = tcp();
+    ASSERT_TRUE(a.send("MOVE:ABS 2e-6\n*OPC?\n"));
+    ASSERT_TRUE(b.send("*OPC?\n"));
+    ASSERT_TRUE(t.send("*OPC?\n"));
+    ASSERT_TRUE(eventually([&] { return server_->clients() == 3; }));
+  }  // all three close without reading
+  // The Unix-socket peers hang up: closed at once. The TCP peer's FIN looks like a half-close
+  // (it could still read): it drains, without a slot, until its reply fails or is written.
+  EXPECT_TRUE(eventually([&] { return server_->clients() <= 1; }));
+  LineClient d = tcp(), e = tcp(), f = unix_client();
+  EXPECT_EQ(d.ask("MOVE:DONE?"), "0");  // the motion is still on: these are full clients
+  EXPECT_EQ(e.ask("*IDN?"), "idm,idmd,0,test");
+  ASSERT_TRUE(f.send("STOP\n"));
+  EXPECT_EQ(d.ask("*OPC?"), "1");
+}
+
+TEST_F(ServerTest, WithTheTableFullAStopStillGetsThrough) {
+  ServerConfig c = config();
+  c.max_clients = 2;
+  c.overflow_slots = 2;
+  start(c);
+  fake_.set_polls_until_done(1 << 30);
+  LineClient a = tcp(), b = unix_client();
+  EXPECT_EQ(a.ask("*OPC?"), "1");
+  ASSERT_TRUE(a.send("MOVE:ABS 2e-6\n"));
+  EXPECT_EQ(b.ask("MOVE:DONE?"), "0");
+  // Two hogs take the stop-only slots and sit on them; a third newcomer evicts the oldest.
+  LineClient hog1 = tcp(), hog2 = unix_client();
+  ASSERT_TRUE(eventually([&] { return server_->clients() == 4; }));
+  LineClient stopper = tcp();
+  EXPECT_TRUE(hog1.wait_closed());
+  EXPECT_EQ(stopper.ask("MOVE:ABS 1e-6\nSYST:ERR?").rfind("-221,", 0), 0u);  // only STOP here
+  EXPECT_EQ(std::stoi(stopper.ask("SYST:ERR?")), 0);
+  ASSERT_TRUE(stopper.send("STOP\n"));
+  EXPECT_TRUE(eventually([&] { return fake_.last_call() == "stop"; }));
+  EXPECT_EQ(b.ask("MOVE:DONE?"), "1");
+  EXPECT_EQ(fake_.motion_calls(), 1u);  // the stop-only client's MOVE never ran
+  EXPECT_GE(server_->counters().rejected_max_clients, 3u);
+}
+
+TEST_F(ServerTest, AStopOnlyClientIsClosedAfterItsLingerTime) {
+  ServerConfig c = config();
+  c.max_clients = 1;
+  c.overflow_linger_s = 0.2;
+  start(c);
+  LineClient a = tcp();
+  EXPECT_EQ(a.ask("*IDN?"), "idm,idmd,0,test");
+  LineClient extra = tcp();
+  EXPECT_EQ(extra.ask("*IDN?"), "idm,idmd,0,test");
+  EXPECT_TRUE(extra.wait_closed());
+  EXPECT_EQ(a.ask("*IDN?"), "idm,idmd,0,test");  // the full client is untouched
+}
+
+TEST_F(ServerTest, ClientsPastTheLimitGetAStopOnlySlot) {
   ServerConfig c = config();
   c.max_clients = 2;
   start(c);
@@ -199,10 +278,11 @@ TEST_F(ServerTest, ClientsPastTheLimitAreClosed) {
   EXPECT_EQ(b.ask("*OPC?"), "1");
   LineClient third = tcp();
   ASSERT_TRUE(third.ok());
-  EXPECT_TRUE(third.wait_closed());
+  EXPECT_EQ(third.ask("*OPC?"), "");  // refused: the table is full
+  EXPECT_EQ(std::stoi(third.ask("SYST:ERR?")), error_code::kSettingsConflict);
   EXPECT_EQ(server_->counters().rejected_max_clients, 1u);
   a.close();
-  EXPECT_TRUE(eventually([&] { return server_->clients() == 1; }));
+  EXPECT_TRUE(eventually([&] { return server_->clients() == 2; }));
   LineClient fourth = tcp();
   EXPECT_EQ(fourth.ask("*OPC?"), "1");
 }

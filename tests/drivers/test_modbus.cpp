@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -164,6 +165,35 @@ TEST(ModbusRegisterMap, ValuesRoundTripInEveryFormatAndWordOrder) {
   EXPECT_EQ(hi[1], 0x5678);
   EXPECT_EQ(lo[0], 0x5678);
   EXPECT_EQ(lo[1], 0x1234);
+}
+
+// Found by tests/fuzz/fuzz_modbus_registers: registers 0x7f7f 0xffff (the largest float32, from
+// a device) decoded to 3.40282e38, which encode_value then refused (its limit was 3.4e38), so a
+// value read back could not be written again.
+TEST(ModbusRegisterMap, EveryFiniteFloat32EncodesBack) {
+  const mb::ScaledField f{0, mb::ValueFormat::Float32, 1.0};
+  for (mb::WordOrder order : {mb::WordOrder::HighFirst, mb::WordOrder::LowFirst}) {
+    const std::uint16_t largest[2] = {order == mb::WordOrder::HighFirst ? std::uint16_t{0x7f7f}
+                                                                         : std::uint16_t{0xffff},
+                                      order == mb::WordOrder::HighFirst ? std::uint16_t{0xffff}
+                                                                         : std::uint16_t{0x7f7f}};
+    const double value = mb::decode_value(f, order, largest);
+    EXPECT_EQ(value, static_cast<double>(std::numeric_limits<float>::max()));
+    std::uint16_t again[2] = {};
+    ASSERT_TRUE(mb::encode_value(f, value, order, again));
+    EXPECT_EQ(again[0], largest[0]);
+    EXPECT_EQ(again[1], largest[1]);
+    ASSERT_TRUE(mb::encode_value(f, -value, order, again));
+    EXPECT_EQ(mb::decode_value(f, order, again), -value);
+    EXPECT_FALSE(mb::encode_value(f, 2 * value, order, again));  // beyond float32
+    // Through a scale (registers 0xffff 0x7f7f low first, scale 1e9): value / 1e9 * 1e9 is a
+    // rounding above the largest float32, and still that float32.
+    const mb::ScaledField scaled{0, mb::ValueFormat::Float32, 1e9};
+    const double small = mb::decode_value(scaled, order, largest);
+    ASSERT_TRUE(mb::encode_value(scaled, small, order, again));
+    EXPECT_EQ(again[0], largest[0]);
+    EXPECT_EQ(again[1], largest[1]);
+  }
 }
 
 TEST(ModbusRegisterMap, PositionRecordsCarryCountAndStatus) {

@@ -79,7 +79,8 @@ effects:
   ASSERT_TRUE(c.has("stribeck"));
   EXPECT_DOUBLE_EQ(c.find("stribeck")->params.at("stribeck_velocity_m_s"), 1e-3);
   EXPECT_EQ(error_of("sim:\n  plant: rigid\n  wobble: 1\n"),
-            "idmd.yaml:3: sim.wobble: unknown key, allowed plant, effects, seed, noise_m, internal_rate_hz");
+            "idmd.yaml:3: sim.wobble: unknown key, allowed plant, effects, seed, noise_m, internal_rate_hz, "
+            "start_position_m, end_stops_m, reference_mark_m");
   EXPECT_NE(error_of("sim:\n  effects:\n    tilt: {angle_deg: 90}\n").find("idmd.yaml:3"), std::string::npos);
   EXPECT_NE(error_of("sim:\n  plant: impulse\n  effects:\n    tilt: {}\n").find("takes no effects"), std::string::npos);
   EXPECT_NE(error_of("sim:\n  plant: magic\n").find("idmd.yaml:2: sim.plant: unknown plant 'magic'"), std::string::npos);

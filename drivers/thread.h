@@ -1,8 +1,8 @@
 // A joinable thread with a chosen stack size. idmd's threads use it instead of std::thread because
 // std::thread takes the default stack (8 MiB, RLIMIT_STACK), and once the real-time loop has
 // called mlockall(MCL_CURRENT | MCL_FUTURE) every thread stack is locked and resident in full:
-// 8 MiB each for threads that use a few tens of KiB. Header-only: the protocol library (server)
-// and the daemon core both use it.
+// 8 MiB each for threads that use a few tens of KiB. Header-only: the device links' I/O threads,
+// the protocol library (server) and the daemon core use it.
 #pragma once
 
 #include <pthread.h>
@@ -13,7 +13,7 @@
 #include <system_error>
 #include <utility>
 
-namespace idm::daemon {
+namespace idm::drivers {
 
 // Stack sizes of idmd's threads: each is far above what the thread uses (no recursion, no large
 // locals beyond the buffers noted), and small enough that locking them costs little.
@@ -21,6 +21,8 @@ inline constexpr std::size_t kLoopStackBytes = 512 * 1024;      // loop + 64 KiB
 inline constexpr std::size_t kServerStackBytes = 512 * 1024;    // 16 KiB read buffer, logging
 inline constexpr std::size_t kRecorderStackBytes = 1024 * 1024; // dataset writing (I/O, formatting)
 inline constexpr std::size_t kSmallStackBytes = 256 * 1024;     // watchdog, housekeeping
+inline constexpr std::size_t kIoStackBytes = 1024 * 1024;       // a device's I/O thread (libmodbus,
+                                                                // libusb, error messages)
 
 class StackThread {
  public:
@@ -73,4 +75,4 @@ class StackThread {
   bool joinable_ = false;
 };
 
-}  // namespace idm::daemon
+}  // namespace idm::drivers

@@ -10,7 +10,7 @@
 #include <cstring>
 #include <type_traits>
 
-namespace idm::daemon {
+namespace idm::drivers {
 
 // Lamport ring for one producer thread and one consumer thread. Capacity is a power of two;
 // one slot is never wasted (head and tail count without wrapping).
@@ -58,8 +58,11 @@ class SpscRing {
 };
 
 // Latest-value buffer for one writer and any number of readers (seqlock). The writer never waits;
-// a reader retries while a write is in progress. T is copied bytewise through relaxed atomic
-// words so that the concurrent read is not a data race.
+// a reader retries while a write is in progress. T is copied bytewise through atomic words so that
+// the concurrent read is not a data race. The words are stored with release and loaded with
+// acquire instead of fences around relaxed ones: the same order (a reader that sees a word of a
+// new write also sees that write's odd sequence number), plain moves on x86, and an order that
+// ThreadSanitizer can check (it does not model standalone fences).
 template <typename T>
 class Seqlock {
   static_assert(std::is_trivially_copyable_v<T>, "a seqlock value is copied as plain data");
@@ -73,8 +76,7 @@ class Seqlock {
     std::memcpy(words, &value, sizeof(T));
     const std::uint64_t seq = seq_.load(std::memory_order_relaxed);
     seq_.store(seq + 1, std::memory_order_relaxed);
-    std::atomic_thread_fence(std::memory_order_release);
-    for (std::size_t i = 0; i < kWords; ++i) data_[i].store(words[i], std::memory_order_relaxed);
+    for (std::size_t i = 0; i < kWords; ++i) data_[i].store(words[i], std::memory_order_release);
     seq_.store(seq + 2, std::memory_order_release);
   }
 
@@ -83,8 +85,7 @@ class Seqlock {
     for (;;) {
       const std::uint64_t before = seq_.load(std::memory_order_acquire);
       if (before & 1u) continue;
-      for (std::size_t i = 0; i < kWords; ++i) words[i] = data_[i].load(std::memory_order_relaxed);
-      std::atomic_thread_fence(std::memory_order_acquire);
+      for (std::size_t i = 0; i < kWords; ++i) words[i] = data_[i].load(std::memory_order_acquire);
       if (seq_.load(std::memory_order_relaxed) == before) break;
     }
     T out;
@@ -100,4 +101,4 @@ class Seqlock {
   std::array<std::atomic<std::uint64_t>, kWords> data_{};
 };
 
-}  // namespace idm::daemon
+}  // namespace idm::drivers

@@ -1,0 +1,422 @@
+// The positioner's step ladder (control/README.md, "Positioner"): the rungs built from the map,
+// what they have learned, and the choice of each closed-loop chunk. Part of class Positioner.
+#include <algorithm>
+#include <cmath>
+
+#include "control/calibration.h"
+#include "control/positioner.h"
+
+namespace idm::control {
+
+namespace {
+int direction_index(int sign) { return sign > 0 ? 1 : 0; }
+}  // namespace
+
+// ---- the step ladder ----
+
+void Positioner::build_ladder() {
+  rung_cfg_ = calibration_ != nullptr ? calibration_->config() : CalibrationConfig{};
+  // Frequency bands: one rung per (stroke, band), so that a rung that does not move on the real
+  // stage (stiction near cut-off, the actuator's resonance) has neighbours to fall back on.
+  // Frequency bands x bands of the fast phase's share min(duty, 1 - duty): one rung per (stroke,
+  // band, share band), so that a rung that does not move on the real stage (stiction near
+  // cut-off, the amplifier rounding a short fast phase, the actuator's resonance) has neighbours.
+  static constexpr double kBandEdges[] = {0, 300, 700, 1200, 1e300};
+  static constexpr double kShareEdges[] = {0, 0.03, 0.1, 0.25, 0.5};
+  constexpr std::size_t kBands = sizeof kBandEdges / sizeof kBandEdges[0] - 1;
+  constexpr std::size_t kShares = sizeof kShareEdges / sizeof kShareEdges[0] - 1;
+  const double rel = rung_cfg_.rung_initial_relative_sd;
+  for (int dir : {-1, 1}) {
+    std::vector<Rung>& ladder = ladder_[direction_index(dir)];
+    ladder.clear();
+    for (double stroke : map_.strokes_m()) {
+      for (std::size_t band = 0; band < kBands * kShares; ++band) {
+        const std::size_t fb = band / kShares, sb = band % kShares;
+        std::size_t best = 0;
+        double best_rate = 0;
+        for (std::size_t i : map_.usable_cells()) {
+          const RegionCell& c = map_.cells()[i];
+          if (c.direction() != dir || std::fabs(c.stroke_m - stroke) > 1e-9 * stroke) continue;
+          if (c.freq_hz < kBandEdges[fb] || c.freq_hz >= kBandEdges[fb + 1]) continue;
+          const double share = std::min(c.duty, 1.0 - c.duty);
+          if (share < kShareEdges[sb] || share >= kShareEdges[sb + 1]) continue;
+          // The best predicted progress per second of the band (the map's step times f).
+          const double rate = std::fabs(c.step_m) * c.freq_hz;
+          if (rate > best_rate) {
+            best_rate = rate;
+            best = i;
+          }
+        }
+        if (!(best_rate > 0)) continue;
+        const RegionCell& c = map_.cells()[best];
+        Rung r;
+        r.cell = best;
+        r.direction = dir;
+        r.seed.freq_hz = c.freq_hz;
+        r.seed.duty = c.duty;
+        r.seed.stroke_m = c.stroke_m;
+        r.seed.step_m = dir * c.step_m;
+        r.seed.offset_m = dir * (c.single_burst_m - c.step_m);
+        const double sd_step = rel * r.seed.step_m;
+        // The model's first-cycle transient means little on a compliant actuator (measured:
+        // up to a full step either way): its seed is known no better than one step.
+        const double sd_offset = std::max(rel, 1.0) * std::max(std::fabs(r.seed.offset_m), r.seed.step_m);
+        r.seed.p_ss = sd_step * sd_step;
+        r.seed.p_oo = sd_offset * sd_offset;
+        r.seed.p_os = 0;
+        r.seed.updates = 0;
+        r.est = r.seed;
+        ladder.push_back(r);
+      }
+    }
+    // Coarse to fine by the model's step.
+    std::stable_sort(ladder.begin(), ladder.end(),
+                     [](const Rung& x, const Rung& y) { return x.seed.step_m > y.seed.step_m; });
+    if (ladder.size() > static_cast<std::size_t>(CalibrationState::kMaxRungs))
+      ladder.resize(static_cast<std::size_t>(CalibrationState::kMaxRungs));
+  }
+}
+
+void Positioner::load_rung_estimates() {
+  for (std::vector<Rung>& ladder : ladder_) {
+    for (Rung& r : ladder) {
+      RungEstimate stored;
+      if (calibration_ != nullptr &&
+          calibration_->find_rung(r.direction, r.seed.freq_hz, r.seed.duty, r.seed.stroke_m, stored))
+        r.est = stored;
+      else if (calibration_ == nullptr || !calibration_->config().enabled)
+        r.est = r.seed;  // without calibration nothing is carried from one move to the next
+      r.pending_pred_m = 0;
+      r.pending_moved_m = 0;
+      r.pending_cycles = 0;
+    }
+  }
+}
+
+bool Positioner::rung_live(Rung& r) {
+  if (r.dead) {
+    if (status_.moves < r.dead_until_move) return false;
+    // Its time is over: try it again from the seed.
+    r.dead = false;
+    r.killed_in_streak = false;
+    r.est = r.seed;
+    r.pending_pred_m = r.pending_moved_m = 0;
+    r.pending_cycles = 0;
+    if (calibration_ != nullptr) calibration_->store_rung(r.direction, r.est);
+  }
+  if (!(r.est.step_m >= config_.min_step_counts * count_m_)) {
+    kill_rung(r);
+    return false;
+  }
+  return true;
+}
+
+double Positioner::rung_uncertainty(const Rung& r) const {
+  // Two standard deviations of its scatter once a few chunks have shown it; until then 100 %
+  // (on a real stage a rung's first chunks move anywhere from nothing to twice the model's
+  // step). Never below the step model's approach uncertainty.
+  if (r.scatter_chunks < 3) return 1.0;
+  return std::clamp(2.0 * std::sqrt(r.scatter_var), config_.approach_uncertainty, 1.0);
+}
+
+Positioner::FinalChunk Positioner::final_chunk_for(const Rung& r, double distance) const {
+  constexpr double kPassSteps = 0.8;  // planned to pass by at most this share of a step
+  const double a = r.est.offset_m, b = r.est.step_m;
+  const double u = rung_uncertainty(r);
+  auto passes = [&](std::uint64_t n) {
+    const double nd = static_cast<double>(n);
+    const double most = a + nd * b + u * (std::fabs(a) + nd * b);
+    return most * (1.0 - kPassSteps / nd) > distance;
+  };
+  FinalChunk out;
+  const double n_real = std::round((distance - a) / b);
+  out.cycles = !(n_real >= 1) ? 1 : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real));
+  const std::uint64_t max_cycles = map_.cells()[r.cell].max_cycles;
+  if (max_cycles > 0) out.cycles = std::min(out.cycles, max_cycles);
+  const double n_moving = std::ceil((0.5 * b - a) / b);
+  const std::uint64_t n_min = n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
+  while (out.cycles > n_min && passes(out.cycles)) {
+    --out.cycles;
+    out.cut = true;
+  }
+  out.safe = !passes(out.cycles);
+  return out;
+}
+
+void Positioner::kill_rung(Rung& r) {
+  r.dead = true;
+  r.proven = false;
+  r.dead_until_move = status_.moves + static_cast<std::uint64_t>(config_.dead_rung_moves);
+  r.pending_pred_m = r.pending_moved_m = 0;
+  r.pending_cycles = 0;
+}
+
+Positioner::RungInfo Positioner::rung(int direction, std::size_t index) const {
+  const Rung& r = ladder_[direction_index(direction)].at(index);
+  RungInfo info;
+  info.cell = r.cell;
+  info.estimate = r.est;
+  info.dead = r.dead;
+  info.proven = r.proven;
+  info.chunks = r.chunks;
+  return info;
+}
+
+void Positioner::mark_rung_dead(int direction, std::size_t index) {
+  kill_rung(ladder_[direction_index(direction)].at(index));
+}
+
+double Positioner::finest_live_step_m(int direction) const {
+  double finest = 0;
+  for (const Rung& r : ladder_[direction_index(direction)]) {
+    if (r.dead || !(r.est.step_m >= config_.min_step_counts * count_m_)) continue;
+    if (finest == 0 || r.est.step_m < finest) finest = r.est.step_m;
+  }
+  return finest;
+}
+
+void Positioner::plan_next_chunk(double now_s) {
+  const double error = status_.target_m - status_.position_m;
+  const double tolerance = tolerance_m();
+  if (std::fabs(error) <= tolerance) {
+    finish(now_s);
+    return;
+  }
+  if (last_try_done_) {
+    // A final chunk was played in full, or a chunk passed the target, and the target is not
+    // reached: a correction (the motor record's retry).
+    last_try_done_ = false;
+    if (static_cast<int>(status_.corrections) >= config_.max_retries) {
+      enter_fault(MotionFault::RetryLimit);
+      return;
+    }
+    ++status_.corrections;
+  }
+  if (static_cast<int>(move_chunks_) >= max_chunks_) {
+    enter_fault(MotionFault::RetryLimit);
+    return;
+  }
+  const int sign = error > 0 ? 1 : -1;
+  const double distance = std::fabs(error);
+  std::vector<Rung>& ladder = ladder_[direction_index(sign)];
+  if (ladder.empty()) {
+    enter_fault(MotionFault::NoPlan);
+    return;
+  }
+  const int fin = final_rung(ladder);
+  if (fin < 0) {
+    // Every rung that way has been judged not to move.
+    enter_fault(MotionFault::Stall);
+    return;
+  }
+  const double b_final = ladder[static_cast<std::size_t>(fin)].est.step_m;
+  std::uint64_t cycles = 0;
+  bool final_chunk = false, capped = false;
+  int chosen = -1;
+  // Approach: outside the final zone (ten final steps, at least three counts).
+  if (distance > std::max(10.0 * b_final, 3.0 * count_m_))
+    chosen = approach_rung(ladder, distance, 3.0 * b_final + tolerance, cycles);
+  if (chosen < 0) {
+    final_chunk = true;
+    chosen = final_try(ladder, fin, distance, cycles, capped);
+  }
+  play_rung(ladder, chosen, sign, cycles, final_chunk, capped, b_final, error);
+}
+
+// The final rung: the live rung of the final class (learned step <= final_step_counts) with the
+// best progress per second; without one, the finest live rung. -1: no live rung.
+int Positioner::final_rung(std::vector<Rung>& ladder) {
+  const double final_bound = config_.final_step_counts * count_m_;
+  int fin = -1, finest = -1;
+  double fin_rate = 0;
+  for (std::size_t i = 0; i < ladder.size(); ++i) {
+    Rung& r = ladder[i];
+    if (!rung_live(r)) continue;
+    const double b = r.est.step_m;
+    if (finest < 0 || b < ladder[static_cast<std::size_t>(finest)].est.step_m) finest = static_cast<int>(i);
+    const double rate = b * map_.cells()[r.cell].freq_hz;
+    if (b <= final_bound && rate > fin_rate) {
+      fin_rate = rate;
+      fin = static_cast<int>(i);
+    }
+  }
+  return fin >= 0 ? fin : finest;
+}
+
+// The rung with the most expected progress per second of a chunk (its cycles plus
+// chunk_overhead_s) among those whose planned burst, grown by the approach uncertainty and the
+// rung's own, still stops `keep` short of the target. -1: none (the final zone's business).
+int Positioner::approach_rung(const std::vector<Rung>& ladder, double distance, double keep,
+                              std::uint64_t& cycles) const {
+  int chosen = -1;
+  double best_score = 0;
+  for (std::size_t i = 0; i < ladder.size(); ++i) {
+    const Rung& r = ladder[i];
+    if (r.dead) continue;  // rung_live ran before
+    const RegionCell& cell = map_.cells()[r.cell];
+    const double a = r.est.offset_m, b = r.est.step_m;
+    // Pessimistic: offset and step two standard deviations up, and the whole grown by
+    // approach_uncertainty (friction along the guide).
+    const double a_hi = a + 2.0 * std::sqrt(std::max(r.est.p_oo, 0.0));
+    const double b_hi = b + 2.0 * std::sqrt(std::max(r.est.p_ss, 0.0));
+    const double n_real = std::floor(((distance - keep) / (1.0 + config_.approach_uncertainty) - a_hi) / b_hi);
+    if (!(n_real >= 1)) continue;
+    std::uint64_t n = n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real);
+    if (cell.max_cycles > 0) n = std::min(n, cell.max_cycles);
+    const std::uint64_t n_chunk = std::min(n, chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles));
+    const double progress = a + b * static_cast<double>(n_chunk);
+    if (!(progress > 0)) continue;
+    const double score = progress / (static_cast<double>(n_chunk) / cell.freq_hz + config_.chunk_overhead_s);
+    if (score > best_score) {
+      best_score = score;
+      chosen = static_cast<int>(i);
+      cycles = n;
+    }
+  }
+  return chosen;
+}
+
+// Final: the final rung, the number of cycles whose learned displacement lands nearest; fewer
+// when that burst, grown by the rung's uncertainty, could pass the target by more than 0.8 of its
+// own steps. Such a shortened chunk is approach, not a try at the target (`capped`): it stops
+// short and the next chunk is planned from where it stopped. Never below the cycles predicted to
+// move at least half a step: a burst's first cycles can move nothing, and a chunk that moves
+// nothing teaches nothing. When even that shortest chunk could pass too far, a finer live rung
+// whose shortest chunk cannot is taken instead.
+int Positioner::final_try(const std::vector<Rung>& ladder, int fin, double distance,
+                          std::uint64_t& cycles, bool& capped) const {
+  const double b_final = ladder[static_cast<std::size_t>(fin)].est.step_m;
+  int chosen = fin;
+  FinalChunk plan = final_chunk_for(ladder[static_cast<std::size_t>(fin)], distance);
+  if (!plan.safe) {
+    double best_rate = 0;
+    for (std::size_t i = 0; i < ladder.size(); ++i) {
+      const Rung& x = ladder[i];
+      if (static_cast<int>(i) == fin || x.dead || !(x.est.step_m < b_final) ||
+          !(x.est.step_m >= config_.min_step_counts * count_m_))
+        continue;
+      const FinalChunk alt = final_chunk_for(x, distance);
+      const double rate = x.est.step_m * map_.cells()[x.cell].freq_hz;
+      if (alt.safe && rate > best_rate) {
+        best_rate = rate;
+        chosen = static_cast<int>(i);
+        plan = alt;
+      }
+    }
+  }
+  cycles = plan.cycles;
+  capped = plan.cut;
+  return chosen;
+}
+
+// The chunk of rung `chosen` (its planned cycles cut to a chunk), and its request.
+void Positioner::play_rung(const std::vector<Rung>& ladder, int chosen, int sign,
+                           std::uint64_t cycles, bool final_chunk, bool capped, double b_final,
+                           double error) {
+  const Rung& r = ladder[static_cast<std::size_t>(chosen)];
+  const RegionCell& cell = map_.cells()[r.cell];
+  chunk_.freq_hz = cell.freq_hz;
+  chunk_.duty = cell.duty;
+  chunk_.stroke_m = cell.stroke_m;
+  chunk_.period_samples = cell.period_samples;
+  chunk_.extension_samples = cell.extension_samples;
+  chunk_.cell = &cell;
+  chunk_.direction = sign;
+  chunk_.rung = chosen;
+  const std::uint64_t limit = chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles);
+  chunk_.cycles = std::min(cycles, limit);
+  chunk_.completes_last_burst = final_chunk && !capped && chunk_.cycles == cycles;
+  chunk_.predicted_along_m = r.est.predict_m(chunk_.cycles);
+  chunk_.predicted_m = 0;  // closed loop: judged per rung (judge_and_learn)
+  // The plan of this chunk: one burst of the rung (its planned cycles, before cutting).
+  plan_.target_m = error;
+  plan_.bursts.clear();
+  Burst burst;
+  burst.freq_hz = cell.freq_hz;
+  burst.duty = cell.duty;
+  burst.stroke_m = cell.stroke_m;
+  burst.period_samples = cell.period_samples;
+  burst.extension_samples = cell.extension_samples;
+  burst.cycles = cycles;
+  burst.step_m = sign * r.est.step_m;
+  burst.displacement_m = sign * r.est.predict_m(cycles);
+  burst.cell_index = r.cell;
+  plan_.bursts.push_back(burst);
+  plan_.predicted_m = burst.displacement_m;
+  plan_.final_step_m = final_chunk ? r.est.step_m : b_final;
+  start_chunk();
+}
+
+bool Positioner::judge_and_learn(double moved_m) {
+  const int sign = chunk_.direction;
+  std::vector<Rung>& ladder = ladder_[direction_index(sign)];
+  Rung& r = ladder[static_cast<std::size_t>(chunk_.rung)];
+  ++r.chunks;
+  const double along = sign * moved_m;
+  const double predicted = std::max(chunk_.predicted_along_m, 0.0);
+  r.pending_pred_m += predicted;
+  r.pending_moved_m += along;
+  r.pending_cycles += chunk_.cycles;
+  // Judged once the prediction is a few counts and more than one cycle was played (a burst's
+  // first cycle can stay in static friction: one cycle alone says little).
+  const bool judged = r.pending_pred_m >= config_.stall_min_counts * count_m_ && r.pending_cycles >= 2;
+  const bool wrong_way = along < -2.0 * count_m_;
+  // Not moving: less than stall_fraction of the prediction and less than two counts (a rung
+  // that moves a quarter of its seed is slow, not dead: its estimate learns that).
+  const bool failed =
+      wrong_way || (judged && r.pending_moved_m < std::min(config_.stall_fraction * r.pending_pred_m, 2.0 * count_m_));
+  if (judged || failed) {
+    r.pending_pred_m = r.pending_moved_m = 0;
+    r.pending_cycles = 0;
+  }
+  if (failed) {
+    // A rung that does not move (or moves back) is left out; it is a stall only when it had
+    // moved before and is not of the final class, or is one of the coarse rungs (within half of
+    // the largest live step): a fine rung near cut-off that does not move is the map being
+    // wrong, or a stretch of the guide with more friction (where it moved before), not the
+    // slider stuck.
+    double largest = 0;
+    for (const Rung& x : ladder)
+      if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
+    const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
+    const bool counts = (r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
+    kill_rung(r);
+    r.killed_in_streak = true;
+    if (counts && ++stall_count_ >= config_.stall_bursts) {
+      // The slider is stuck: the rungs are not to blame.
+      for (std::vector<Rung>& l : ladder_)
+        for (Rung& x : l)
+          if (x.killed_in_streak) {
+            x.dead = false;
+            x.killed_in_streak = false;
+          }
+      enter_fault(MotionFault::Stall);
+      return false;
+    }
+    return true;
+  }
+  if (judged) {
+    stall_count_ = 0;
+    r.proven = true;
+    for (std::vector<Rung>& l : ladder_)
+      for (Rung& x : l) x.killed_in_streak = false;
+  }
+  if (along > -count_m_ && predicted >= 2.0 * count_m_) {
+    // Scored against the estimate the chunk was planned with, before it learns from it.
+    const double rel = (along - predicted) / predicted;
+    ++r.scatter_chunks;
+    const double w = std::max(0.1, 1.0 / static_cast<double>(r.scatter_chunks));
+    r.scatter_var += w * (rel * rel - r.scatter_var);
+  }
+  if (along > -count_m_ &&
+      Calibration::rls_update(r.est, chunk_.cycles, along, count_m_, rung_cfg_.observation_relative_sd,
+                              rung_cfg_.rung_forgetting, r.seed.p_oo, r.seed.p_ss)) {
+    if (calibration_ != nullptr) calibration_->store_rung(sign, r.est);
+  }
+  if (!(r.est.step_m >= config_.min_step_counts * count_m_)) kill_rung(r);
+  if (calibration_ != nullptr && chunk_.cell != nullptr)
+    calibration_->update(*chunk_.cell, chunk_.cycles, moved_m, count_m_);
+  return true;
+}
+
+}  // namespace idm::control

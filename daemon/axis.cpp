@@ -1,0 +1,282 @@
+#include "daemon/axis.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+
+#include "drivers/position_word.h"
+
+namespace idm::daemon {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+bool grid_changed(const ControlConfig& a, const ControlConfig& b) {
+  return a.freq_step_hz != b.freq_step_hz || a.duty_step != b.duty_step ||
+         a.stroke_count != b.stroke_count || a.min_freq_hz != b.min_freq_hz ||
+         a.max_freq_hz != b.max_freq_hz || a.min_stroke_m != b.min_stroke_m ||
+         a.max_stroke_m != b.max_stroke_m || a.output_sample_rate_hz != b.output_sample_rate_hz ||
+         a.friction_uncertainty != b.friction_uncertainty;
+}
+
+// Counts may have been missed: the beam or the reference signal was lost, or the decoder lost
+// continuity.
+bool counts_lost(std::uint8_t status) {
+  namespace ss = drivers::sample_status;
+  return (status & (ss::kMeasurementSignalLost | ss::kReferenceSignalLost | ss::kContinuityLost)) != 0;
+}
+
+}  // namespace
+
+void set_note(ErrorNote& note, double t_s, const char* a, const char* b, const char* c) {
+  note.t_s = t_s;
+  std::size_t used = 0;
+  for (const char* s : {a, b, c}) {
+    const std::size_t n = std::min(std::strlen(s), sizeof note.text - 1 - used);
+    std::memcpy(note.text + used, s, n);
+    used += n;
+  }
+  note.text[used] = '\0';
+}
+
+const char* trial_failure_text(TrialFailure why) {
+  switch (why) {
+    case TrialFailure::None: return "none";
+    case TrialFailure::Positioning: return "positioning failed";
+    case TrialFailure::Driver: return "the device failed or was lost";
+    case TrialFailure::Overflow: return "sample queue overflow";
+    case TrialFailure::Stopped: return "stopped";
+    case TrialFailure::Busy: return "motion in progress";
+  }
+  return "?";
+}
+
+Axis::Axis(const AxisConfig& config, drivers::DeviceLink& link, std::size_t link_index)
+    : config_(config), link_(link), link_index_(link_index), port_(link.port(link_index)) {
+  soft_lower_m_ = config_.control.positioner.soft_lower_m;
+  soft_upper_m_ = config_.control.positioner.soft_upper_m;
+}
+
+// ---- not real-time ----
+
+void Axis::prepare(const ControlConfig& control) {
+  next_map_.reset();
+  if (map_ && !grid_changed(control_, control)) return;
+  const drivers::OutputCapabilities& oc = link_.output_capabilities(channel());
+  next_limits_ = device_limits(control, config_.stage.stage, oc);
+  next_map_ = std::make_unique<control::RegionMap>(
+      region_map_config(control, config_.stage.stage, next_limits_));
+}
+
+void Axis::build(const ControlConfig& control) {
+  const drivers::OutputCapabilities& oc = link_.output_capabilities(channel());
+  const drivers::InterferometerCapabilities& ic = link_.interferometer_capabilities(channel());
+  count_m_ = ic.word.count_m();
+  if (!next_map_ && (!map_ || grid_changed(control_, control))) prepare(control);
+  const control::MotionStatus previous = positioner_ ? positioner_->status() : control::MotionStatus{};
+  const bool had_positioner = positioner_ != nullptr;
+  control::PositionerConfig pc = control.positioner;
+  pc.soft_lower_m = soft_lower_m_;
+  pc.soft_upper_m = soft_upper_m_;
+  std::unique_ptr<control::RegionMap> map = next_map_ ? std::move(next_map_) : nullptr;
+  const control::RegionMap& use = map ? *map : *map_;
+  if (!calibration_ && control.calibration.enabled)
+    calibration_ = std::make_unique<control::Calibration>(config_.stage.stage, control.calibration);
+  // Built before anything is swapped: a bad setting leaves the axis as it was.
+  auto positioner = std::make_unique<control::Positioner>(use, control.planner, pc,
+                                                          axis_device_info(oc, ic), calibration_.get());
+  if (had_positioner) positioner->continue_from(previous);
+  positioner_ = std::move(positioner);
+  if (map) {
+    map_ = std::move(map);
+    limits_ = next_limits_;
+  }
+  control_ = control;
+  if (calibration_) {
+    const control::CalibrationState state = calibration_->state();
+    calibration_snapshot_.store(state);
+    calibration_published_ = state.total_updates;
+  }
+  pub_.soft_lower_m = soft_lower_m_;
+  pub_.soft_upper_m = soft_upper_m_;
+  pub_.motion = positioner_->status();
+  published_.store(pub_);
+}
+
+void Axis::set_soft_limits_now(double lower_m, double upper_m) {
+  soft_lower_m_ = lower_m;
+  soft_upper_m_ = upper_m;
+}
+
+// ---- the loop ----
+
+control::Refusal Axis::apply(const AxisCommand& c) {
+  using control::Refusal;
+  const bool busy = trial_phase_ != TrialPhase::Idle;
+  switch (c.kind) {
+    case AxisCommand::Kind::MoveAbsolute:
+      if (busy) return Refusal::Busy;
+      if (config_.require_reference && !referenced_) return Refusal::NotReferenced;
+      return positioner_->move_absolute(c.a);
+    case AxisCommand::Kind::MoveRelative:
+      if (busy) return Refusal::Busy;
+      return positioner_->move_relative(c.a);
+    case AxisCommand::Kind::Step:
+      if (busy) return Refusal::Busy;
+      return positioner_->step_open_loop(c.n, c.a, c.b, c.c);
+    case AxisCommand::Kind::SetLimits: {
+      const Refusal r = positioner_->set_soft_limits(c.a, c.b);
+      if (r == Refusal::None) {
+        soft_lower_m_ = pub_.soft_lower_m = c.a;
+        soft_upper_m_ = pub_.soft_upper_m = c.b;
+      }
+      return r;
+    }
+    case AxisCommand::Kind::Stop:
+      positioner_->stop();
+      return Refusal::None;
+  }
+  return Refusal::None;
+}
+
+void Axis::stop(TrialNotices& notices) {
+  positioner_->stop();
+  if (trial_phase_ != TrialPhase::Idle) fail_trial(TrialFailure::Stopped, notices);
+}
+
+void Axis::tick(double now_s, TrialNotices& notices) {
+  now_s_ = now_s;
+  step_axis(port_, *positioner_, now_s, pending_,
+            [&](const model::AxisEvent& e) { observe(e, notices); });
+  if (trial_phase_ != TrialPhase::Idle) trial_tick(notices);
+}
+
+void Axis::observe(const model::AxisEvent& e, TrialNotices& notices) {
+  using Kind = model::AxisEvent::Kind;
+  switch (e.kind) {
+    case Kind::Reading:
+      if (counts_lost(e.status)) referenced_ = false;
+      return;
+    case Kind::DeviceBack:
+      if (!e.count_kept) referenced_ = false;
+      return;
+    case Kind::DeviceLost:
+      if (trial_phase_ != TrialPhase::Idle) fail_trial(TrialFailure::Driver, notices);
+      return;
+    case Kind::SegmentDone:
+      if (trial_phase_ == TrialPhase::Playing && e.seq == trial_seq_) trial_phase_ = TrialPhase::Idle;
+      return;
+    case Kind::OutputFailed:
+      if (trial_phase_ == TrialPhase::Playing && e.seq == trial_seq_) fail_trial(TrialFailure::Driver, notices);
+      return;
+    case Kind::SegmentStarted:
+      return;
+  }
+}
+
+bool Axis::start_trial(const TrialRequest& t, TrialNotices& notices) {
+  if (trial_phase_ != TrialPhase::Idle || !positioner_->at_rest()) {
+    TrialNotice n;  // the trial in progress stays as it is
+    n.kind = TrialNotice::Kind::Failed;
+    n.index = t.index;
+    n.seq = t.seq;
+    n.why = TrialFailure::Busy;
+    notices.push(n);
+    return false;
+  }
+  trial_ = t;
+  trial_seq_ = t.seq;
+  if (std::isfinite(t.return_to_m)) {
+    if (positioner_->move_absolute(t.return_to_m) != control::Refusal::None) {
+      trial_phase_ = TrialPhase::Positioning;
+      fail_trial(TrialFailure::Positioning, notices);
+      return false;
+    }
+    trial_phase_ = TrialPhase::Positioning;
+    return true;
+  }
+  trial_phase_ = TrialPhase::Starting;
+  return true;
+}
+
+void Axis::trial_tick(TrialNotices& notices) {
+  if (trial_phase_ == TrialPhase::Positioning) {
+    if (!positioner_->at_rest()) return;
+    if (positioner_->status().fault != control::MotionFault::None)
+      return fail_trial(TrialFailure::Positioning, notices);
+    trial_phase_ = TrialPhase::Starting;
+  }
+  if (trial_phase_ == TrialPhase::Starting) {
+    if (positioner_->status().state == control::MotionState::Fault)
+      return fail_trial(TrialFailure::Driver, notices);
+    model::OutputRequest r;
+    r.kind = model::OutputRequest::Kind::Play;
+    r.record = true;
+    r.seq = trial_.seq;
+    r.segment = trial_.segment;
+    if (pending_.due || !port_.requests.push(r)) return;  // next tick
+    trial_phase_ = TrialPhase::Playing;
+    TrialNotice n;
+    n.kind = TrialNotice::Kind::Started;
+    n.index = trial_.index;
+    n.seq = r.seq;
+    if (!notices.push(n)) fail_trial(TrialFailure::Overflow, notices);
+  }
+}
+
+void Axis::fail_trial(TrialFailure why, TrialNotices& notices) {
+  if (trial_phase_ == TrialPhase::Playing) {
+    model::OutputRequest stop;
+    stop.kind = model::OutputRequest::Kind::Stop;
+    stop.seq = trial_seq_;
+    if (!port_.requests.push(stop)) {
+      pending_.due = true;
+      pending_.request = stop;
+    }
+  }
+  if (trial_phase_ == TrialPhase::Positioning) positioner_->stop();
+  trial_phase_ = TrialPhase::Idle;
+  TrialNotice n;
+  n.kind = TrialNotice::Kind::Failed;
+  n.index = trial_.index;
+  n.seq = trial_seq_;
+  n.why = why;
+  notices.push(n);  // the recorder drains continuously
+}
+
+void Axis::publish(bool parked) {
+  pub_.motion = positioner_->status();
+  pub_.trial_active = trial_phase_ != TrialPhase::Idle;
+  pub_.referenced = referenced_;
+  pub_.parked = parked;
+  published_.store(pub_);
+  if (pub_.motion.fault != noted_fault_) note_fault(now_s_);
+  // Only when a burst updated it (at most once per chunk): a copy of a few hundred bytes.
+  if (calibration_ && calibration_->total_updates() != calibration_published_) {
+    calibration_published_ = calibration_->total_updates();
+    calibration_snapshot_.store(calibration_->state());
+  }
+}
+
+void Axis::note_fault(double now_s) {
+  noted_fault_ = pub_.motion.fault;
+  if (noted_fault_ == control::MotionFault::None) return;
+  ErrorNote note;
+  const bool device = noted_fault_ == control::MotionFault::Driver ||
+                      noted_fault_ == control::MotionFault::DeviceLost;
+  const drivers::LinkHealth h = link_.health();  // a seqlock copy: no allocation
+  set_note(note, now_s, "fault ", control::motion_fault_name(noted_fault_),
+           device && h.message[0] != '\0' ? ": " : "");
+  if (device && h.message[0] != '\0') {
+    const std::size_t used = std::strlen(note.text);
+    const std::size_t n = std::min(std::strlen(h.message), sizeof note.text - 1 - used);
+    std::memcpy(note.text + used, h.message, n);
+    note.text[used + n] = '\0';
+  }
+  fault_note_.store(note);
+}
+
+}  // namespace idm::daemon

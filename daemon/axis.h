@@ -1,0 +1,155 @@
+// One axis inside the daemon: its region map, calibration and positioner, the channel of the
+// device link it drives, and its motion state machine as the real-time loop runs it (commands,
+// sweep trials, referencing flag, published status). The motion supervisor (supervisor.h) owns
+// every Axis and calls the RT methods from the loop thread only; build() and the accessors
+// marked so run on other threads while the loop is parked or not yet started.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "control/calibration.h"
+#include "control/positioner.h"
+#include "control/region_map.h"
+#include "daemon/axis_step.h"
+#include "daemon/config.h"
+#include "drivers/link.h"
+#include "drivers/lockfree.h"
+#include "model/axis_io.h"
+
+namespace idm::daemon {
+
+using drivers::Seqlock;
+using drivers::SpscRing;
+
+// server -> loop. Stop with axis -1 stops every axis.
+struct AxisCommand {
+  enum class Kind : std::uint8_t { MoveAbsolute, MoveRelative, Step, Stop, SetLimits };
+  Kind kind = Kind::Stop;
+  std::int32_t axis = -1;
+  std::uint64_t seq = 0;
+  double a = 0, b = 0, c = 0;
+  std::int64_t n = 0;
+};
+
+// Published by the loop after every tick, per axis (seqlock).
+struct AxisPublished {
+  control::MotionStatus motion;
+  double soft_lower_m = 0, soft_upper_m = 0;
+  bool trial_active = false;
+  bool referenced = false;
+  bool parked = false;
+};
+
+// An error text with the time it happened (CLOCK_MONOTONIC), through a seqlock; NUL terminated.
+struct ErrorNote {
+  double t_s = -1;  // < 0: none
+  char text[224] = {};
+};
+// Copies text into note (truncated); no allocation.
+void set_note(ErrorNote& note, double t_s, const char* a, const char* b = "", const char* c = "");
+
+// A sweep trial: recorder -> loop.
+struct TrialRequest {
+  std::uint32_t index = 0;
+  std::uint32_t seq = 0;   // unique across sweeps (the recorder's running number, top bit set):
+                           // the notices and the capture records of this trial carry it
+  std::int32_t axis = 0;
+  model::Segment segment;
+  double return_to_m = 0;  // NaN: play where the slider is
+};
+enum class TrialFailure : std::uint8_t { None, Positioning, Driver, Overflow, Stopped, Busy };
+const char* trial_failure_text(TrialFailure why);
+// loop -> recorder: the trial's segment started (its samples follow on the capture queue), or it
+// failed before or while playing.
+struct TrialNotice {
+  enum class Kind : std::uint8_t { Started, Failed };
+  Kind kind = Kind::Started;
+  std::uint32_t index = 0;
+  std::uint32_t seq = 0;
+  TrialFailure why = TrialFailure::None;
+};
+using TrialNotices = SpscRing<TrialNotice, 64>;
+
+class Axis {
+ public:
+  // `link_index`: the axis's channel among the link's (config.channel is the device's own).
+  Axis(const AxisConfig& config, drivers::DeviceLink& link, std::size_t link_index);
+  Axis(const Axis&) = delete;
+  Axis& operator=(const Axis&) = delete;
+
+  // ---- not real-time: before the loop starts, or while it is parked ----
+  // Builds the map (when `control` changes its grid, or the first time), the calibration (first
+  // time: loaded from its file) and the positioner. Throws model::InputError.
+  void build(const ControlConfig& control);
+  // A map for `control` built ahead (allocates; outside the park), installed by build().
+  void prepare(const ControlConfig& control);
+  void set_soft_limits_now(double lower_m, double upper_m);
+
+  // ---- the loop thread ----
+  control::Refusal apply(const AxisCommand& command);
+  void tick(double now_s, TrialNotices& notices);
+  // STOP (and shutdown): the move ends at its chunk's end, a trial at once.
+  void stop(TrialNotices& notices);
+  bool start_trial(const TrialRequest& trial, TrialNotices& notices);
+  bool trial_active() const { return trial_phase_ != TrialPhase::Idle; }
+  // A trial's segment has been handed to the link and its end not yet seen: the next trial waits.
+  bool trial_finishing() const { return trial_phase_ == TrialPhase::Playing; }
+  bool at_rest() const { return positioner_->at_rest() && trial_phase_ == TrialPhase::Idle; }
+  void publish(bool parked);
+  // The target of the last command (refused or accepted), NaN when none.
+  double requested_target_m() const { return positioner_->requested_target_m(); }
+
+  // ---- any thread ----
+  AxisPublished published() const { return published_.load(); }
+  ErrorNote fault_note() const { return fault_note_.load(); }
+  const AxisConfig& config() const { return config_; }
+  const ControlConfig& control() const { return control_; }  // loop parked / non-RT owner
+  const control::DeviceLimits& limits() const { return limits_; }
+  const control::RegionMap& map() const { return *map_; }
+  control::Calibration* calibration() { return calibration_.get(); }
+  drivers::ChannelPort& port() { return port_; }
+  drivers::DeviceLink& link() { return link_; }
+  std::size_t channel() const { return link_index_; }
+  double count_m() const { return count_m_; }
+  // The calibration as the loop last published it (a copy), and its update count.
+  control::CalibrationState calibration_snapshot() const { return calibration_snapshot_.load(); }
+
+ private:
+  enum class TrialPhase : std::uint8_t { Idle, Positioning, Starting, Playing };
+  void observe(const model::AxisEvent& e, TrialNotices& notices);
+  void trial_tick(TrialNotices& notices);
+  void fail_trial(TrialFailure why, TrialNotices& notices);
+  void note_fault(double now_s);
+
+  AxisConfig config_;
+  drivers::DeviceLink& link_;
+  std::size_t link_index_;
+  drivers::ChannelPort& port_;
+  double count_m_ = 0;
+  ControlConfig control_;
+  control::DeviceLimits limits_;
+  std::unique_ptr<control::RegionMap> map_, next_map_;
+  control::DeviceLimits next_limits_;
+  std::unique_ptr<control::Calibration> calibration_;
+  std::unique_ptr<control::Positioner> positioner_;
+  double soft_lower_m_ = 0, soft_upper_m_ = 0;
+
+  // Loop thread.
+  PendingRequest pending_;
+  bool referenced_ = false;
+  control::MotionFault noted_fault_ = control::MotionFault::None;
+  std::uint64_t calibration_published_ = 0;
+  double now_s_ = 0;
+  TrialPhase trial_phase_ = TrialPhase::Idle;
+  TrialRequest trial_{};
+  std::uint32_t trial_seq_ = 0;
+
+  Seqlock<AxisPublished> published_;
+  Seqlock<ErrorNote> fault_note_;
+  Seqlock<control::CalibrationState> calibration_snapshot_;
+  AxisPublished pub_;
+};
+
+}  // namespace idm::daemon

@@ -1,0 +1,401 @@
+// The Instrument commands of the daemon core (the server thread): argument checks that need the
+// axis's settings, the commands through the motion supervisor, and the status snapshots.
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+
+#include "daemon/daemon.h"
+#include "daemon/data_dir.h"
+#include "drivers/clock.h"
+#include "model/yaml_util.h"
+
+#ifndef IDM_VERSION
+#define IDM_VERSION "0"
+#endif
+
+namespace idm::daemon {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+std::string num(double v) { return model::format_number(v); }
+
+}  // namespace
+
+std::string Daemon::identity() { return std::string("idm,idmd,0,") + IDM_VERSION; }
+
+std::string Daemon::axis_name(int axis) { return axes_.at(static_cast<std::size_t>(axis))->config().name; }
+
+// ---- commands through the loop ----
+
+CommandError Daemon::submit(AxisCommand command) {
+  const MotionSupervisor::Ack ack = supervisor_->submit(command, *loop_);
+  if (!ack.taken) return {error_code::kExecutionError, "the real-time loop did not take the command"};
+  return refusal_error(command.axis, ack.refusal, ack.target_m, command.kind);
+}
+
+CommandError Daemon::fault_error(control::MotionFault fault) {
+  const char* name = control::motion_fault_name(fault);
+  const std::string text = std::string("in FAULT (") + name + "): send *RST to clear it";
+  for (const DeviceFault& f : kDeviceFaults)
+    if (std::strcmp(f.name, name) == 0) return {f.code, text};
+  return {error_code::kSettingsConflict, text};
+}
+
+CommandError Daemon::refusal_error(int axis, control::Refusal r, double target, AxisCommand::Kind kind) {
+  if (r == control::Refusal::None) return {};
+  const AxisPublished p = axes_.at(static_cast<std::size_t>(std::max(axis, 0)))->published();
+  switch (r) {
+    case control::Refusal::None: return {};
+    case control::Refusal::NotFinite:
+      return {error_code::kNumericDataError, "the argument is not a finite number"};
+    case control::Refusal::OutsideSoftLimits:
+      return {error_code::kDataOutOfRange,
+              (std::isnan(target) ? std::string("the motion's end") : "target " + num(target) + " m") +
+                  " is outside the soft limits [" + num(p.soft_lower_m) + ", " + num(p.soft_upper_m) +
+                  "] m; nothing moved"};
+    case control::Refusal::Faulted: return fault_error(p.motion.fault);
+    case control::Refusal::Busy:
+      if (kind == AxisCommand::Kind::SetLimits)
+        return {error_code::kSettingsConflict, "the motion in progress ends at " + num(p.motion.target_m) +
+                                                   " m, outside the new limits: STOP it first"};
+      if (supervisor_->stopping()) return {error_code::kSettingsConflict, "the daemon is shutting down"};
+      if (p.trial_active || (sweeps_ && sweeps_->active()))
+        return {error_code::kSettingsConflict, "a sweep is running: STOP it first"};
+      return {error_code::kSettingsConflict, "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
+    case control::Refusal::OutOfRange:
+      return {error_code::kDataOutOfRange, "outside the device limits (cycles, duty, frequency or stroke)"};
+    case control::Refusal::NoPosition:
+      return {error_code::kDataCorruptOrStale, "the position is not known (no valid interferometer reading)"};
+    case control::Refusal::NotReferenced:
+      return {error_code::kSettingsConflict,
+              "the axis is not referenced (require_reference): REFerence it first, or MOVE:RELative"};
+  }
+  return {error_code::kExecutionError, control::refusal_name(r)};
+}
+
+CommandError Daemon::move_absolute(int axis, double target_m) {
+  AxisCommand c;
+  c.kind = AxisCommand::Kind::MoveAbsolute;
+  c.axis = axis;
+  c.a = target_m;
+  return submit(c);
+}
+
+CommandError Daemon::move_relative(int axis, double distance_m) {
+  AxisCommand c;
+  c.kind = AxisCommand::Kind::MoveRelative;
+  c.axis = axis;
+  c.a = distance_m;
+  return submit(c);
+}
+
+CommandError Daemon::step(int axis, std::int64_t cycles, double duty, double freq_hz, double stroke_m) {
+  if (cycles == 0) return {error_code::kDataOutOfRange, "STEP cycles: must not be 0"};
+  const bool cell_given = !std::isnan(duty) || !std::isnan(freq_hz);
+  if (cell_given && (std::isnan(duty) || std::isnan(freq_hz)))
+    return {error_code::kMissingParameter, "STEP takes <n> or <n>,<duty>,<freq_hz>[,<stroke_m>]"};
+  if (!std::isnan(stroke_m) && !cell_given)
+    return {error_code::kMissingParameter, "STEP stroke_m needs duty and freq_hz before it"};
+  const auto out_of_range = [](const char* what, double v, const std::string& allowed) {
+    return CommandError{error_code::kDataOutOfRange,
+                        std::string("STEP ") + what + ": " + num(v) + " is out of range, allowed " + allowed};
+  };
+  control::DeviceLimits limits;
+  {
+    std::lock_guard<std::mutex> lock(control_mutex_);
+    limits = axes_.at(static_cast<std::size_t>(axis))->limits();
+  }
+  if (cell_given) {
+    if (!(duty > 0 && duty < 1) || duty == 0.5)
+      return out_of_range("duty", duty, "(0, 1) except 0.5 (the sign of n picks the direction)");
+    if (!(freq_hz >= limits.min_freq_hz && freq_hz <= limits.max_freq_hz))
+      return out_of_range("freq_hz", freq_hz,
+                          "[" + num(limits.min_freq_hz) + ", " + num(limits.max_freq_hz) + "] Hz");
+  }
+  if (!std::isnan(stroke_m) && !(stroke_m >= limits.min_stroke_m && stroke_m <= limits.max_stroke_m))
+    return out_of_range("stroke_m", stroke_m,
+                        "[" + num(limits.min_stroke_m) + ", " + num(limits.max_stroke_m) + "] m");
+  AxisCommand c;
+  c.kind = AxisCommand::Kind::Step;
+  c.axis = axis;
+  c.n = cycles;
+  c.a = duty;
+  c.b = freq_hz;
+  c.c = stroke_m;
+  return submit(c);
+}
+
+CommandError Daemon::stop() {
+  if (sweeps_) sweeps_->abort();  // between trials too: the next one is never asked for
+  AxisCommand c;
+  c.kind = AxisCommand::Kind::Stop;
+  c.axis = -1;
+  return submit(c);
+}
+
+CommandError Daemon::stop(int axis) {
+  if (sweeps_ && sweeps_->active() && sweeps_->status().axis == axis) sweeps_->abort();
+  AxisCommand c;
+  c.kind = AxisCommand::Kind::Stop;
+  c.axis = axis;
+  return submit(c);
+}
+
+CommandError Daemon::set_soft_limits(int axis, double lower_m, double upper_m) {
+  if (std::isnan(lower_m) || std::isnan(upper_m))
+    return {error_code::kNumericDataError, "a soft limit is not a number"};
+  if (!(lower_m < upper_m))
+    return {error_code::kDataOutOfRange, "the lower limit " + num(lower_m) +
+                                             " m must be below the upper limit " + num(upper_m) + " m"};
+  const model::StageFile& st = axes_.at(static_cast<std::size_t>(axis))->config().stage;
+  const std::string travel = "the stage's travel [" + num(st.travel_lower_m) + ", " + num(st.travel_upper_m) + "] m";
+  if (lower_m < st.travel_lower_m)
+    return {error_code::kDataOutOfRange, "the lower limit " + num(lower_m) + " m lies outside " + travel};
+  if (upper_m > st.travel_upper_m)
+    return {error_code::kDataOutOfRange, "the upper limit " + num(upper_m) + " m lies outside " + travel};
+  AxisCommand c;
+  c.kind = AxisCommand::Kind::SetLimits;
+  c.axis = axis;
+  c.a = lower_m;
+  c.b = upper_m;
+  return submit(c);
+}
+
+CommandError Daemon::reset() {
+  if (CommandError e = stop(); !e.ok()) return e;
+  errors_cleared_s_ = drivers::monotonic_s();  // after the stop: what it stopped is cleared too
+  if (housekeeping_->reset_pending()) return {};  // already on its way
+  if (sweeps_->active()) {
+    // The sweep winds down on the recorder thread; rather than hold the server thread (and every
+    // other client) meanwhile, housekeeping reloads the settings once it has ended.
+    // motion_done() is false until then, so "*RST;*OPC?" waits for the reset to be complete.
+    housekeeping_->defer_reset();
+    return {};
+  }
+  // No sweep: the loop parks at the playing chunks' ends (at most control.max_chunk_s).
+  std::string error;
+  if (!reload_control(error, SoftLimits::Keep)) return {error_code::kExecutionError, "*RST: " + error};
+  return {};
+}
+
+// ---- queries ----
+
+bool Daemon::motion_done() {
+  if (sweeps_->active() || housekeeping_->reset_pending()) return false;
+  return supervisor_->at_rest();
+}
+
+bool Daemon::motion_done(int axis) {
+  if (housekeeping_->reset_pending()) return false;
+  if (sweeps_->active() && sweeps_->status().axis == axis) return false;
+  const AxisPublished p = axes_.at(static_cast<std::size_t>(axis))->published();
+  return (p.motion.state == control::MotionState::Idle || p.motion.state == control::MotionState::Fault) &&
+         !p.trial_active;
+}
+
+InstrumentStatus Daemon::status(int axis) {
+  Axis& a = *axes_.at(static_cast<std::size_t>(axis));
+  const AxisPublished p = a.published();
+  InstrumentStatus s;
+  s.name = a.config().name;
+  s.state = control::motion_state_name(p.motion.state);
+  s.position_valid = p.motion.position_valid;
+  s.position_m = p.motion.position_m;
+  s.target_m = p.motion.target_m;
+  s.fault = control::motion_fault_name(p.motion.fault);
+  s.motion_done = motion_done(axis);
+  s.soft_lower_m = p.soft_lower_m;
+  s.soft_upper_m = p.soft_upper_m;
+  s.resolution_m = a.count_m();
+  s.referenced = p.referenced;
+  s.device = drivers::link_state_name(a.link().health().state);
+  s.moves = p.motion.moves;
+  s.bursts = p.motion.bursts;
+  s.cycles = p.motion.cycles;
+  const ErrorNote fault = a.fault_note();
+  const ErrorNote other = housekeeping_->error(static_cast<std::size_t>(axis));
+  const ErrorNote& last = fault.t_s >= other.t_s ? fault : other;
+  if (last.t_s >= 0 && last.t_s >= errors_cleared_s_) s.last_error = last.text;
+  return s;
+}
+
+std::vector<double> Daemon::positions() {
+  std::vector<double> out;
+  for (const auto& a : axes_) {
+    const AxisPublished p = a->published();
+    out.push_back(p.motion.position_valid ? p.motion.position_m : kNaN);
+  }
+  return out;
+}
+
+CommandError Daemon::region(int axis, double freq_hz, double duty, double stroke_m, std::string& region,
+                            double& step_m) {
+  if (!std::isfinite(freq_hz) || !std::isfinite(duty) || std::isinf(stroke_m))
+    return {error_code::kNumericDataError, "the argument is not a finite number"};
+  if (!(freq_hz > 0) || !(duty > 0 && duty < 1) || !(std::isnan(stroke_m) || stroke_m > 0))
+    return {error_code::kDataOutOfRange, "need freq_hz > 0, 0 < duty < 1, stroke_m > 0"};
+  std::lock_guard<std::mutex> lock(control_mutex_);
+  const Axis& a = *axes_.at(static_cast<std::size_t>(axis));
+  const double stroke = std::isnan(stroke_m) ? a.limits().max_stroke_m : stroke_m;
+  try {
+    const control::RegionCell cell = a.map().at(freq_hz, duty, stroke);
+    region = model::region_protocol_name(cell.region);
+    step_m = cell.step_m;
+  } catch (const model::InputError& e) {
+    return {error_code::kDataOutOfRange, e.what()};
+  }
+  return {};
+}
+
+LoopStats Daemon::loop_stats() { return loop_->stats(); }
+
+SweepStatus Daemon::sweep_status() { return sweeps_->status(); }
+
+// ---- the simulated stage ----
+
+namespace {
+
+CommandError inject(Axis& a, drivers::SimAction action) {
+  action.channel = static_cast<std::uint32_t>(a.channel());
+  if (!a.link().simulated(a.channel()))
+    return {error_code::kHardwareMissing, "axis " + a.config().name + " is on a " +
+                                              a.config().document["daq"]["driver"].as<std::string>() +
+                                              " device, not a simulated one"};
+  if (!a.link().inject(action))
+    return {error_code::kExecutionError, "the simulated device's queue is full: try again"};
+  return {};
+}
+
+}  // namespace
+
+CommandError Daemon::sim_push(int axis, double distance_m) {
+  if (!std::isfinite(distance_m) || std::fabs(distance_m) > 0.1)
+    return {error_code::kDataOutOfRange, "SIMulation:PUSH: " + num(distance_m) + " is out of range, allowed [-0.1, 0.1] m"};
+  drivers::SimAction a;
+  a.kind = drivers::SimAction::Kind::Push;
+  a.value = distance_m;
+  return inject(*axes_.at(static_cast<std::size_t>(axis)), a);
+}
+
+CommandError Daemon::sim_fault(int axis, const std::string& fault, double value) {
+  using K = drivers::SimAction::Kind;
+  static const struct {
+    const char* name;
+    K kind;
+  } kFaults[] = {{"beam_lost", K::BeamLost}, {"stalled", K::Stalled}, {"glitches", K::Glitches},
+                 {"disconnect", K::Disconnect}, {"power_cycle", K::PowerCycle}, {"timeouts", K::Timeouts}};
+  drivers::SimAction a;
+  bool known = false;
+  for (const auto& f : kFaults)
+    if (fault == f.name) {
+      a.kind = f.kind;
+      known = true;
+    }
+  if (!known)
+    return {error_code::kDataOutOfRange, "SIMulation:FAULt: unknown fault '" + fault +
+                                             "', allowed beam_lost, stalled, glitches, disconnect, power_cycle, timeouts"};
+  if (!std::isfinite(value) || value < 0 || value > 1)
+    return {error_code::kDataOutOfRange, "SIMulation:FAULt " + fault + ": " + num(value) + " is out of range, allowed [0, 1]"};
+  if (a.kind == K::Disconnect && value == 0) a.kind = K::Reconnect;
+  if (a.kind == K::PowerCycle && value == 0) a.kind = K::Reconnect;  // switched back on
+  a.value = value;
+  return inject(*axes_.at(static_cast<std::size_t>(axis)), a);
+}
+
+// ---- SWEEP ----
+
+CommandError Daemon::check_sweep(int axis, const std::vector<double>& freqs_hz,
+                                 const std::vector<double>& duties, int trials, int cycles) {
+  if (freqs_hz.empty() || duties.empty())
+    return {error_code::kMissingParameter, "SWEEP needs at least one frequency and one duty"};
+  if (trials < 1 || trials > kMaxSweepTrials)
+    return {error_code::kDataOutOfRange, "SWEEP trials: " + std::to_string(trials) +
+                                             " is out of range, allowed [1, " + std::to_string(kMaxSweepTrials) + "]"};
+  if (cycles < 1 || cycles > kMaxSweepCycles)
+    return {error_code::kDataOutOfRange, "SWEEP cycles: " + std::to_string(cycles) +
+                                             " is out of range, allowed [1, " + std::to_string(kMaxSweepCycles) + "]"};
+  const std::size_t total = freqs_hz.size() * duties.size() * static_cast<std::size_t>(trials);
+  if (total > static_cast<std::size_t>(config_.recording.sweep_max_trials))
+    return {error_code::kDataOutOfRange, std::to_string(total) + " trials, more than recording.sweep_max_trials (" +
+                                             std::to_string(config_.recording.sweep_max_trials) + ")"};
+  if (sweeps_->active()) return {error_code::kSettingsConflict, "a sweep is already running"};
+  if (!motion_done(axis))
+    return {error_code::kSettingsConflict, "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
+  Axis& a = *axes_.at(static_cast<std::size_t>(axis));
+  const AxisPublished p = a.published();
+  if (p.motion.state == control::MotionState::Fault) return fault_error(p.motion.fault);
+  const drivers::OutputCapabilities& caps = a.link().output_capabilities(a.channel());
+  const drivers::InterferometerCapabilities& ic = a.link().interferometer_capabilities(a.channel());
+  const control::DeviceLimits& lim = a.limits();
+  const bool buffered = caps.mode == drivers::OutputMode::BufferedSamples;
+  for (double f : freqs_hz) {
+    if (!std::isfinite(f)) return {error_code::kNumericDataError, "a frequency is not finite"};
+    if (f < lim.min_freq_hz || f > lim.max_freq_hz)
+      return {error_code::kDataOutOfRange, "frequency " + num(f) + " Hz outside the device's [" +
+                                               num(lim.min_freq_hz) + ", " + num(lim.max_freq_hz) + "] Hz"};
+    const double trial_s = config_.recording.sweep_rest_s +
+                           static_cast<double>(cycles + config_.recording.sweep_settle_cycles) / f;
+    const double records = trial_s * ic.stream_rate_hz + 2;
+    if (records > static_cast<double>(ic.stream_capacity))
+      return {error_code::kDataOutOfRange, "a trial at " + num(f) + " Hz with " + std::to_string(cycles) +
+                                               " cycles is " + num(records) + " records, the capture holds " +
+                                               std::to_string(ic.stream_capacity)};
+    for (double d : duties) {
+      if (!std::isfinite(d)) return {error_code::kNumericDataError, "a duty is not finite"};
+      if (!(d > 0 && d < 1)) return {error_code::kDataOutOfRange, "duty " + num(d) + ": allowed (0, 1)"};
+      if (buffered) {
+        const model::Segment seg = model::make_segment(f, d, lim.max_stroke_m, static_cast<std::uint64_t>(cycles),
+                                                       lim.output_sample_rate_hz, config_.recording.sweep_rest_s,
+                                                       config_.recording.sweep_settle_cycles / f);
+        const std::size_t room = std::min<std::size_t>(caps.max_burst_samples, std::size_t{1} << 21);
+        if (seg.sample_count() > room)
+          return {error_code::kDataOutOfRange, "a trial at " + num(f) + " Hz with " + std::to_string(cycles) +
+                                                   " cycles needs " + std::to_string(seg.sample_count()) +
+                                                   " samples, the output holds " + std::to_string(room)};
+      } else if (static_cast<std::uint32_t>(cycles) > caps.max_cycles) {
+        return {error_code::kDataOutOfRange, "cycles above the device's max_cycles"};
+      }
+    }
+  }
+  return {};
+}
+
+CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<double>& freqs_hz,
+                           const std::vector<double>& duties, int trials, int cycles) {
+  if (dir.empty()) return {error_code::kMissingParameter, "SWEEP needs a directory"};
+  if (CommandError e = check_sweep(axis, freqs_hz, duties, trials, cycles); !e.ok()) return e;
+  Axis& a = *axes_.at(static_cast<std::size_t>(axis));
+  // Confined to the data directory, a new directory every time (never a symlink followed, never
+  // a file overwritten).
+  std::string error;
+  std::error_code mkdir_error;  // the configured data directory itself may be created
+  std::filesystem::create_directories(config_.recording.data_dir, mkdir_error);
+  const std::string path = create_dataset_dir(config_.recording.data_dir, dir, error);
+  if (path.empty()) return {error_code::kDataOutOfRange, "SWEEP: " + error};
+  auto job = std::make_unique<SweepJob>();
+  try {
+    job->writer.emplace(path, a.config().stage);
+  } catch (const std::exception& e) {
+    return {error_code::kExecutionError, std::string("cannot create the dataset: ") + e.what()};
+  }
+  const drivers::OutputCapabilities& caps = a.link().output_capabilities(a.channel());
+  job->axis = axis;
+  job->dir = path;
+  job->freqs_hz = freqs_hz;
+  job->duties = duties;
+  job->trials = trials;
+  job->cycles = cycles;
+  job->stroke_m = a.limits().max_stroke_m;
+  job->sample_rate_hz = caps.mode == drivers::OutputMode::BufferedSamples ? a.limits().output_sample_rate_hz : 0.0;
+  job->rest_s = config_.recording.sweep_rest_s;
+  job->settle_cycles = config_.recording.sweep_settle_cycles;
+  job->span_m = config_.recording.sweep_span_m;
+  job->stream_rate_hz = a.link().interferometer_capabilities(a.channel()).stream_rate_hz;
+  if (!sweeps_->submit(std::move(job))) return {error_code::kSettingsConflict, "a sweep is already running"};
+  return {};
+}
+
+}  // namespace idm::daemon

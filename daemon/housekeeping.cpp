@@ -1,0 +1,168 @@
+#include "daemon/housekeeping.h"
+
+#include <chrono>
+#include <utility>
+
+#include "drivers/clock.h"
+
+namespace idm::daemon {
+
+Housekeeping::Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceLink*> links,
+                           MotionSupervisor& supervisor, SweepRunner& sweeps,
+                           std::mutex& control_mutex, std::function<std::string()> reload)
+    : axes_(std::move(axes)),
+      links_(std::move(links)),
+      supervisor_(supervisor),
+      sweeps_(sweeps),
+      control_mutex_(control_mutex),
+      reload_(std::move(reload)),
+      saved_updates_(axes_.size(), 0),
+      save_errors_(axes_.size()),
+      errors_(axes_.size()) {
+  for (std::size_t i = 0; i < axes_.size(); ++i)
+    saved_updates_[i] = axes_[i]->calibration_snapshot().total_updates;
+  for (drivers::DeviceLink* l : links_) seen_health_.push_back(l->health());
+}
+
+Housekeeping::~Housekeeping() { quit(); }
+
+void Housekeeping::start() {
+  thread_ = drivers::StackThread(drivers::kSmallStackBytes * 4, [this] { main(); });
+}
+
+void Housekeeping::quit() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (quit_ && !thread_.joinable()) return;
+    quit_ = true;
+  }
+  cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+  watch_links();
+  for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, true);
+}
+
+std::vector<Housekeeping::Note> Housekeeping::take_notes() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return std::exchange(notes_, {});
+}
+
+ErrorNote Housekeeping::error(std::size_t axis) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return axis < errors_.size() ? errors_[axis] : ErrorNote{};
+}
+
+void Housekeeping::main() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!quit_) {
+    cv_.wait_for(lock, std::chrono::milliseconds(50), [&] { return quit_; });
+    if (quit_) break;
+    lock.unlock();
+    cycle();
+    lock.lock();
+  }
+}
+
+void Housekeeping::cycle() {
+  watch_links();
+  if (const std::string r = sweeps_.report(); r != seen_report_) {
+    seen_report_ = r;
+    const SweepStatus s = sweeps_.status();
+    // Failed trials, or a sweep stopped before its end, are the axis's error (SWEEP? says which);
+    // a stopped sweep's error is dated when the stop came, so the *RST that stopped it clears it.
+    if (s.failed > 0 || s.state == "STOPPED") {
+      if (s.axis >= 0 && static_cast<std::size_t>(s.axis) < axes_.size())
+        set_error(static_cast<std::size_t>(s.axis), r,
+                  s.state == "STOPPED" ? sweeps_.abort_time_s() : drivers::monotonic_s());
+      add_note(s.failed > 0, r);
+    } else {
+      add_note(false, r);
+    }
+  }
+  if (reset_pending_.load(std::memory_order_acquire) && !sweeps_.active()) {
+    if (const std::string e = reload_(); !e.empty()) {
+      for (std::size_t i = 0; i < axes_.size(); ++i) set_error(i, "*RST: " + e);
+      add_note(true, "*RST after the sweep: " + e);
+    }
+    reset_pending_.store(false, std::memory_order_release);
+  }
+  if (supervisor_.at_rest())
+    for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, false);
+}
+
+void Housekeeping::save_calibration(std::size_t i, bool force) {
+  Axis& axis = *axes_[i];
+  std::string path;
+  control::CalibrationConfig cal_config;
+  {
+    std::lock_guard<std::mutex> lock(control_mutex_);
+    path = axis.control().calibration_file;
+    cal_config = axis.control().calibration;
+  }
+  const control::CalibrationState state = axis.calibration_snapshot();
+  if (!force && state.total_updates == saved_updates_[i]) return;
+  if (force && state.total_updates == saved_updates_[i] && save_errors_[i].empty()) return;
+  saved_updates_[i] = state.total_updates;  // a failure is retried at the next change
+  if (path.empty() || axis.calibration() == nullptr) return;
+  std::string error;
+  try {
+    // A copy of the loop's calibration, so that the loop's own object is never read here.
+    control::Calibration copy(axis.config().stage.stage, cal_config);
+    copy.set_state(state);
+    copy.save(path);
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  if (error.empty()) {
+    save_errors_[i].clear();
+    return;
+  }
+  const std::string text = "cannot save the calibration to " + path + ": " + error;
+  set_error(i, text);
+  if (text != save_errors_[i]) add_note(true, text);  // once per distinct failure
+  save_errors_[i] = text;
+}
+
+void Housekeeping::watch_links() {
+  for (std::size_t k = 0; k < links_.size(); ++k) {
+    const drivers::LinkHealth h = links_[k]->health();
+    drivers::LinkHealth& seen = seen_health_[k];
+    const std::string device = "device " + links_[k]->name();
+    if (h.losses != seen.losses) {
+      const std::string text = device + " lost: " + h.message +
+                               " (the output is stopped; reconnecting by itself)";
+      add_note(true, text);
+      for (std::size_t i = 0; i < axes_.size(); ++i)
+        if (&axes_[i]->link() == links_[k]) set_error(i, text);
+    } else if (h.message_version != seen.message_version && h.message[0] != '\0' &&
+               h.state == drivers::LinkState::Lost) {
+      add_note(false, device + " still lost: " + h.message);
+    }
+    if (h.reconnects != seen.reconnects) {
+      std::string text = device + " back after " + std::to_string(h.reconnects) + " reconnect" +
+                         (h.reconnects == 1 ? "" : "s");
+      for (std::size_t i = 0; i < axes_.size(); ++i) {
+        if (&axes_[i]->link() != links_[k]) continue;
+        if (!axes_[i]->published().referenced) text += "; axis " + axes_[i]->config().name + " not referenced";
+      }
+      add_note(true, text);
+    }
+    if (h.readings_dropped != seen.readings_dropped && seen.readings_dropped == 0)
+      add_note(true, device + ": a controller's queue was full, readings were dropped");
+    seen = h;
+  }
+}
+
+void Housekeeping::add_note(bool warning, std::string text) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (notes_.size() < 200) notes_.push_back({warning, std::move(text)});
+}
+
+void Housekeeping::set_error(std::size_t axis, const std::string& text, double t_s) {
+  ErrorNote note;
+  set_note(note, t_s < 0 ? drivers::monotonic_s() : t_s, text.c_str());
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (axis < errors_.size()) errors_[axis] = note;
+}
+
+}  // namespace idm::daemon

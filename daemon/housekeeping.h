@@ -1,0 +1,76 @@
+// Housekeeping: the daemon's slow thread. Every 50 ms it saves each axis's calibration once the
+// motion that changed it is done (crash-safe, control::Calibration::save; a failure is logged
+// once per distinct failure and kept as the axis's daemon error), watches the device links'
+// health (a device lost or back becomes a log line naming the device, and the axes' error), hands
+// the sweep runner's report to the log, and finishes a *RST that had to wait for a sweep to wind
+// down. It touches no device and never blocks the loop; idmd's main thread takes its notes.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <functional>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "daemon/axis.h"
+#include "daemon/sweep_runner.h"
+#include "daemon/supervisor.h"
+#include "drivers/link.h"
+#include "drivers/thread.h"
+
+namespace idm::daemon {
+
+class Housekeeping {
+ public:
+  // `reload`: re-reads the control settings (the deferred *RST); returns "" or why it failed.
+  // `control_mutex`: held by whoever rebuilds an axis's settings (reads of them take it too).
+  Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceLink*> links,
+               MotionSupervisor& supervisor, SweepRunner& sweeps, std::mutex& control_mutex,
+               std::function<std::string()> reload);
+  ~Housekeeping();  // quit()
+
+  void start();
+  // Ends the thread; then saves every calibration one last time (the caller's thread).
+  void quit();
+  // A *RST that waits for the running sweep to end; pending until it is done.
+  void defer_reset() { reset_pending_.store(true, std::memory_order_release); }
+  bool reset_pending() const { return reset_pending_.load(std::memory_order_acquire); }
+  // Lines to log (warnings and news) since the last call.
+  struct Note {
+    bool warning = true;
+    std::string text;
+  };
+  std::vector<Note> take_notes();
+  // The latest housekeeping error of an axis (a failed save, a device lost, a sweep's failures),
+  // with when it happened; *RST hides the ones before it.
+  ErrorNote error(std::size_t axis) const;
+
+ private:
+  void main();
+  void cycle();
+  void save_calibration(std::size_t axis, bool force);
+  void watch_links();
+  void add_note(bool warning, std::string text);
+  void set_error(std::size_t axis, const std::string& text, double t_s = -1);
+
+  std::vector<Axis*> axes_;
+  std::vector<drivers::DeviceLink*> links_;
+  MotionSupervisor& supervisor_;
+  SweepRunner& sweeps_;
+  std::mutex& control_mutex_;
+  std::function<std::string()> reload_;
+  std::vector<std::uint64_t> saved_updates_;
+  std::vector<std::string> save_errors_;
+  std::vector<drivers::LinkHealth> seen_health_;
+  std::string seen_report_;
+  std::atomic<bool> reset_pending_{false};
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  bool quit_ = false;
+  std::vector<Note> notes_;          // mutex_
+  std::vector<ErrorNote> errors_;    // mutex_
+  drivers::StackThread thread_;
+};
+
+}  // namespace idm::daemon

@@ -1,0 +1,576 @@
+// A client's session: line framing, the AXIS<n>: prefix, the command table and its handlers.
+#include <algorithm>
+#include <cmath>
+#include <exception>
+#include <limits>
+
+#include "daemon/protocol.h"
+#include "model/yaml_util.h"
+
+namespace idm::daemon {
+
+namespace ec = error_code;
+
+namespace {
+
+constexpr char kUntrusted[] = "9.91E37";  // SCPI's not-a-number: a position that cannot be trusted
+
+CommandError instrument_error(CommandError e) {
+  if (e.ok()) return e;
+  return make_error(e.code, e.text);
+}
+
+CommandError quoted_number(std::string_view what) {
+  return make_error(ec::kDataTypeError,
+                    std::string(what) + ": a quoted string where a number belongs (send it bare)");
+}
+
+CommandError untrusted_position(const std::string& name) {
+  return make_error(ec::kDataCorruptOrStale,
+                    "axis " + name + ": no trustworthy position (no valid reading yet, beam or device lost)");
+}
+
+char upper(char c) { return (c >= 'a' && c <= 'z') ? static_cast<char>(c - 'a' + 'A') : c; }
+
+}  // namespace
+
+bool split_axis_prefix(std::string_view header, int& axis, std::string_view& rest) {
+  if (header.size() < 6) return false;
+  for (std::size_t i = 0; i < 4; ++i)
+    if (upper(header[i]) != "AXIS"[i]) return false;
+  std::size_t i = 4;
+  long long n = 0;
+  while (i < header.size() && header[i] >= '0' && header[i] <= '9') {
+    if (n < 1000000) n = n * 10 + (header[i] - '0');
+    ++i;
+  }
+  if (i == 4 || i >= header.size() || header[i] != ':') return false;
+  axis = n > 1000000 ? 0 : static_cast<int>(n);
+  rest = header.substr(i + 1);
+  return true;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The command table
+
+struct Session::Command {
+  CommandInfo info;
+  Handler handler;
+};
+
+const std::vector<Session::Command>& Session::commands() {
+  using S = CommandScope;
+  static const std::vector<Command> kCommands = {
+      {{"*IDN", true, 0, 0, "", S::Instrument}, &Session::idn},
+      {{"*RST", false, 0, 0, "", S::Instrument}, &Session::rst},
+      {{"*CLS", false, 0, 0, "", S::Instrument}, &Session::cls},
+      {{"*OPC", true, 0, 0, "", S::Instrument}, &Session::opc_query},
+      {{"*WAI", false, 0, 0, "", S::Instrument}, &Session::wai},
+      {{"*TST", true, 0, 0, "", S::Instrument}, &Session::tst},
+      {{"SYSTem:ERRor[:NEXT]", true, 0, 0, "", S::Instrument}, &Session::error_next},
+      {{"SYSTem:ERRor:COUNt", true, 0, 0, "", S::Instrument}, &Session::error_count},
+      {{"SYSTem:ERRor:ALL", true, 0, 0, "", S::Instrument}, &Session::error_all},
+      {{"SYSTem:VERSion", true, 0, 0, "", S::Instrument}, &Session::version},
+      {{"SYSTem:LOOP", true, 0, 0, "", S::Instrument}, &Session::loop},
+      {{"AXIS:COUNt", true, 0, 0, "", S::Instrument}, &Session::axis_count},
+      {{"POSition:ALL", true, 0, 0, "", S::Instrument}, &Session::positions},
+      {{"SWEEP", true, 0, 0, "", S::Instrument}, &Session::sweep_query},
+      {{"STOP", false, 0, 0, "", S::Either}, &Session::stop},
+      {{"ABORt", false, 0, 0, "", S::Either}, &Session::stop},
+      {{"NAME", true, 0, 0, "", S::Axis}, &Session::axis_name},
+      {{"RESolution", true, 0, 0, "", S::Axis}, &Session::resolution},
+      {{"POSition", true, 0, 0, "", S::Axis}, &Session::position},
+      {{"MOVE[:ABSolute]", false, 1, 1, "<m>", S::Axis}, &Session::move_absolute},
+      {{"MOVE[:ABSolute]", true, 0, 0, "", S::Axis}, &Session::move_target},
+      {{"MOVE:RELative", false, 1, 1, "<m>", S::Axis}, &Session::move_relative},
+      {{"MOVE:DONE", true, 0, 0, "", S::Axis}, &Session::move_done},
+      {{"STEP", false, 1, 4, "<n>[,<duty>,<freq_hz>[,<stroke_m>]]", S::Axis}, &Session::step},
+      {{"REGion", true, 2, 3, "<freq_hz>,<duty>[,<stroke_m>]", S::Axis}, &Session::region},
+      {{"LIMit:LOWer", false, 1, 1, "<m>", S::Axis}, &Session::limit_lower},
+      {{"LIMit:UPPer", false, 1, 1, "<m>", S::Axis}, &Session::limit_upper},
+      {{"LIMit:LOWer", true, 0, 0, "", S::Axis}, &Session::limit_lower_query},
+      {{"LIMit:UPPer", true, 0, 0, "", S::Axis}, &Session::limit_upper_query},
+      {{"LIMit", false, 2, 2, "<lower_m>,<upper_m>", S::Axis}, &Session::limits},
+      {{"LIMit", true, 0, 0, "", S::Axis}, &Session::limits_query},
+      {{"STATus", true, 0, 0, "", S::Axis}, &Session::status},
+      {{"SWEEP", false, 4, 5, "<dir>,<freqs>,<duties>,<trials>[,<cycles>]", S::Axis}, &Session::sweep},
+      {{"SIMulation:PUSH", false, 1, 1, "<m>", S::Axis}, &Session::sim_push},
+      {{"SIMulation:FAULt", false, 2, 2, "<name>,<value>", S::Axis}, &Session::sim_fault},
+  };
+  return kCommands;
+}
+
+const std::vector<CommandInfo>& command_table() {
+  static const std::vector<CommandInfo> kTable = [] {
+    std::vector<CommandInfo> out;
+    for (const auto& c : Session::commands()) out.push_back(c.info);
+    return out;
+  }();
+  return kTable;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Framing
+
+Session::Session(Instrument& instrument) : instrument_(instrument) {}
+
+void Session::receive(std::string_view bytes, std::string& replies) {
+  const std::size_t newline = bytes.rfind('\n');
+  unterminated_ =
+      newline == std::string_view::npos ? unterminated_ + bytes.size() : bytes.size() - newline - 1;
+  if (discarding_ && wait_ == Wait::None && newline == std::string_view::npos) return;
+  input_.append(bytes);
+  process(replies);
+}
+
+void Session::end_of_input(std::string& replies) {
+  end_of_input_ = true;
+  process(replies);
+}
+
+void Session::poll(std::string& replies) {
+  if (wait_ == Wait::None) return;
+  std::string reply = "1";
+  try {
+    if (!instrument_.motion_done()) return;
+  } catch (const std::exception& e) {  // end the wait with the error rather than wait forever
+    push(make_error(ec::kExecutionError, e.what()));
+    reply.clear();
+  }
+  if (wait_ == Wait::OpcQuery) replies += reply + "\n";
+  wait_ = Wait::None;
+  process(replies);
+}
+
+void Session::process(std::string& replies) {
+  std::size_t pos = 0;
+  while (wait_ == Wait::None) {
+    const std::size_t newline = input_.find('\n', pos);
+    if (newline == std::string::npos) {
+      const std::size_t pending = input_.size() - pos;
+      if (discarding_) {
+        pos = input_.size();
+      } else if (pending > kMaxLineBytes + 1) {  // + 1: a CR may still come before the LF
+        line_too_long(std::string_view(input_).substr(pos), replies);
+        discarding_ = true;
+        pos = input_.size();
+      } else if (end_of_input_) {
+        pos = input_.size();  // an unterminated last line never runs
+      }
+      break;
+    }
+    std::string_view line = std::string_view(input_).substr(pos, newline - pos);
+    pos = newline + 1;
+    if (discarding_) {  // the end of a too-long line, already reported
+      discarding_ = false;
+      continue;
+    }
+    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+    if (line.size() > kMaxLineBytes)
+      line_too_long(line, replies);
+    else
+      execute_line(line, replies);
+  }
+  input_.erase(0, pos);
+}
+
+void Session::line_too_long(std::string_view start, std::string& replies) {
+  push(make_error(ec::kInputBufferOverrun,
+                  "line longer than " + std::to_string(kMaxLineBytes) + " bytes, discarded"));
+  if (looks_like_query(start)) replies += "\n";
+}
+
+void Session::push(CommandError error) { errors_.push(std::move(error)); }
+
+void Session::started_motion(const CommandError& result) {
+  if (result.ok() && axis_ < 64) started_axes_ |= std::uint64_t{1} << axis_;
+}
+
+// A motion this session started has ended: a fault it ended in goes to this session's queue.
+void Session::notice_motion_end() {
+  for (int a = 0; started_axes_ != 0 && a < 64; ++a) {
+    const std::uint64_t bit = std::uint64_t{1} << a;
+    if (!(started_axes_ & bit) || !instrument_.motion_done(a)) continue;
+    started_axes_ &= ~bit;
+    push(fault_error(instrument_.status(a).fault));
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Dispatch
+
+CommandError Session::resolve(const ParsedLine& parsed, const Command*& command) {
+  std::string_view header = parsed.header;
+  int axis = 0;
+  std::string_view rest;
+  axis_given_ = split_axis_prefix(header, axis, rest);
+  if (axis_given_) header = rest;
+  axis_ = 0;
+  command = nullptr;
+  for (const Command& c : commands())
+    if (c.info.query == parsed.query && header_matches(c.info.pattern, header)) {
+      command = &c;
+      break;
+    }
+  if (!command || (axis_given_ && command->info.scope == CommandScope::Instrument)) {
+    command = nullptr;
+    return make_error(ec::kUndefinedHeader, echo(parsed.header + (parsed.query ? "?" : "")));
+  }
+  if (axis_given_) {
+    const int count = instrument_.axis_count();
+    if (axis < 1 || axis > count)
+      return make_error(ec::kHeaderSuffixOutOfRange,
+                        "AXIS" + std::to_string(axis) + ": no such axis, allowed AXIS1 to AXIS" +
+                            std::to_string(count));
+    axis_ = axis - 1;
+  }
+  if (stop_only_ && command->handler != &Session::stop && command->handler != &Session::idn &&
+      command->handler != &Session::cls && command->handler != &Session::error_next &&
+      command->handler != &Session::error_count && command->handler != &Session::error_all)
+    return make_error(ec::kSettingsConflict,
+                      "the client table is full (server.max_clients): this connection only "
+                      "accepts STOP and closes soon");
+  const int n = static_cast<int>(parsed.args.size());
+  const auto usage = [command] {
+    return std::string("usage: ") + command->info.pattern + (command->info.query ? "?" : "") +
+           (command->info.max_args > 0 ? " " : "") + command->info.arguments;
+  };
+  if (n > command->info.max_args) return make_error(ec::kParameterNotAllowed, usage());
+  if (n < command->info.min_args) return make_error(ec::kMissingParameter, usage());
+  return {};
+}
+
+void Session::execute_line(std::string_view line, std::string& replies) {
+  try {
+    notice_motion_end();
+  } catch (const std::exception& e) {
+    push(make_error(ec::kExecutionError, e.what()));
+  }
+  const bool query = looks_like_query(line);
+  ParsedLine parsed;
+  CommandError error = parse_line(line, parsed);
+  if (error.ok() && parsed.header.empty()) return;  // a blank line
+  const Command* command = nullptr;
+  if (error.ok()) error = resolve(parsed, command);
+  std::string reply;
+  if (error.ok()) {
+    try {
+      error = (this->*command->handler)(Args{parsed.args, parsed.quoted}, reply);
+    } catch (const std::exception& e) {  // an Instrument that throws must not end the server
+      error = make_error(ec::kExecutionError, e.what());
+    }
+    if (wait_ == Wait::OpcQuery) return;  // the reply comes from poll()
+  }
+  if (!error.ok()) {
+    push(std::move(error));
+    if (reply != kUntrusted) reply.clear();
+  }
+  if (query) replies += replace_controls(reply) + "\n";
+}
+
+// ---------------------------------------------------------------------------------------------
+// Arguments
+
+CommandError Session::number_arg(const Args& args, std::size_t i, std::string_view what,
+                                 double& value) {
+  if (args.quoted[i]) return quoted_number(what);
+  return parse_number(args[i], what, value);
+}
+
+CommandError Session::integer_arg(const Args& args, std::size_t i, std::string_view what,
+                                  std::int64_t lo, std::int64_t hi, std::int64_t& value) {
+  if (args.quoted[i]) return quoted_number(what);
+  return parse_integer(args[i], what, lo, hi, value);
+}
+
+CommandError Session::list_arg(const Args& args, std::size_t i, std::string_view what,
+                               std::vector<double>& values) {
+  if (args.quoted[i]) return quoted_number(what);
+  return parse_list(args[i], what, values);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Instrument commands
+
+CommandError Session::idn(const Args&, std::string& reply) {
+  reply = instrument_.identity();
+  return {};
+}
+
+CommandError Session::rst(const Args&, std::string&) {
+  errors_.clear();
+  started_axes_ = 0;
+  return instrument_error(instrument_.reset());
+}
+
+CommandError Session::cls(const Args&, std::string&) {
+  errors_.clear();
+  return {};
+}
+
+CommandError Session::opc_query(const Args&, std::string& reply) {
+  if (instrument_.motion_done())
+    reply = "1";
+  else
+    wait_ = Wait::OpcQuery;
+  return {};
+}
+
+CommandError Session::wai(const Args&, std::string&) {
+  if (!instrument_.motion_done()) wait_ = Wait::Wai;
+  return {};
+}
+
+CommandError Session::tst(const Args&, std::string& reply) {
+  bool ok = true;
+  for (int a = 0; a < instrument_.axis_count(); ++a) {
+    const InstrumentStatus s = instrument_.status(a);
+    ok = ok && s.position_valid && (s.fault.empty() || s.fault == "none");
+  }
+  reply = ok ? "0" : "1";
+  return {};
+}
+
+CommandError Session::error_next(const Args&, std::string& reply) {
+  reply = format_error(errors_.pop());
+  return {};
+}
+
+CommandError Session::error_count(const Args&, std::string& reply) {
+  reply = std::to_string(errors_.size());
+  return {};
+}
+
+CommandError Session::error_all(const Args&, std::string& reply) {
+  reply.clear();
+  do {
+    if (!reply.empty()) reply += ",";
+    reply += format_error(errors_.pop());
+  } while (!errors_.empty());
+  return {};
+}
+
+CommandError Session::version(const Args&, std::string& reply) {
+  reply = kScpiVersion;
+  return {};
+}
+
+CommandError Session::loop(const Args&, std::string& reply) {
+  const LoopStats s = instrument_.loop_stats();
+  reply = "period=" + format_value(s.period_s) + " wakeups=" + std::to_string(s.wakeups) +
+          " misses=" + std::to_string(s.deadline_misses) + " min=" + format_value(s.latency_min_s) +
+          " avg=" + format_value(s.latency_avg_s) + " max=" + format_value(s.latency_max_s) +
+          " bin_width=" + format_value(s.bin_width_s) + " hist=";
+  for (std::size_t k = 0; k < std::size(s.bins); ++k) {
+    if (k) reply += ";";
+    reply += std::to_string(s.bins[k]);
+  }
+  return {};
+}
+
+CommandError Session::axis_count(const Args&, std::string& reply) {
+  reply = std::to_string(instrument_.axis_count());
+  return {};
+}
+
+CommandError Session::positions(const Args&, std::string& reply) {
+  const std::vector<double> p = instrument_.positions();
+  CommandError error;
+  for (std::size_t a = 0; a < p.size(); ++a) {
+    if (a) reply += ",";
+    if (std::isnan(p[a])) {
+      reply += kUntrusted;
+      if (error.ok()) error = untrusted_position(instrument_.axis_name(static_cast<int>(a)));
+    } else {
+      reply += format_value(p[a]);
+    }
+  }
+  if (!error.ok()) push(error);  // the reply stands: every trusted position is in it
+  return {};
+}
+
+CommandError Session::sweep_query(const Args&, std::string& reply) {
+  const SweepStatus s = instrument_.sweep_status();
+  reply = s.state + "," + std::to_string(s.axis + 1) + "," + std::to_string(s.written) + "," +
+          std::to_string(s.failed) + "," + std::to_string(s.planned) + "," + quote(s.directory);
+  return {};
+}
+
+CommandError Session::stop(const Args&, std::string&) {
+  return instrument_error(axis_given_ ? instrument_.stop(axis_) : instrument_.stop());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Axis commands
+
+CommandError Session::axis_name(const Args&, std::string& reply) {
+  reply = instrument_.axis_name(axis_);
+  return {};
+}
+
+CommandError Session::resolution(const Args&, std::string& reply) {
+  reply = format_value(instrument_.status(axis_).resolution_m);
+  return {};
+}
+
+CommandError Session::position(const Args&, std::string& reply) {
+  const InstrumentStatus s = instrument_.status(axis_);
+  if (!s.position_valid) {
+    reply = kUntrusted;  // never empty, never the last good value
+    return untrusted_position(s.name);
+  }
+  reply = format_value(s.position_m);
+  return {};
+}
+
+CommandError Session::move_absolute(const Args& args, std::string&) {
+  double target = 0;
+  if (CommandError e = number_arg(args, 0, "MOVE:ABSolute target", target); !e.ok()) return e;
+  CommandError e = instrument_error(instrument_.move_absolute(axis_, target));
+  started_motion(e);
+  return e;
+}
+
+CommandError Session::move_target(const Args&, std::string& reply) {
+  reply = format_value(instrument_.status(axis_).target_m);
+  return {};
+}
+
+CommandError Session::move_relative(const Args& args, std::string&) {
+  double distance = 0;
+  if (CommandError e = number_arg(args, 0, "MOVE:RELative distance", distance); !e.ok()) return e;
+  CommandError e = instrument_error(instrument_.move_relative(axis_, distance));
+  started_motion(e);
+  return e;
+}
+
+CommandError Session::move_done(const Args&, std::string& reply) {
+  reply = instrument_.motion_done(axis_) ? "1" : "0";
+  return {};
+}
+
+CommandError Session::step(const Args& args, std::string&) {
+  if (args.size() == 2)
+    return make_error(ec::kMissingParameter, "STEP takes <n> or <n>,<duty>,<freq_hz>[,<stroke_m>]");
+  std::int64_t cycles = 0;
+  constexpr double kOmitted = std::numeric_limits<double>::quiet_NaN();
+  double duty = kOmitted, freq = kOmitted, stroke = kOmitted;
+  if (CommandError e = integer_arg(args, 0, "STEP cycles", -1000000000, 1000000000, cycles); !e.ok())
+    return e;
+  if (cycles == 0)
+    return make_error(ec::kDataOutOfRange, "STEP cycles: 0 is out of range, allowed a non-zero "
+                                           "integer in [-1000000000, 1000000000]");
+  if (args.size() >= 3) {
+    if (CommandError e = number_arg(args, 1, "STEP duty", duty); !e.ok()) return e;
+    if (CommandError e = number_arg(args, 2, "STEP freq_hz", freq); !e.ok()) return e;
+  }
+  if (args.size() == 4)
+    if (CommandError e = number_arg(args, 3, "STEP stroke_m", stroke); !e.ok()) return e;
+  CommandError e = instrument_error(instrument_.step(axis_, cycles, duty, freq, stroke));
+  started_motion(e);
+  return e;
+}
+
+CommandError Session::region(const Args& args, std::string& reply) {
+  double freq = 0, duty = 0, stroke = std::numeric_limits<double>::quiet_NaN();
+  if (CommandError e = number_arg(args, 0, "REGion freq_hz", freq); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 1, "REGion duty", duty); !e.ok()) return e;
+  if (args.size() == 3)
+    if (CommandError e = number_arg(args, 2, "REGion stroke_m", stroke); !e.ok()) return e;
+  std::string name;
+  double step_m = 0;
+  if (CommandError e = instrument_.region(axis_, freq, duty, stroke, name, step_m); !e.ok())
+    return instrument_error(e);
+  reply = name + "," + format_value(step_m);
+  return {};
+}
+
+CommandError Session::limit_lower(const Args& args, std::string&) {
+  double lower = 0;
+  if (CommandError e = number_arg(args, 0, "LIMit:LOWer", lower); !e.ok()) return e;
+  return instrument_error(instrument_.set_soft_limits(axis_, lower, instrument_.status(axis_).soft_upper_m));
+}
+
+CommandError Session::limit_upper(const Args& args, std::string&) {
+  double upper = 0;
+  if (CommandError e = number_arg(args, 0, "LIMit:UPPer", upper); !e.ok()) return e;
+  return instrument_error(instrument_.set_soft_limits(axis_, instrument_.status(axis_).soft_lower_m, upper));
+}
+
+CommandError Session::limit_lower_query(const Args&, std::string& reply) {
+  reply = format_value(instrument_.status(axis_).soft_lower_m);
+  return {};
+}
+
+CommandError Session::limit_upper_query(const Args&, std::string& reply) {
+  reply = format_value(instrument_.status(axis_).soft_upper_m);
+  return {};
+}
+
+CommandError Session::limits(const Args& args, std::string&) {
+  double lower = 0, upper = 0;
+  if (CommandError e = number_arg(args, 0, "LIMit lower", lower); !e.ok()) return e;
+  if (CommandError e = number_arg(args, 1, "LIMit upper", upper); !e.ok()) return e;
+  return instrument_error(instrument_.set_soft_limits(axis_, lower, upper));
+}
+
+CommandError Session::limits_query(const Args&, std::string& reply) {
+  const InstrumentStatus s = instrument_.status(axis_);
+  reply = format_value(s.soft_lower_m) + "," + format_value(s.soft_upper_m);
+  return {};
+}
+
+CommandError Session::status(const Args&, std::string& reply) {
+  const InstrumentStatus s = instrument_.status(axis_);
+  // key=value words separated by blanks: a value never holds a blank
+  const auto word = [](const std::string& w) {
+    std::string out = w.empty() ? std::string("none") : w;
+    for (char& c : out)
+      if (c == ' ' || c == '\t') c = '_';
+    return out;
+  };
+  reply = "state=" + word(s.state) + " done=" + (s.motion_done ? "1" : "0") +
+          " position=" + (s.position_valid ? format_value(s.position_m) : std::string(kUntrusted)) +
+          " position_valid=" + (s.position_valid ? "1" : "0") +
+          " target=" + format_value(s.target_m) + " fault=" + word(s.fault) +
+          " lower=" + format_value(s.soft_lower_m) + " upper=" + format_value(s.soft_upper_m) +
+          " moves=" + std::to_string(s.moves) + " bursts=" + std::to_string(s.bursts) +
+          " cycles=" + std::to_string(s.cycles) + " errors=" + std::to_string(errors_.size()) +
+          " last_error=" + std::to_string(errors_.last_code()) +
+          " daemon_error=" + word(replace_controls(s.last_error)) + " axis=" + word(s.name) +
+          " referenced=" + (s.referenced ? "1" : "0") + " device=" + word(s.device);
+  return {};
+}
+
+CommandError Session::sweep(const Args& args, std::string&) {
+  const std::string& dir = args[0];
+  if (dir.empty()) return make_error(ec::kDataOutOfRange, "SWEEP: empty directory");
+  std::vector<double> freqs, duties;
+  if (CommandError e = list_arg(args, 1, "SWEEP freqs", freqs); !e.ok()) return e;
+  if (CommandError e = list_arg(args, 2, "SWEEP duties", duties); !e.ok()) return e;
+  std::int64_t trials = 0, cycles = 12;
+  if (CommandError e = integer_arg(args, 3, "SWEEP trials", 1, kMaxSweepTrials, trials); !e.ok()) return e;
+  if (args.size() == 5)
+    if (CommandError e = integer_arg(args, 4, "SWEEP cycles", 1, kMaxSweepCycles, cycles); !e.ok())
+      return e;
+  CommandError e = instrument_error(instrument_.sweep(axis_, dir, freqs, duties, static_cast<int>(trials),
+                                                      static_cast<int>(cycles)));
+  started_motion(e);
+  return e;
+}
+
+CommandError Session::sim_push(const Args& args, std::string&) {
+  double distance = 0;
+  if (CommandError e = number_arg(args, 0, "SIMulation:PUSH distance", distance); !e.ok()) return e;
+  return instrument_error(instrument_.sim_push(axis_, distance));
+}
+
+CommandError Session::sim_fault(const Args& args, std::string&) {
+  double value = 0;
+  if (CommandError e = number_arg(args, 1, "SIMulation:FAULt value", value); !e.ok()) return e;
+  std::string name = args[0];
+  for (char& c : name) c = static_cast<char>(c >= 'A' && c <= 'Z' ? c - 'A' + 'a' : c);
+  return instrument_error(instrument_.sim_fault(axis_, name, value));
+}
+
+}  // namespace idm::daemon

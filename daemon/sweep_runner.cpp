@@ -1,0 +1,215 @@
+#include "daemon/sweep_runner.h"
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <thread>
+
+#include "drivers/clock.h"
+#include "model/waveform.h"
+
+namespace idm::daemon {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+void nap() { std::this_thread::sleep_for(std::chrono::microseconds(500)); }
+
+}  // namespace
+
+SweepRunner::SweepRunner(MotionSupervisor& supervisor, std::vector<Axis*> axes)
+    : supervisor_(supervisor), axes_(std::move(axes)) {
+  thread_ = drivers::StackThread(drivers::kRecorderStackBytes, [this] { main(); });
+}
+
+SweepRunner::~SweepRunner() { quit(); }
+
+void SweepRunner::abort() {
+  if (active_.load(std::memory_order_acquire) && !abort_.load(std::memory_order_acquire))
+    abort_time_s_.store(drivers::monotonic_s(), std::memory_order_release);
+  abort_.store(true, std::memory_order_release);
+}
+
+void SweepRunner::quit() {
+  abort();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    quit_ = true;
+  }
+  cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+}
+
+bool SweepRunner::submit(std::unique_ptr<SweepJob> job) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (active_.load() || pending_) return false;
+  abort_.store(false, std::memory_order_release);
+  status_ = SweepStatus{};
+  status_.state = "RUNNING";
+  status_.axis = job->axis;
+  status_.directory = job->dir;
+  status_.planned = job->freqs_hz.size() * job->duties.size() * static_cast<std::uint64_t>(job->trials);
+  active_.store(true, std::memory_order_release);
+  pending_ = std::move(job);
+  cv_.notify_all();
+  return true;
+}
+
+SweepStatus SweepRunner::status() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return status_;
+}
+
+std::string SweepRunner::report() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return report_;
+}
+
+void SweepRunner::main() {
+  for (;;) {
+    std::unique_ptr<SweepJob> job;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      cv_.wait(lock, [&] { return quit_ || pending_; });
+      if (quit_ && !pending_) return;
+      job = std::move(pending_);
+    }
+    run(*job);
+    active_.store(false, std::memory_order_release);
+  }
+}
+
+void SweepRunner::run(SweepJob& job) {
+  std::string first_error;
+  double sweep_start_m = kNaN, last_m = kNaN;
+  std::uint32_t index = 0;
+  bool stopped = false;
+  for (double f : job.freqs_hz) {
+    for (double d : job.duties) {
+      for (int t = 0; t < job.trials && !stopped; ++t, ++index) {
+        if (abort_.load(std::memory_order_acquire)) {
+          stopped = true;
+          break;
+        }
+        TrialRequest req;
+        req.index = index;
+        req.seq = 0x80000000u | (++next_seq_ & 0x7FFFFFFFu);  // apart from the positioners' chunks
+        req.axis = job.axis;
+        const double period_s = 1.0 / f;
+        req.segment = model::make_segment(f, d, job.stroke_m, static_cast<std::uint64_t>(job.cycles),
+                                          job.sample_rate_hz, job.rest_s,
+                                          job.settle_cycles * period_s);
+        req.return_to_m = kNaN;
+        if (std::isfinite(sweep_start_m) && std::isfinite(last_m) &&
+            std::fabs(last_m - sweep_start_m) > job.span_m)
+          req.return_to_m = sweep_start_m;
+        const std::uint64_t written_before = status().written;
+        if (!run_trial(job, req, first_error)) stopped = true;
+        const recording::Dataset& ds = job.writer->dataset();
+        if (status().written > written_before && !ds.trials.empty()) {
+          if (!std::isfinite(sweep_start_m)) sweep_start_m = ds.trials.back().guide_pos_m;
+          last_m = axes_[static_cast<std::size_t>(job.axis)]->published().motion.position_m;
+        }
+      }
+    }
+  }
+  std::ostringstream line;
+  std::lock_guard<std::mutex> lock(mutex_);
+  status_.state = stopped ? "STOPPED" : (status_.failed > 0 && status_.written == 0 ? "FAILED" : "DONE");
+  line << "sweep " << job.dir << " (axis " << axes_[static_cast<std::size_t>(job.axis)]->config().name
+       << "): " << status_.written << " trials written, " << status_.failed << " failed"
+       << (stopped ? ", stopped" : "") << (first_error.empty() ? "" : " (first: " + first_error + ")");
+  report_ = line.str();
+}
+
+bool SweepRunner::run_trial(SweepJob& job, const TrialRequest& req, std::string& first_error) {
+  Axis& axis = *axes_[static_cast<std::size_t>(job.axis)];
+  auto failed = [&](const std::string& why) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++status_.failed;
+    if (first_error.empty()) first_error = "trial " + std::to_string(req.index) + ": " + why;
+  };
+  while (!supervisor_.send_trial(req)) {
+    if (supervisor_.stopping()) return false;
+    nap();
+  }
+  // The loop starts it (a Started notice) or says why not.
+  const double deadline_start = drivers::monotonic_s() + 60.0;
+  TrialNotice notice;
+  std::uint32_t seq = 0;
+  for (;;) {
+    if (supervisor_.next_notice(notice)) {
+      if (notice.seq != req.seq) continue;  // a late notice of an earlier trial (or sweep)
+      if (notice.kind == TrialNotice::Kind::Started) {
+        seq = notice.seq;
+        break;
+      }
+      if (notice.why == TrialFailure::Stopped) return false;  // interrupted, not failed
+      failed(trial_failure_text(notice.why));
+      return true;
+    }
+    if (drivers::monotonic_s() > deadline_start) {
+      failed("the loop did not start it within 60 s");
+      return false;
+    }
+    nap();
+  }
+  // Its samples, until the link's end mark.
+  const model::TriangleWave wave = req.segment.wave();
+  const double t0 = req.segment.start_offset_s();
+  recording::TrialSeries series;
+  recording::TrialInfo info;
+  info.freq_hz = req.segment.freq_hz;
+  info.duty = req.segment.duty;
+  info.stroke_m = req.segment.stroke_m;
+  info.cycles = static_cast<int>(req.segment.cycles);
+  info.sample_rate_hz = job.stream_rate_hz;
+  info.guide_pos_m = kNaN;
+  bool valid = true, complete = false;
+  const double duration = (static_cast<double>(req.segment.cycles) + job.settle_cycles) / req.segment.freq_hz +
+                          job.rest_s;
+  const double deadline = drivers::monotonic_s() + duration + 30.0;
+  drivers::CaptureRecord rec;
+  for (;;) {
+    if (!axis.port().capture.pop(rec)) {
+      while (supervisor_.next_notice(notice)) {  // a failure while it played (the end mark follows)
+      }
+      if (drivers::monotonic_s() > deadline) {
+        failed("no end of the trial's samples within " + std::to_string(static_cast<int>(duration + 30)) + " s");
+        return false;
+      }
+      nap();
+      continue;
+    }
+    if (rec.seq != seq) continue;  // left over from an earlier trial
+    if (rec.end) {
+      complete = rec.complete;
+      break;
+    }
+    if (rec.status != 0) valid = false;
+    const double t = rec.t_s - t0;
+    if (!series.t_s.empty() && !(t > series.t_s.back())) continue;
+    if (std::isnan(info.guide_pos_m) && rec.status == 0) info.guide_pos_m = rec.position_m;
+    series.t_s.push_back(t);
+    series.xi_cmd_m.push_back(wave.xi_m(t));
+    series.x_m.push_back(rec.position_m);
+  }
+  if (!complete || !valid || series.size() < 2 || std::isnan(info.guide_pos_m)) {
+    const bool stopped = abort_.load(std::memory_order_acquire) || supervisor_.stopping();
+    if (stopped) return false;  // interrupted, not failed
+    failed(!valid ? "invalid interferometer samples" : "the trial did not play in full");
+    return true;
+  }
+  try {
+    job.writer->add_trial(info, series);
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++status_.written;
+  } catch (const std::exception& e) {
+    failed(e.what());
+  }
+  return true;
+}
+
+}  // namespace idm::daemon

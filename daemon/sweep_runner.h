@@ -1,0 +1,79 @@
+// The sweep runner: SWEEP's recorder thread. It sends one trial at a time to the motion
+// supervisor (the loop plays it on the axis and streams every sample of it through the device
+// link's capture queue), collects the samples, adds the commanded elongation from the segment's
+// triangle and writes the trial with recording::DatasetWriter (crash-safe, trial by trial). It
+// never touches a device. Argument checks happen before (Daemon::sweep); this only runs jobs.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "daemon/axis.h"
+#include "daemon/instrument.h"
+#include "daemon/supervisor.h"
+#include "drivers/thread.h"
+#include "recording/dataset.h"
+
+namespace idm::daemon {
+
+struct SweepJob {
+  int axis = 0;
+  std::string dir;
+  std::optional<recording::DatasetWriter> writer;
+  std::vector<double> freqs_hz, duties;
+  int trials = 0;
+  int cycles = 0;
+  double stroke_m = 0;
+  double sample_rate_hz = 0;   // the output clock; 0 for a parameter device
+  double rest_s = 0;
+  int settle_cycles = 0;
+  double span_m = 0;           // a trial farther than this from the sweep's start returns first
+  double stream_rate_hz = 0;   // the capture's rate (the trials' sample rate)
+};
+
+class SweepRunner {
+ public:
+  SweepRunner(MotionSupervisor& supervisor, std::vector<Axis*> axes);
+  ~SweepRunner();  // quit()
+
+  // Starts the job on the runner's thread; false when one is running.
+  bool submit(std::unique_ptr<SweepJob> job);
+  // Stops the running sweep (the playing trial is stopped by the loop; a trial being written
+  // finishes first). Any thread.
+  void abort();
+  // When the last abort() came (CLOCK_MONOTONIC), -1 never: a stopped sweep's error is dated
+  // then, so that the *RST that stopped it also clears it.
+  double abort_time_s() const { return abort_time_s_.load(std::memory_order_acquire); }
+  bool active() const { return active_.load(std::memory_order_acquire); }
+  SweepStatus status() const;
+  // One line on the last finished sweep ("" before any), for the log.
+  std::string report() const;
+  void quit();
+
+ private:
+  void main();
+  void run(SweepJob& job);
+  // One trial: false when the sweep must end (stopped).
+  bool run_trial(SweepJob& job, const TrialRequest& request, std::string& first_error);
+
+  MotionSupervisor& supervisor_;
+  std::vector<Axis*> axes_;
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  std::unique_ptr<SweepJob> pending_;
+  bool quit_ = false;
+  SweepStatus status_;      // mutex_
+  std::string report_;      // mutex_
+  std::atomic<bool> active_{false};
+  std::atomic<bool> abort_{false};
+  std::atomic<double> abort_time_s_{-1};
+  std::uint32_t next_seq_ = 0;  // trial numbers across sweeps (runner thread)
+  drivers::StackThread thread_;
+};
+
+}  // namespace idm::daemon

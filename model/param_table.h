@@ -1,0 +1,294 @@
+// Parameter tables: every config struct declares its keys once, in a table next to the struct
+// (name, unit, range, default, one line of doc, and where the value lives), and the YAML reader,
+// the range check of values set in code, the error messages and config/README.md's rows all come
+// from that one table (the ArduPilot AP_Param idea), so they cannot drift apart.
+//
+//   static const ParamTable<RealtimeConfig> kTable({
+//       real<RealtimeConfig>("period_s", "s", {1e-5, 0.1}, "the loop's period",
+//                            [](auto& c) -> auto& { return c.period_s; }),
+//       ...});
+//   kTable.read(node, file, "realtime", config);  // unknown keys, types, ranges: InputError
+//   kTable.validate(config, "realtime");          // values set in code
+//   kTable.markdown();                            // | key | unit | default | range | meaning |
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include <yaml-cpp/yaml.h>
+
+#include "model/stage.h"
+#include "model/yaml_util.h"
+
+namespace idm::model {
+
+// A closed (or half-open) interval of allowed values.
+struct Range {
+  double lo = -1e300;
+  double hi = 1e300;
+  bool lo_open = false;
+  bool hi_open = false;
+  bool contains(double v) const {
+    return std::isfinite(v) && (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
+  }
+  std::string text() const;  // "[0, 1000]", "(0, 1e-3]"
+};
+
+template <typename S>
+struct Param {
+  std::string name;
+  std::string unit;      // "m", "Hz", "s", "count", "1", "bool", "" (text)
+  std::string range;     // as the README and messages show it
+  std::string doc;       // one line
+  std::string default_text;  // "" -> show(S{})
+  std::function<void(S&, const YAML::Node&, const std::string& file, const std::string& key)> read;
+  std::function<void(const S&, const std::string& key)> check;  // throws InputError
+  std::function<std::string(const S&)> show;
+};
+
+template <typename S>
+class ParamTable {
+ public:
+  explicit ParamTable(std::vector<Param<S>> params) : params_(std::move(params)) {}
+
+  // Reads the map `node` into `out` (an absent or null node reads nothing). `section` prefixes
+  // the keys in messages ("control" -> "control.max_retries"). An unknown key names the allowed
+  // ones; a wrong type or a value out of range names the key, the line and the range.
+  void read(const YAML::Node& node, const std::string& file, const std::string& section,
+            S& out) const {
+    if (!node.IsDefined() || node.IsNull()) return;
+    if (!node.IsMap()) throw InputError(located(file, node, section, "expected a map"));
+    for (const auto& kv : node) {
+      const std::string name = kv.first.as<std::string>();
+      const std::string key = section.empty() ? name : section + "." + name;
+      const Param<S>* p = find(name);
+      if (p == nullptr) throw InputError(located(file, kv.first, key, "unknown key, allowed " + names()));
+      if (!kv.second.IsDefined() || kv.second.IsNull())
+        throw InputError(located(file, kv.first, key, "no value"));
+      p->read(out, kv.second, file, key);
+    }
+  }
+  // Checks values that did not come from a file (set in code): the first one out of range throws
+  // InputError "SECTION.KEY: VALUE is out of range, allowed RANGE".
+  void validate(const S& s, const std::string& section) const {
+    for (const Param<S>& p : params_)
+      if (p.check) p.check(s, section.empty() ? p.name : section + "." + p.name);
+  }
+  // The README rows: "| key | unit | default | range | meaning |", keys prefixed with `prefix`.
+  std::string markdown(const std::string& prefix = "") const {
+    const S defaults{};
+    std::string out;
+    for (const Param<S>& p : params_) {
+      const std::string def = p.default_text.empty() ? p.show(defaults) : p.default_text;
+      out += "| " + prefix + p.name + " | " + p.unit + " | " + def + " | " + p.range + " | " +
+             p.doc + " |\n";
+    }
+    return out;
+  }
+  const Param<S>* find(const std::string& name) const {
+    for (const Param<S>& p : params_)
+      if (p.name == name) return &p;
+    return nullptr;
+  }
+  std::string names() const {
+    std::string out;
+    for (const Param<S>& p : params_) out += (out.empty() ? "" : ", ") + p.name;
+    return out;
+  }
+  const std::vector<Param<S>>& params() const { return params_; }
+
+ private:
+  std::vector<Param<S>> params_;
+};
+
+// "| key | unit | default | range | meaning |" and its rule, for a table's rows.
+std::string markdown_header();
+
+// ---- builders ----
+// `get` is a generic lambda returning a reference to the field: [](auto& c) -> auto& { ... }.
+
+template <typename S, typename Get>
+Param<S> real(const char* name, const char* unit, Range range, const char* doc, Get get) {
+  Param<S> p;
+  p.name = name;
+  p.unit = unit;
+  p.range = range.text();
+  p.doc = doc;
+  p.read = [range, get](S& s, const YAML::Node& v, const std::string& file, const std::string& key) {
+    const double x = read_double(v, file, key, -1e308, 1e308);
+    if (!range.contains(x))
+      throw InputError(located(file, v, key, format_number(x) + " is out of range, allowed " + range.text()));
+    get(s) = x;
+  };
+  p.check = [range, get](const S& s, const std::string& key) {
+    const double x = get(s);
+    if (!range.contains(x))
+      throw InputError(key + ": " + format_number(x) + " is out of range, allowed " + range.text());
+  };
+  p.show = [get](const S& s) { return format_number(get(s)); };
+  return p;
+}
+
+template <typename S, typename Get>
+Param<S> integer(const char* name, const char* unit, long lo, long hi, const char* doc, Get get) {
+  Param<S> p;
+  p.name = name;
+  p.unit = unit;
+  p.range = "[" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+  p.doc = doc;
+  p.read = [lo, hi, get](S& s, const YAML::Node& v, const std::string& file, const std::string& key) {
+    using T = std::remove_reference_t<decltype(get(s))>;
+    get(s) = static_cast<T>(read_integer(v, file, key, lo, hi));
+  };
+  p.check = [lo, hi, get](const S& s, const std::string& key) {
+    const long long x = static_cast<long long>(get(s));
+    if (x < lo || x > hi)
+      throw InputError(key + ": " + std::to_string(x) + " is out of range, allowed [" +
+                       std::to_string(lo) + ", " + std::to_string(hi) + "]");
+  };
+  p.show = [get](const S& s) { return std::to_string(get(s)); };
+  return p;
+}
+
+template <typename S, typename Get>
+Param<S> boolean(const char* name, const char* doc, Get get) {
+  Param<S> p;
+  p.name = name;
+  p.unit = "bool";
+  p.range = "true, false";
+  p.doc = doc;
+  p.read = [get](S& s, const YAML::Node& v, const std::string& file, const std::string& key) {
+    get(s) = read_bool(v, file, key);
+  };
+  p.show = [get](const S& s) { return std::string(get(s) ? "true" : "false"); };
+  return p;
+}
+
+template <typename S, typename Get>
+Param<S> text(const char* name, const char* doc, Get get, const char* range = "any text") {
+  Param<S> p;
+  p.name = name;
+  p.unit = "";
+  p.range = range;
+  p.doc = doc;
+  p.read = [get](S& s, const YAML::Node& v, const std::string& file, const std::string& key) {
+    get(s) = read_string(v, file, key);
+  };
+  p.show = [get](const S& s) {
+    const std::string& t = get(s);
+    return t.empty() ? std::string("\"\"") : t;
+  };
+  return p;
+}
+
+// One of named values: choices = {{"synthetic", ClockMode::Synthetic}, ...}.
+template <typename S, typename T, typename Get>
+Param<S> choice(const char* name, std::vector<std::pair<std::string, T>> choices, const char* doc,
+                Get get) {
+  Param<S> p;
+  p.name = name;
+  p.unit = "";
+  for (const auto& c : choices) p.range += (p.range.empty() ? "" : ", ") + c.first;
+  p.doc = doc;
+  p.read = [choices, get, allowed = p.range](S& s, const YAML::Node& v, const std::string& file,
+                                             const std::string& key) {
+    const std::string t = read_string(v, file, key);
+    for (const auto& c : choices)
+      if (c.first == t) {
+        get(s) = c.second;
+        return;
+      }
+    throw InputError(located(file, v, key, "'" + t + "' is not allowed, allowed " + allowed));
+  };
+  p.show = [choices, get](const S& s) {
+    for (const auto& c : choices)
+      if (c.second == get(s)) return c.first;
+    return std::string("?");
+  };
+  return p;
+}
+
+// A key read by its own function (a nested map, a pair of numbers): the range column says what
+// it takes.
+template <typename S>
+Param<S> custom(const char* name, const char* unit, const char* range, const char* default_text,
+                const char* doc,
+                std::function<void(S&, const YAML::Node&, const std::string&, const std::string&)> read) {
+  Param<S> p;
+  p.name = name;
+  p.unit = unit;
+  p.range = range;
+  p.doc = doc;
+  p.default_text = default_text;
+  p.read = std::move(read);
+  p.show = [](const S&) { return std::string(); };
+  return p;
+}
+
+// Builders' defaults: a `default_text` that replaces the value shown (defaults that depend on
+// other keys, "stage.travel_m").
+template <typename S>
+Param<S> with_default(Param<S> p, const char* default_text) {
+  p.default_text = default_text;
+  return p;
+}
+
+// The keys of a member struct's table as keys of the outer struct (flattened: control's
+// max_retries is PositionerConfig's). `names`: only these (empty: all); `get` returns the member.
+template <typename S, typename Sub, typename Get>
+std::vector<Param<S>> lifted(const ParamTable<Sub>& sub, Get get,
+                             const std::vector<std::string>& names = {}) {
+  std::vector<Param<S>> out;
+  const Sub defaults{};
+  for (const Param<Sub>& q : sub.params()) {
+    if (!names.empty() && std::find(names.begin(), names.end(), q.name) == names.end()) continue;
+    Param<S> p;
+    p.name = q.name;
+    p.unit = q.unit;
+    p.range = q.range;
+    p.doc = q.doc;
+    p.default_text = q.default_text.empty() ? q.show(defaults) : q.default_text;
+    p.read = [r = q.read, get](S& s, const YAML::Node& v, const std::string& f, const std::string& k) {
+      r(get(s), v, f, k);
+    };
+    if (q.check)
+      p.check = [c = q.check, get](const S& s, const std::string& k) { c(get(s), k); };
+    p.show = [sh = q.show, get](const S& s) { return sh(get(s)); };
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+// A nested map `name:` read with the member struct's own table (control.calibration).
+template <typename S, typename Sub, typename Get>
+Param<S> nested(const char* name, const char* doc, const ParamTable<Sub>& sub, Get get) {
+  Param<S> p;
+  p.name = name;
+  p.unit = "map";
+  p.range = "keys: " + sub.names();
+  p.doc = doc;
+  p.default_text = "(below)";
+  p.read = [&sub, get](S& s, const YAML::Node& v, const std::string& f, const std::string& k) {
+    sub.read(v, f, k, get(s));
+  };
+  p.check = [&sub, get](const S& s, const std::string& k) { sub.validate(get(s), k); };
+  p.show = [](const S&) { return std::string(); };
+  return p;
+}
+
+// Concatenates lists of params.
+template <typename S>
+std::vector<Param<S>> join(std::vector<std::vector<Param<S>>> parts) {
+  std::vector<Param<S>> out;
+  for (auto& part : parts)
+    for (auto& p : part) out.push_back(std::move(p));
+  return out;
+}
+
+}  // namespace idm::model

@@ -1,0 +1,592 @@
+"""The synchronous client: ``idm.Client`` over TCP or idmd's Unix socket, and its axes."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from typing import Any, List, Optional, Tuple
+
+from . import _core
+from ._core import AxisKey, Line, Plan, Session, Sleep, SweepInfo
+from .errors import (IdmConnectionError, IdmTimeout, ProtocolError, error_from_code,
+                     parse_error_line)
+from .status import EventStatus, MoveResult, Operation, StatusByte, parse_bool, parse_number
+
+__all__ = ["Client", "Axis", "Sweep", "DEFAULT_PORT"]
+
+DEFAULT_PORT = 5025
+# A daemon's queue holds 32 errors (then -350): more than this many in one drain is a broken peer.
+_MAX_DRAIN = 64
+
+
+class _Api:
+    """The operations of a client, shared by :class:`Client` (they return the result) and
+    :class:`idm.aio.AsyncClient` (they return an awaitable of it)."""
+
+    _session: Session
+    wait_timeout: Optional[float]
+    poll_interval: float
+
+    def _run(self, plan: Plan) -> Any:  # pragma: no cover - defined by the clients
+        raise NotImplementedError
+
+    # -- axes --
+    def axis(self, key: AxisKey = 1) -> "Axis":
+        """Axis ``key``: a number from 1, or a name (resolved with ``AXIS:COUNt?`` and
+        ``AXIS<n>:NAME?`` at its first use; a daemon without them raises its -113)."""
+        return Axis(self, key)
+
+    def axis_count(self):
+        """``AXIS:COUNt?``: the number of axes."""
+        return self._run(_core.p_axis_count(self._session))
+
+    def axis_names(self):
+        """``{number: name}`` of every axis (``AXIS:COUNt?``, ``AXIS<n>:NAME?``)."""
+        return self._run(_core.p_axis_names(self._session))
+
+    def positions(self, *, allow_untrusted: bool = False):
+        """``POSition:ALL?``: every axis's position (m), read at one instant, in axis order.
+        A position the daemon cannot trust (no valid reading, beam or device lost) comes as
+        ``9.91E37`` with -230 queued: that is raised as :class:`~idm.ExecutionError` (code
+        -230, the whole reply in ``.reply``); with ``allow_untrusted`` the list is returned
+        with NaN for each untrusted position instead."""
+        return self._run(_core.p_positions(self._session, allow_untrusted))
+
+    def sweep_state(self):
+        """``SWEEP?``: the daemon's last or running sweep (:class:`~idm.SweepState`: state,
+        axis, trials written / failed / planned, directory)."""
+        return self._run(_core.p_sweep_query())
+
+    # -- the instrument --
+    def idn(self):
+        """``*IDN?``: ``<maker>,idmd,<serial>,<version>``."""
+        return self._run(_core.p_line("*IDN?"))
+
+    def reset(self, *, wait: bool = True, timeout: Optional[float] = None):
+        """``*RST`` (stop motion, clear errors, reload control settings), then, with ``wait``,
+        ``*OPC?`` until it has completed."""
+        return self._run(_core.p_reset(wait, self.wait_timeout if timeout is None else timeout))
+
+    def clear(self):
+        """``*CLS``: clear the error queue."""
+        return self._run(_core.p_line("*CLS"))
+
+    def stop(self):
+        """``STOP``: every axis brought to rest, output to zero (and a running sweep
+        stopped)."""
+        return self._run(_core.p_line("STOP"))
+
+    def wait(self, timeout: Optional[float] = None):
+        """``*OPC?``: until every motion started before has finished (at most ``timeout``,
+        default ``wait_timeout``). On a timeout the connection is closed (its late reply
+        would otherwise be taken for the next one's)."""
+        return self._run(_core.p_opc(self.wait_timeout if timeout is None else timeout))
+
+    def self_test(self):
+        """``*TST?``: 0 with a valid position and no fault."""
+        return self._run(_core.p_int("*TST?"))
+
+    def status_byte(self):
+        """``*STB?`` as :class:`~idm.StatusByte`."""
+        return self._run(_core.p_register("*STB?", StatusByte))
+
+    def event_status(self):
+        """``*ESR?`` as :class:`~idm.EventStatus` (reading clears it)."""
+        return self._run(_core.p_register("*ESR?", EventStatus))
+
+    def version(self):
+        """``SYSTem:VERSion?`` (the SCPI version)."""
+        return self._run(_core.p_line("SYSTem:VERSion?"))
+
+    def loop_stats(self):
+        """``SYSTem:LOOP?``: the real-time loop's period and latency, parsed."""
+        return self._run(_core.p_loop_stats())
+
+    def query(self, line: str, timeout: Optional[float] = None):
+        """Send one query line, return its reply; a queued error is raised."""
+        if not _core.is_query(line):
+            raise ValueError("%r is not a query (its first word does not end in '?')" % line)
+        return self._run(_core.p_line(line, timeout))
+
+    def write(self, line: str):
+        """Send one command line; a queued error is raised."""
+        if _core.is_query(line):
+            raise ValueError("%r is a query: use query()" % line)
+        return self._run(_core.p_line(line))
+
+
+class Axis:
+    """One axis of a daemon, from ``client.axis(n or name)``.
+
+    With :class:`idm.Client` every method returns its result; with
+    :class:`idm.aio.AsyncClient` it returns an awaitable of it (``await axis.move(1e-6)``).
+    Lengths in m, times in s. Methods that wait take ``timeout`` (default: the client's
+    ``wait_timeout``); a wait that times out stops the axis and raises
+    :class:`~idm.IdmTimeout`."""
+
+    def __init__(self, client: _Api, key: AxisKey):
+        if isinstance(key, bool) or not isinstance(key, (int, str)):
+            raise TypeError("an axis is a number (from 1) or a name, not %r" % (key,))
+        self.client = client
+        self.key = key
+
+    def __repr__(self) -> str:
+        return "Axis(%r)" % (self.key,)
+
+    def _run(self, plan: Plan) -> Any:
+        return self.client._run(plan)
+
+    def _timeout(self, timeout: Optional[float]) -> Optional[float]:
+        return self.client.wait_timeout if timeout is None else timeout
+
+    @property
+    def _s(self) -> Session:
+        return self.client._session
+
+    def number(self):
+        """The axis's number (a name resolved with ``AXIS<n>:NAME?``)."""
+        return self._run(_core.p_axis_number(self._s, self.key))
+
+    def name(self):
+        """``AXIS<n>:NAME?``."""
+        return self._run(_core.p_axis_query(self._s, self.key, "NAME?", lambda r, w: r.strip()))
+
+    # -- motion --
+    def move(self, target: float, *, wait: bool = True, timeout: Optional[float] = None,
+             tolerance: Optional[float] = None):
+        """``MOVE:ABSolute target``: a closed-loop move. With ``wait`` (default) it polls
+        ``MOVE:DONE?`` until the axis is at rest and returns the position then; a refusal
+        (-222 past a soft limit, -221 busy or unreferenced, ...) or a fault the move ended in
+        (positive code) is raised as :class:`~idm.ScpiError`, a ``MOVE:RESult?`` other than OK
+        as :class:`~idm.MoveError`. Where the daemon does not answer ``MOVE:RESult?``,
+        ``tolerance`` (m) asks for a client-side check of the reading against ``MOVE?``.
+        Without ``wait`` it returns ``None`` once the daemon has accepted the move; a fault is
+        then raised by the next call on this connection."""
+        return self._run(_core.p_move(self._s, self.key, target, False, wait,
+                                      self._timeout(timeout), self.client.poll_interval,
+                                      tolerance))
+
+    def move_by(self, distance: float, *, wait: bool = True, timeout: Optional[float] = None,
+                tolerance: Optional[float] = None):
+        """``MOVE:RELative distance``; otherwise as :meth:`move`."""
+        return self._run(_core.p_move(self._s, self.key, distance, True, wait,
+                                      self._timeout(timeout), self.client.poll_interval,
+                                      tolerance))
+
+    def step(self, cycles: int, duty: Optional[float] = None, freq_hz: Optional[float] = None,
+             stroke_m: Optional[float] = None, *, wait: bool = True,
+             timeout: Optional[float] = None):
+        """``STEP cycles[,duty,freq_hz[,stroke_m]]``: an open-loop burst (negative cycles: the
+        other direction). Returns the position after it when waiting."""
+        return self._run(_core.p_step(self._s, self.key, cycles, duty, freq_hz, stroke_m, wait,
+                                      self._timeout(timeout), self.client.poll_interval))
+
+    def stop(self):
+        """Stop this axis (and a sweep running on it): ``AXIS<n>:STOP``; plain ``STOP`` on a
+        daemon without the several-axes extension. Other axes go on."""
+        return self._run(_core.p_axis_command(self._s, self.key, "STOP"))
+
+    def done(self):
+        """``MOVE:DONE?``: at rest."""
+        return self._run(_core.p_axis_query(self._s, self.key, "MOVE:DONE?", parse_bool))
+
+    def wait(self, timeout: Optional[float] = None, *, stop_on_timeout: bool = True):
+        """Poll ``MOVE:DONE?`` until at rest; a fault the motion ended in is raised."""
+        def plan():
+            prefix = yield from _core.p_prefix(self._s, self.key)
+            return (yield from _core.p_wait_axis(prefix, self._timeout(timeout),
+                                                 self.client.poll_interval, None,
+                                                 stop_on_timeout=stop_on_timeout))
+        return self._run(plan())
+
+    def reference(self, mode: Optional[str] = None, *, wait: bool = True,
+                  timeout: Optional[float] = None):
+        """``REFerence`` (the config's default) or ``REFerence:STARt NEGative|POSitive|MARK``;
+        with ``wait``, until at rest, then ``REFerence?`` must answer 1."""
+        return self._run(_core.p_reference(self._s, self.key, mode, wait, self._timeout(timeout),
+                                           self.client.poll_interval))
+
+    def referenced(self):
+        """``REFerence?``."""
+        return self._run(_core.p_axis_query(self._s, self.key, "REFerence?", parse_bool))
+
+    # -- readings --
+    def position(self):
+        """``POSition?``, m. A position that cannot be trusted raises the daemon's error: -230
+        (the daemon answers ``9.91E37``, kept in the error's ``.reply``; never returned as a
+        number), or -240 from a daemon before the several-axes extension."""
+        return self._run(_core.p_axis_query(self._s, self.key, "POSition?", parse_number))
+
+    def target(self):
+        """``MOVE?``: the target, m."""
+        return self._run(_core.p_axis_query(self._s, self.key, "MOVE?", parse_number))
+
+    def status(self):
+        """``STATus?`` parsed (:class:`~idm.AxisStatus`), with ``operation`` the
+        ``STATus:OPERation?`` bits where the daemon answers it."""
+        return self._run(_core.p_status(self._s, self.key))
+
+    def operation(self):
+        """``STATus:OPERation?`` as :class:`~idm.Operation`."""
+        return self._run(_core.p_axis_query(self._s, self.key, "STATus:OPERation?",
+                                            lambda r, w: Operation(_core.parse_int(r, w))))
+
+    def result(self):
+        """``MOVE:RESult?`` as :class:`~idm.MoveResult` (word, final distance)."""
+        return self._run(_core.p_axis_query(self._s, self.key, "MOVE:RESult?",
+                                            lambda r, w: MoveResult.parse(r)))
+
+    def resolution(self):
+        """``RESolution?``: one interferometer count, m."""
+        return self._run(_core.p_axis_query(self._s, self.key, "RESolution?", parse_number))
+
+    def region(self, freq_hz: float, duty: float, stroke_m: Optional[float] = None):
+        """``REGion? freq,duty[,stroke]``: ``(region, predicted step m)``."""
+        return self._run(_core.p_region(self._s, self.key, freq_hz, duty, stroke_m))
+
+    # -- settings --
+    def limits(self):
+        """``LIMit?``: ``(lower, upper)`` soft limits, m."""
+        return self._run(_core.p_limits(self._s, self.key))
+
+    def set_limits(self, lower: float, upper: float):
+        """``LIMit lower,upper``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "LIMit", lower, upper))
+
+    def set_lower_limit(self, lower: float):
+        """``LIMit:LOWer``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "LIMit:LOWer", lower))
+
+    def set_upper_limit(self, upper: float):
+        """``LIMit:UPPer``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "LIMit:UPPer", upper))
+
+    def window(self):
+        """``MOVE:WINDow?``: the in-position window, m."""
+        return self._run(_core.p_axis_query(self._s, self.key, "MOVE:WINDow?", parse_number))
+
+    def set_window(self, metres: float):
+        """``MOVE:WINDow``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "MOVE:WINDow", metres))
+
+    def dwell(self):
+        """``MOVE:DWELl?``: how long readings must stay in the window, s."""
+        return self._run(_core.p_axis_query(self._s, self.key, "MOVE:DWELl?", parse_number))
+
+    def set_dwell(self, seconds: float):
+        """``MOVE:DWELl``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "MOVE:DWELl", seconds))
+
+    def hold(self):
+        """``HOLD?``: hold time after moves, s (0 none, -1 until the next motion or STOP)."""
+        return self._run(_core.p_axis_query(self._s, self.key, "HOLD?", parse_number))
+
+    def set_hold(self, seconds: float):
+        """``HOLD``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "HOLD", seconds))
+
+    def hold_window(self):
+        """``HOLD:WINDow?``, m."""
+        return self._run(_core.p_axis_query(self._s, self.key, "HOLD:WINDow?", parse_number))
+
+    def set_hold_window(self, metres: float):
+        """``HOLD:WINDow``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "HOLD:WINDow", metres))
+
+    def eot_cycles(self):
+        """``EOT:CYCLes?``: cycles over which end of travel is judged."""
+        return self._run(_core.p_axis_query(self._s, self.key, "EOT:CYCLes?",
+                                            lambda r, w: _core.parse_int(r, w)))
+
+    def set_eot_cycles(self, cycles: int):
+        """``EOT:CYCLes``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "EOT:CYCLes", cycles))
+
+    def eot_step(self):
+        """``EOT:STEP?``: the mean step below which the axis is at an end of travel, m."""
+        return self._run(_core.p_axis_query(self._s, self.key, "EOT:STEP?", parse_number))
+
+    def set_eot_step(self, metres: float):
+        """``EOT:STEP``."""
+        return self._run(_core.p_axis_set(self._s, self.key, "EOT:STEP", metres))
+
+    def push(self, metres: float):
+        """``SIMulation:PUSH``: displace the simulated slider at once (simulated stage only;
+        a real backend refuses it with -241)."""
+        return self._run(_core.p_axis_set(self._s, self.key, "SIMulation:PUSH", metres))
+
+    # -- sweeps --
+    def sweep(self, directory: str, freqs: Any, duties: Any, trials: int,
+              cycles: Optional[int] = None, *, data_dir: Optional[str] = None):
+        """``SWEEP directory,freqs,duties,trials[,cycles]``: start the characterization sweep;
+        returns a :class:`Sweep` to follow it. ``freqs``/``duties``: a number, a sequence
+        (sent ``a;b;c``) or the protocol's ``"a:b:step"``. ``directory`` is below the daemon's
+        ``recording.data_dir``; give that as ``data_dir`` when it is readable here and
+        :meth:`Sweep.progress` counts the trials recorded so far."""
+        client = self.client
+
+        def plan():
+            info = yield from _core.p_sweep_start(self._s, self.key, directory, freqs, duties,
+                                                  trials, cycles, data_dir)
+            return Sweep(client, info)
+        return self._run(plan())
+
+    # -- Bluesky --
+    def movable(self, name: Optional[str] = None, **kwargs: Any):
+        """A Bluesky-style movable of this axis (:class:`idm.bluesky.AxisMovable`); the
+        synchronous client only."""
+        from .bluesky import AxisMovable
+        return AxisMovable(self, name=name, **kwargs)
+
+
+class Sweep:
+    """A sweep started by :meth:`Axis.sweep`: ``progress()``, ``done()``, ``wait(timeout)``
+    (raises :class:`~idm.SweepError` if the daemon reports the sweep failed), ``stop()``."""
+
+    def __init__(self, client: _Api, info: SweepInfo):
+        self.client = client
+        self.info = info
+
+    @property
+    def command(self) -> str:
+        return self.info.command
+
+    @property
+    def total(self) -> Optional[int]:
+        """The number of trials the sweep records (frequencies x duties x trials; the
+        daemon's ``SWEEP?`` count where it answers it)."""
+        return self.info.total
+
+    @property
+    def directory(self) -> Optional[str]:
+        """The dataset's directory as the daemon names it (``SWEEP?``), else None."""
+        return self.info.daemon_dir
+
+    def progress(self):
+        """:class:`~idm.SweepProgress`: done, trials recorded / total (and failed, state
+        where the daemon answers ``SWEEP?``), elapsed."""
+        return self.client._run(_core.p_sweep_progress(self.info))
+
+    def state(self):
+        """This sweep's :class:`~idm.SweepState` (``SWEEP?``); None when the daemon does not
+        answer ``SWEEP?`` or when a later sweep has replaced it there."""
+        return self.client._run(_core.p_sweep_state(self.info))
+
+    def done(self):
+        return self.client._run(_core.p_bool(self.info.prefix + "MOVE:DONE?"))
+
+    def wait(self, timeout: Optional[float] = None):
+        """Until the sweep has ended (``timeout`` None: no bound, a sweep may take hours; every
+        poll still has the reply timeout). Returns the final progress; raises
+        :class:`~idm.SweepError` when it did not end well: stopped (by :meth:`stop`, another
+        client's STOP or ``*RST``), a trial failed, or fewer trials written than the sweep
+        holds (``SWEEP?``; on a daemon without it: a ``STATus?`` ``daemon_error``, :meth:`stop`,
+        or with ``data_dir`` the dataset's trial count)."""
+        return self.client._run(_core.p_sweep_wait(self.info, timeout, self.client.poll_interval))
+
+    def stop(self):
+        """Stop the sweep (its axis's STOP); ``wait()`` then raises :class:`~idm.SweepError`
+        unless the sweep had already ended well."""
+        self.info.stopped = True
+        return self.client._run(_core.p_line(self.info.prefix + "STOP"))
+
+    def __repr__(self) -> str:
+        return "Sweep(%r)" % self.info.command
+
+
+class Client(_Api):
+    """A synchronous connection to idmd.
+
+    ``Client()`` connects to TCP 127.0.0.1:5025; ``Client(unix="/run/idmd/idmd.sock")`` to the
+    Unix socket. ``timeout`` bounds every reply (s); ``wait_timeout`` is the default bound of
+    the waits for motion (moves, steps, reference, ``wait()``); ``poll_interval`` the
+    ``MOVE:DONE?`` polling period. After each line the error queue is drained
+    (``SYSTem:ERRor?`` until ``0``) and a queued error is raised as :class:`~idm.ScpiError`.
+    Safe to share between threads (one line and its drain at a time). A context manager:
+    ``with idm.Client() as c: ...`` closes the connection at the end."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
+                 unix: Optional[str] = None, timeout: float = 5.0,
+                 wait_timeout: Optional[float] = 60.0, poll_interval: float = 0.01):
+        if timeout is None or not timeout > 0:
+            raise ValueError("timeout must be a positive number of seconds, not %r" % (timeout,))
+        self.host = host
+        self.port = port
+        self.unix = unix
+        self.timeout = float(timeout)
+        self.wait_timeout = wait_timeout
+        self.poll_interval = poll_interval
+        self._session = Session()
+        self._lock = threading.RLock()
+        self._sock: Optional[socket.socket] = None
+        self._buf = b""
+        self._closed_why: Optional[str] = None
+        self.connect()
+
+    @property
+    def address(self) -> str:
+        return ("unix:" + self.unix) if self.unix else "%s:%d" % (self.host, self.port)
+
+    def connect(self) -> None:
+        """(Re)connect; a client closed after a timeout can be reconnected this way."""
+        with self._lock:
+            self._drop()
+            try:
+                if self.unix:
+                    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                    s.settimeout(self.timeout)
+                    try:
+                        s.connect(self.unix)
+                    except BaseException:
+                        s.close()
+                        raise
+                else:
+                    s = socket.create_connection((self.host, self.port), timeout=self.timeout)
+                    s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            except socket.timeout:
+                raise IdmTimeout("cannot connect to idmd at %s within %g s"
+                                 % (self.address, self.timeout)) from None
+            except OSError as e:
+                raise IdmConnectionError("cannot connect to idmd at %s: %s"
+                                         % (self.address, e.strerror or e)) from None
+            self._sock = s
+            self._buf = b""
+            self._closed_why = None
+            self._session = Session()
+
+    def _drop(self) -> None:
+        if self._sock is not None:
+            try:
+                self._sock.close()
+            finally:
+                self._sock = None
+
+    def close(self) -> None:
+        """Close the connection (idempotent). Motion started goes on: the daemon owns it."""
+        sock = self._sock
+        if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)  # wakes a thread blocked in a read
+            except OSError:
+                pass
+        with self._lock:
+            self._drop()
+            self._closed_why = "closed"
+
+    @property
+    def closed(self) -> bool:
+        return self._sock is None
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            if self._sock is not None:
+                self._sock.close()
+        except Exception:
+            pass
+
+    def __repr__(self) -> str:
+        return "Client(%s%s)" % (self.address, ", closed" if self.closed else "")
+
+    # -- running plans --
+    def _run(self, plan: Plan) -> Any:
+        try:
+            op = next(plan)
+        except StopIteration as stop:
+            return stop.value
+        while True:
+            try:
+                if isinstance(op, Sleep):
+                    time.sleep(op.seconds)
+                    result = None
+                else:
+                    result = self._transact(op)
+            except Exception as exc:
+                try:
+                    op = plan.throw(exc)
+                except StopIteration as stop:
+                    return stop.value
+                continue
+            try:
+                op = plan.send(result)
+            except StopIteration as stop:
+                return stop.value
+
+    def _transact(self, line: Line) -> Optional[str]:
+        """Send a line and ``SYSTem:ERRor?`` in one write, read the reply (a query) and the
+        error; drain further errors; raise the first."""
+        with self._lock:
+            if self._sock is None:
+                raise IdmConnectionError("the connection to idmd at %s is %s"
+                                         % (self.address, self._closed_why or "closed"))
+            timeout = self.timeout if line.timeout is None else max(line.timeout, self.timeout)
+            self._send(line.text + "\nSYSTem:ERRor?\n", line.text)
+            reply = self._read_line(timeout, line.text) if line.query else None
+            errors: List[Tuple[int, str]] = []
+            code, text = parse_error_line(self._read_line(self.timeout, line.text))
+            while code != 0:
+                errors.append((code, text))
+                if len(errors) > _MAX_DRAIN:
+                    self._fail("the error queue does not empty")
+                    raise ProtocolError("more than %d errors queued after %r"
+                                        % (_MAX_DRAIN, line.text))
+                self._send("SYSTem:ERRor?\n", line.text)
+                code, text = parse_error_line(self._read_line(self.timeout, line.text))
+            if errors:  # noted under the lock: a waiter on another thread must see a fault
+                error = error_from_code(errors[0][0], errors[0][1], line.text, errors, reply)
+                self._session.note_errors(error)
+                raise error
+        if line.query and reply == "":
+            raise ProtocolError("%r got an empty reply with no error queued" % line.text)
+        return reply
+
+    def _fail(self, why: str) -> None:
+        self._drop()
+        self._closed_why = "closed (%s)" % why
+
+    def _send(self, data: str, what: str) -> None:
+        assert self._sock is not None
+        try:
+            self._sock.settimeout(self.timeout)
+            self._sock.sendall(data.encode("utf-8"))
+        except socket.timeout:
+            self._fail("a send timed out")
+            raise IdmTimeout("cannot send %r to idmd at %s within %g s"
+                             % (what, self.address, self.timeout)) from None
+        except OSError as e:
+            self._fail("send failed: %s" % (e.strerror or e))
+            raise IdmConnectionError("lost the connection to idmd at %s sending %r: %s"
+                                     % (self.address, what, e.strerror or e)) from None
+
+    def _read_line(self, timeout: float, what: str) -> str:
+        deadline = time.monotonic() + timeout
+        while b"\n" not in self._buf:
+            left = deadline - time.monotonic()
+            if left <= 0 or self._sock is None:
+                self._fail("no reply to %r within %g s" % (what, timeout))
+                raise IdmTimeout("no reply to %r from idmd at %s within %g s; the connection was "
+                                 "closed (a late reply would be taken for the next one's)"
+                                 % (what, self.address, timeout))
+            try:
+                self._sock.settimeout(left)
+                chunk = self._sock.recv(65536)
+            except socket.timeout:
+                continue
+            except OSError as e:
+                self._fail("receive failed: %s" % (e.strerror or e))
+                raise IdmConnectionError("lost the connection to idmd at %s waiting for the "
+                                         "reply to %r: %s" % (self.address, what,
+                                                              e.strerror or e)) from None
+            if not chunk:
+                self._fail("idmd closed it")
+                raise IdmConnectionError("idmd at %s closed the connection (waiting for the "
+                                         "reply to %r)" % (self.address, what))
+            self._buf += chunk
+        raw, self._buf = self._buf.split(b"\n", 1)
+        return raw.rstrip(b"\r").decode("utf-8", "replace")
