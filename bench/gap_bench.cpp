@@ -1,5 +1,5 @@
 // gap_bench: idm-gap diagnose timed on the machine, read from disk, on 2 threads.
-//   * the paper-size sweep of issue 18: 8 frequencies 100-800 Hz x 10 duties 0.05-0.50 x 10
+//   * the paper-size sweep: 8 frequencies 100-800 Hz x 10 duties 0.05-0.50 x 10
 //     trials, one stroke, 12 cycles, 100 kHz, a 3 kHz second-order amplifier hidden;
 //   * a lab's 20-cell sweep: 4 x 5 cells, 4 trials, 25 kHz, the same amplifier;
 //   * how it grows: 20, 40 and 80 cells at 4 trials; 3, 5 and 10 trials at 40 cells; and a pair
@@ -86,8 +86,8 @@ int main(int argc, char** argv) {
     run({"20-cell sweep", 4, 5, 3, false, 25e3, {amp}});
     return 0;
   }
-  run({"paper-size sweep (issue 18: <= 60 s)", 8, 10, 10, false, 100e3, {amp}});
-  run({"20-cell sweep (issue 18: <= 15 s)", 4, 5, 4, false, 25e3, {amp}});
+  run({"paper-size sweep (target <= 60 s)", 8, 10, 10, false, 100e3, {amp}});
+  run({"20-cell sweep (target <= 15 s)", 4, 5, 4, false, 25e3, {amp}});
   run({"cells: 40", 8, 5, 4, false, 25e3, {amp}});
   run({"cells: 80", 8, 10, 4, false, 25e3, {amp}});
   run({"trials: 3", 8, 5, 3, false, 25e3, {amp}});

@@ -441,6 +441,7 @@ Dataset read_dataset(const std::string& dir) {
     out.progress.status = plan.status;
     out.progress.planned = plan.cells;
     out.progress.note = plan.note;
+    out.progress.axis = plan.axis;
     out.progress.missing = missing_cells(plan.cells, out.trials);
   }
   return out;
@@ -496,7 +497,7 @@ DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage)
     : DatasetWriter(std::move(dir), stage, {}) {}
 
 DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage,
-                             std::vector<PlannedCell> planned) {
+                             std::vector<PlannedCell> planned, std::string axis) {
   const fs::path root(dir);
   if (fs::exists(root / kSweepFile))
     throw InputError(dir +
@@ -506,6 +507,7 @@ DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage,
   model::validate(stage.interferometer, "interferometer");
   validate_plan(planned, dir);
   planned_ = std::move(planned);
+  axis_ = std::move(axis);
   dataset_.path = std::move(dir);
   dataset_.stage = stage;
   create_directory_durably(root);
@@ -518,7 +520,7 @@ DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage,
 }
 
 void DatasetWriter::write_plan(SweepStatus status, const std::string& note) const {
-  write_file_durably(fs::path(dataset_.path) / kPlanFile, plan_yaml({status, planned_, note}));
+  write_file_durably(fs::path(dataset_.path) / kPlanFile, plan_yaml({status, planned_, note, axis_}));
 }
 
 void DatasetWriter::finish(SweepStatus status, const std::string& note) {

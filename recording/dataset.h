@@ -87,7 +87,7 @@ std::string trial_name(double freq_hz, double duty, double stroke_m, int index);
 // reaches finish() (SIGKILL, a crash, a power loss) reads back as interrupted, with its missing
 // cells. The daemon's recorder:
 //
-//   DatasetWriter w(dir, stage, planned_cells);   // every (f, duty, stroke) the sweep will play,
+//   DatasetWriter w(dir, stage, planned_cells, axis_name);   // every (f, duty, stroke) the sweep will play,
 //                                                 // with the values its trials will carry
 //   for each trial: w.add_trial(info, series);    // failed trials are simply not added
 //   w.finish(SweepStatus::Complete);              // or Stopped with a note ("STOP", an error)
@@ -96,8 +96,10 @@ class DatasetWriter {
   // `dir` may exist but must not already hold a sweep.csv. No mark: the dataset looks like one
   // from any other source (finish() does nothing).
   DatasetWriter(std::string dir, const model::StageFile& stage);
-  // Marks the dataset in progress with `planned` (checked first: InputError for a bad cell).
-  DatasetWriter(std::string dir, const model::StageFile& stage, std::vector<PlannedCell> planned);
+  // Marks the dataset in progress with `planned` (checked first: InputError for a bad cell);
+  // `axis`, when not empty, is the name of the axis that plays the sweep (plan.yaml's `axis`).
+  DatasetWriter(std::string dir, const model::StageFile& stage, std::vector<PlannedCell> planned,
+                std::string axis = "");
 
   DatasetWriter(const DatasetWriter&) = delete;
   DatasetWriter& operator=(const DatasetWriter&) = delete;
@@ -125,6 +127,7 @@ class DatasetWriter {
   std::unordered_set<std::string> ids_;    // ids in dataset_.trials
   std::unordered_set<std::string> files_;  // their files, lexically normalized
   std::vector<PlannedCell> planned_;       // empty: no mark
+  std::string axis_;                       // plan.yaml's axis ("" none)
   bool finished_ = false;
 };
 

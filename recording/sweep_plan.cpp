@@ -64,6 +64,7 @@ std::string plan_yaml(const SweepPlanFile& plan) {
       "# in_progress: the recorder did not finish (crash, kill, power loss, still running).\n";
   out += "status: " + std::string(status_name(plan.status)) + "\n";
   if (!plan.note.empty()) out += "note: " + quoted(plan.note) + "\n";
+  if (!plan.axis.empty()) out += "axis: " + quoted(plan.axis) + "\n";
   out += "cells:\n";
   for (const PlannedCell& c : plan.cells) {
     out += "  - {freq_hz: ";
@@ -118,6 +119,7 @@ SweepPlanFile read_plan_file(const std::string& path) {
                                         "' is not allowed, allowed in_progress, complete, "
                                         "stopped"));
   if (const YAML::Node note = root["note"]) plan.note = model::read_string(note, path, "note");
+  if (const YAML::Node axis = root["axis"]) plan.axis = model::read_string(axis, path, "axis");
   const YAML::Node cells = root["cells"];
   if (!cells) throw InputError(path + ": cells: missing (required)");
   if (!cells.IsSequence() && !cells.IsNull())

@@ -36,6 +36,7 @@ struct SweepPlanFile {
   SweepStatus status = SweepStatus::InProgress;
   std::vector<PlannedCell> cells;
   std::string note;  // why a sweep stopped (one line), optional
+  std::string axis;  // the name of the axis that played the sweep (one line), optional
 };
 
 // A planned cell with fewer trials in sweep.csv than planned.
@@ -50,6 +51,7 @@ struct SweepProgress {
   std::vector<PlannedCell> planned;  // empty when unmarked
   std::vector<MissingCell> missing;  // planned order
   std::string note;
+  std::string axis;  // "" when the mark names no axis
   bool interrupted() const {
     return status == SweepStatus::InProgress || status == SweepStatus::Stopped;
   }
