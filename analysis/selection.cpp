@@ -110,6 +110,18 @@ class SetFits {
     return finished_.at(k);
   }
 
+  // The set of `members` refitted from the parameters they carry (those of a larger set that held
+  // them): a set fitted earlier from its own singles can sit in a local optimum that the larger
+  // set's fit left behind. The better of that and the finished fit becomes the set's fit.
+  const SetFit& refit(const std::vector<MemberFit>& members) {
+    const std::string k = key_of(members);
+    const SetFit& known = finish(members);
+    SetFit again = fit_joint(sweep_, library_, members, baseline_, options_, JointStage::Finish);
+    if (again.plausible && (!known.plausible || again.train_gap < known.train_gap))
+      finished_[k] = std::move(again);
+    return finished_.at(k);
+  }
+
  private:
   const SweepCells& sweep_;
   const std::vector<CandidateSpec>& library_;
@@ -167,7 +179,8 @@ std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
 
 // Forward from `first`: every plausible candidate joins the set in a joint fit (screened at the
 // search rate, the best polished and scored) while the gap is above kFurtherGap and the addition
-// shrinks it by kMinFurtherShrink; then backward: a member without which the gap grows by less
+// shrinks it by kMinFurtherShrink; then backward: every member taken out and the rest refitted
+// from the set's own parameters (SetFits::refit); a member without which the gap grows by less
 // than kBackwardTolerance (or stays within the noise) goes.
 SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool,
                    const std::vector<CandidateSpec>& library, SetFits& fits,
@@ -193,7 +206,7 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool,
     const SetFit* best = nullptr;
     std::vector<SetFit> reduced;
     for (std::size_t i = 0; i < current.members.size(); ++i)
-      reduced.push_back(fits.finish(without(current, i)));
+      reduced.push_back(fits.refit(without(current, i)));
     for (const SetFit& r : reduced)
       if (r.plausible && (!best || r.gap < best->gap)) best = &r;
     if (!best ||

@@ -7,8 +7,9 @@
 //    other plausible candidate is then fitted on top of the set (its own search with the set held,
 //    then all jointly, screened at the search rate), and the best is added while the set's gap is
 //    above kFurtherGap and the addition shrinks it by kMinFurtherShrink.
-// 4. Backward: every member of a set of two or more is taken out (the rest refitted jointly); a
-//    member without which the gap grows by less than kBackwardTolerance goes.
+// 4. Backward: every member of a set of two or more is taken out and the rest refitted jointly,
+//    from the set's parameters as well as from the forward fit of the smaller set (the better
+//    counts); a member without which the gap grows by less than kBackwardTolerance goes.
 // 5. Honesty: a set that leaves a significant remainder is named only when it explains most of the
 //    gap (shrink >= kNameShrink); otherwise nothing is named and the gap is reported unexplained,
 //    with the closest library effect. The remainder is significant when the held-out gap is above
