@@ -1,38 +1,181 @@
 #include "analysis/candidates.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
-#include <functional>
-#include <limits>
 #include <set>
-
-#include <nlopt.hpp>
-
-#include "model/yaml_util.h"
+#include <stdexcept>
 
 namespace idm::analysis {
 
-const std::vector<CandidateSpec>& candidate_library() {
-  // Ranges: what a piezo stage of this kind can plausibly have (wider than any stage we know of).
-  static const std::vector<CandidateSpec> lib = {
-      {"amplifier", {{"cutoff_hz", 300, 30e3, true}}, {{{"order", 2}}, {{"order", 1}}}, {}},
-      {"actuator_compliance",
-       {{"stiffness_n_m", 2e5, 2e9, true}, {"damping_n_s_m", 1, 5e3, true}}, {{}}, {}},
-      {"hysteresis", {{"ratio", 0.005, 0.45, false}}, {{}}, {}},
-      {"creep", {{"per_decade", 0.001, 0.1, true}}, {{}}, {}},
-      {"stribeck",
-       {{"static_over_kinetic", 1.01, 2.5, false}, {"stribeck_velocity_m_s", 1e-5, 0.1, true}}, {{}}, {}},
-      {"friction_spread", {{"relative_sd", 0.005, 0.4, true}, {"mean_shift", -0.3, 0.3, false}}, {{}}, {}},
-      {"tilt", {{"angle_deg", -10, 10, false}}, {{}}, {}},
-      {"quantization",
-       {{"bits", 6, 16, false}, {"update_rate_hz", 1e4, 1e6, true}},
-       {{}},
-       {{6, 2e4}, {8, 2e4}, {10, 2e4}, {12, 2e4}, {6, 1e5}, {8, 1e5}, {10, 1e5}, {12, 1e5}, {8, 1e6}, {12, 1e6}}},
+double FitAxis::value(double u) const {
+  u = std::clamp(u, 0.0, 1.0);
+  const double v =
+      log_scale ? std::exp(std::log(lo) + u * (std::log(hi) - std::log(lo))) : lo + u * (hi - lo);
+  return std::clamp(v, lo, hi);
+}
+
+double FitAxis::coordinate(double v) const {
+  const double u = log_scale ? (std::log(v) - std::log(lo)) / (std::log(hi) - std::log(lo))
+                             : (v - lo) / (hi - lo);
+  return std::clamp(u, 0.0, 1.0);
+}
+
+std::vector<std::string> SetFit::names() const {
+  std::vector<std::string> out;
+  for (const MemberFit& m : members) out.push_back(m.effect);
+  return out;
+}
+
+namespace {
+
+// The time scales a sweep can show: its highest frequency, its shortest phase, and the slider's
+// typical velocity jump at a corner.
+struct SweepScales {
+  double f_max_hz = 0;
+  double fast_hz = 0;    // 1 / (shortest phase of any cell)
+  double speed_m_s = 0;  // median velocity jump of the slider at the fast corner, m/(M+m) dxi
+};
+
+SweepScales scales_of(const SweepCells& sweep) {
+  SweepScales s;
+  const model::StageParams& p = sweep.stage.stage;
+  std::vector<double> speeds;
+  for (const Cell& c : sweep.cells) {
+    const double T = 1.0 / c.key.freq_hz;
+    const double shortest = std::min(c.key.duty, 1.0 - c.key.duty) * T;
+    s.f_max_hz = std::max(s.f_max_hz, c.key.freq_hz);
+    s.fast_hz = std::max(s.fast_hz, 1.0 / shortest);
+    speeds.push_back(p.mass_ratio() * c.key.stroke_m *
+                     (1.0 / (c.key.duty * T) + 1.0 / ((1.0 - c.key.duty) * T)));
+  }
+  s.speed_m_s = median(speeds);
+  return s;
+}
+
+double clamp_to_library(const std::string& effect, const std::string& param, double v) {
+  for (const model::EffectInfo& e : model::effect_library())
+    if (effect == e.name)
+      for (const model::EffectParamInfo& q : e.params)
+        if (param == q.name) return std::clamp(v, q.lo, q.hi);
+  throw std::logic_error("no parameter " + effect + "." + param);
+}
+
+}  // namespace
+
+std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
+  const SweepScales sc = scales_of(sweep);
+  const model::StageParams& st = sweep.stage.stage;
+  const double m_red = st.reduced_mass_kg();
+  std::vector<CandidateSpec> lib;
+  // amplifier: a corner is rounded over ~1 / (2 pi fc); from half the highest frequency (the stage
+  // barely steps) to 30 times the shortest phase's rate (the rounding is then invisible).
+  CandidateSpec amp;
+  amp.effect = "amplifier";
+  amp.axes = {
+      {"cutoff_hz", std::max(20.0, 0.5 * sc.f_max_hz), std::min(1e6, 30.0 * sc.fast_hz), true}};
+  amp.variants = {{{"order", 2}}, {{"order", 1}}};
+  amp.params = [](const std::vector<double>& x) { return Params{{"cutoff_hz", x[0]}}; };
+  amp.physics = "cutoff between half the highest frequency and 30 x the fastest phase's rate";
+  lib.push_back(amp);
+  // actuator_compliance: the actuator's resonance with the reduced mass and its damping ratio (the
+  // natural coordinates of eq 30: stiffness and damping trade off along a narrow valley); from half
+  // the highest frequency to 10 times the fastest phase's rate (the actuator is then rigid to it).
+  CandidateSpec comp;
+  comp.effect = "actuator_compliance";
+  comp.axes = {
+      {"resonance_hz", std::max(20.0, 0.5 * sc.f_max_hz), std::min(2e5, 10.0 * sc.fast_hz), true},
+      {"damping_ratio", 0.02, 2.0, true}};
+  comp.variants = {{}};
+  comp.params = [m_red](const std::vector<double>& x) {
+    const double k = m_red * std::pow(2 * M_PI * x[0], 2);
+    return Params{{"stiffness_n_m", clamp_to_library("actuator_compliance", "stiffness_n_m", k)},
+                  {"damping_n_s_m", clamp_to_library("actuator_compliance", "damping_n_s_m",
+                                                     2 * x[1] * std::sqrt(k * m_red))}};
   };
+  if (st.stiffness_n_m > 0 && st.damping_n_s_m > 0) {  // stage.yaml's K and C
+    const double fr = std::sqrt(st.stiffness_n_m / m_red) / (2 * M_PI);
+    const double zeta = st.damping_n_s_m / (2 * std::sqrt(st.stiffness_n_m * m_red));
+    if (fr > comp.axes[0].lo && fr < comp.axes[0].hi && zeta > 0.02 && zeta < 2.0)
+      comp.start = {fr, zeta};
+  }
+  comp.scan_ratio = 1.07;
+  comp.scan_other = {0.05, 0.15, 0.45};
+  comp.physics = "resonance with the reduced mass (K = m_red (2 pi f)^2) and damping ratio";
+  lib.push_back(comp);
+  CandidateSpec hys;
+  hys.effect = "hysteresis";
+  hys.axes = {{"ratio", 0.005, 0.45, true}};
+  hys.variants = {{}};
+  hys.params = [](const std::vector<double>& x) { return Params{{"ratio", x[0]}}; };
+  hys.physics = "loop width over stroke";
+  lib.push_back(hys);
+  CandidateSpec creep;
+  creep.effect = "creep";
+  creep.axes = {{"per_decade", 0.001, 0.1, true}};
+  creep.variants = {{}};
+  creep.params = [](const std::vector<double>& x) { return Params{{"per_decade", x[0]}}; };
+  creep.physics = "relative drift per decade of time";
+  lib.push_back(creep);
+  // stribeck: what a slider loses to it is about (mu_s / mu_k - 1) v_s (the bump of friction at
+  // low speed times its width): the gap runs along a valley of that product. The coordinates are
+  // the product ("impulse") and where the Stribeck velocity sits among the velocities that give it
+  // within the ranges (0 to 1): the valley lies along the first.
+  CandidateSpec str;
+  str.effect = "stribeck";
+  const double v_lo = std::max(1e-6, sc.speed_m_s / 300), v_hi = std::min(1.0, 3 * sc.speed_m_s);
+  const double kExcessLo = 0.01, kExcessHi = 1.5;
+  str.axes = {{"stribeck_impulse_m_s", kExcessLo * v_lo, kExcessHi * v_hi, true},
+              {"velocity_share", 0.0, 1.0, false}};
+  str.variants = {{}};
+  str.params = [v_lo, v_hi, kExcessLo, kExcessHi](const std::vector<double>& x) {
+    const double a = x[0];
+    const double lo = std::max(v_lo, a / kExcessHi), hi = std::min(v_hi, a / kExcessLo);
+    const double v = hi > lo ? std::exp(std::log(lo) + x[1] * (std::log(hi) - std::log(lo)))
+                             : std::sqrt(lo * hi);
+    return Params{
+        {"static_over_kinetic", 1.0 + std::clamp(a / v, kExcessLo, kExcessHi)},
+        {"stribeck_velocity_m_s", clamp_to_library("stribeck", "stribeck_velocity_m_s", v)}};
+  };
+  str.physics =
+      "(mu_s / mu_k - 1) times the Stribeck velocity, and that velocity's place in its range";
+  lib.push_back(str);
+  // friction_spread: only the spread; an offset of the mean friction is the baseline's mu.
+  CandidateSpec spread;
+  spread.effect = "friction_spread";
+  spread.axes = {{"relative_sd", 0.005, 0.4, true}};
+  spread.variants = {{}};
+  spread.params = [](const std::vector<double>& x) { return Params{{"relative_sd", x[0]}}; };
+  spread.physics = "relative sd of mu from trial to trial (its mean is the baseline's mu)";
+  lib.push_back(spread);
+  // tilt: gravity along the guide against the friction it competes with, sin(angle) / mu.
+  CandidateSpec tilt;
+  tilt.effect = "tilt";
+  tilt.axes = {{"sin_over_mu", -0.6, 0.6, false}};
+  tilt.variants = {{}};
+  const double mu = st.friction_coefficient;
+  tilt.params = [mu](const std::vector<double>& x) {
+    return Params{{"angle_deg", std::asin(std::clamp(x[0] * mu, -0.5, 0.5)) * 180 / M_PI}};
+  };
+  tilt.physics = "sin(angle) over the friction coefficient";
+  lib.push_back(tilt);
+  // quantization: a DAC's resolution and clock against the fastest phase.
+  CandidateSpec dac;
+  dac.effect = "quantization";
+  dac.variants = {{}};
+  for (double bits : {6.0, 8.0, 10.0, 12.0})
+    for (double clock : {0.5, 2.0, 10.0})
+      dac.grid.push_back({{"bits", bits},
+                          {"update_rate_hz", clamp_to_library("quantization", "update_rate_hz",
+                                                              std::round(clock * sc.fast_hz))}});
+  dac.physics = "bits and update clock (0.5, 2 and 10 x the fastest phase's rate)";
+  lib.push_back(dac);
   return lib;
+}
+
+const CandidateSpec& spec_of(const std::vector<CandidateSpec>& library, const std::string& effect) {
+  for (const CandidateSpec& s : library)
+    if (s.effect == effect) return s;
+  throw std::invalid_argument("no candidate " + effect);
 }
 
 std::string missing_signature(const SweepCells& sweep, const std::string& effect) {
@@ -48,7 +191,8 @@ std::string missing_signature(const SweepCells& sweep, const std::string& effect
       if (c.key.duty > 0.5) rev = true;
     }
     if (!(fwd && rev))
-      return "both directions (duties below and above 0.5): in one direction a tilt is a friction change";
+      return "both directions (duties below and above 0.5): in one direction a tilt is a friction "
+             "change";
   }
   if (effect == "friction_spread") {
     bool two = false;
@@ -56,171 +200,6 @@ std::string missing_signature(const SweepCells& sweep, const std::string& effect
     if (!two) return "at least 4 trials per cell (the spread needs 2 to fit and 2 held out)";
   }
   return "";
-}
-
-model::SimConfig config_with(const std::vector<model::EffectSpec>& effects, bool search) {
-  model::SimConfig sim;
-  sim.plant = model::PlantKind::Rigid;
-  sim.effects = effects;
-  sim.internal_rate_hz = search ? search_rate_for(sim) : internal_rate_for(sim);
-  return sim;
-}
-
-GapEvaluation evaluate_config(const SweepCells& sweep, const model::SimConfig& sim, int threads, TrialSet set) {
-  const std::vector<CellPrediction> pred = predict_sweep(sweep, sim, threads);
-  return evaluate_gap(sweep, pred, fit_step_scale(sweep, pred), set);
-}
-
-namespace {
-
-double to_value(const FitParam& p, double u) {
-  u = std::clamp(u, 0.0, 1.0);
-  const double v = p.log_scale ? std::exp(std::log(p.lo) + u * (std::log(p.hi) - std::log(p.lo))) : p.lo + u * (p.hi - p.lo);
-  return std::clamp(v, p.lo, p.hi);
-}
-
-struct Trial {
-  double train_gap = std::numeric_limits<double>::infinity();
-  std::vector<double> u;
-  std::map<std::string, double> params;
-};
-
-}  // namespace
-
-CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::EffectSpec>& base,
-                              const CandidateSpec& spec, double gap_before, const FitOptions& opt) {
-  const auto t_start = std::chrono::steady_clock::now();
-  CandidateResult best;
-  best.effect = spec.effect;
-  best.train_gap = std::numeric_limits<double>::infinity();
-  int evals = 0;
-  auto params_of = [&](const std::map<std::string, double>& fixed, const std::vector<double>& u) {
-    std::map<std::string, double> p = fixed;
-    for (std::size_t i = 0; i < spec.fit.size(); ++i) p[spec.fit[i].name] = to_value(spec.fit[i], u[i]);
-    return p;
-  };
-  // The search (grid and refinement) runs at the cheaper plant rate; the winner is scored at the
-  // converged one, so the gap it reports carries no integration error.
-  auto config_of = [&](const std::map<std::string, double>& p, bool search) {
-    std::vector<model::EffectSpec> effects = base;
-    effects.push_back(model::complete_effect({spec.effect, p}, "candidate " + spec.effect));
-    return config_with(effects, search);
-  };
-  auto objective = [&](const std::map<std::string, double>& p) {
-    ++evals;
-    const GapEvaluation e = evaluate_config(sweep, config_of(p, true), opt.threads, TrialSet::Train);
-    return e.gap;
-  };
-
-  auto grid_points = [&](std::size_t n) { return n == 1 ? opt.grid_1d : opt.grid_2d; };  // per axis
-  // Subplex from `start` (in [0, 1] per parameter), keeping the best point it meets in `local`.
-  auto refine = [&](const std::map<std::string, double>& fixed, const std::vector<double>& start,
-                    double step, double xtol, Trial& local) {
-    if (opt.refine_evals <= 0) return;
-    const std::size_t n = start.size();
-    nlopt::opt solver(nlopt::LN_SBPLX, static_cast<unsigned>(n));
-    solver.set_lower_bounds(std::vector<double>(n, 0.0));
-    solver.set_upper_bounds(std::vector<double>(n, 1.0));
-    solver.set_initial_step(std::vector<double>(n, step));
-    solver.set_maxeval(opt.refine_evals * static_cast<int>(n));
-    solver.set_xtol_abs(xtol);
-    std::function<double(const std::vector<double>&)> eval = [&](const std::vector<double>& x) {
-      const auto p = params_of(fixed, x);
-      const double v = objective(p);
-      if (v < local.train_gap) local = {v, x, p};
-      return v;
-    };
-    solver.set_min_objective(
-        [](const std::vector<double>& x, std::vector<double>&, void* data) {
-          return (*static_cast<std::function<double(const std::vector<double>&)>*>(data))(x);
-        },
-        &eval);
-    std::vector<double> x = start;
-    double fx = 0;
-    try {
-      solver.optimize(x, fx);
-    } catch (const nlopt::roundoff_limited&) {
-    } catch (const nlopt::forced_stop&) {
-    }
-  };
-
-  Trial winner;
-  std::map<std::string, double> winner_fixed;
-  if (!spec.grid.empty()) {
-    for (const std::vector<double>& g : spec.grid) {
-      std::map<std::string, double> p;
-      for (std::size_t i = 0; i < spec.fit.size(); ++i) p[spec.fit[i].name] = g[i];
-      const double v = objective(p);
-      if (v < winner.train_gap) winner = {v, {}, p};
-    }
-  } else {
-    for (const std::map<std::string, double>& fixed : spec.variants) {
-      const std::size_t n = spec.fit.size();
-      const int pts = grid_points(n);
-      Trial local;
-      std::vector<double> u(n);
-      const int total = n == 1 ? pts : pts * pts;
-      std::vector<Trial> grid;
-      for (int k = 0; k < total; ++k) {
-        u[0] = (k % pts) / double(pts - 1);
-        if (n == 2) u[1] = (k / pts) / double(pts - 1);
-        const auto p = params_of(fixed, u);
-        const double v = objective(p);
-        grid.push_back({v, u, p});
-        if (v < local.train_gap) local = {v, u, p};
-      }
-      // Refined from the best grid point and, for two parameters, from the next best ones that
-      // are not its grid neighbours (a narrow valley, e.g. the actuator's resonance against its
-      // damping, can hide between grid points and trap a single start).
-      std::vector<std::vector<double>> starts{local.u};
-      if (n == 2) {
-        std::sort(grid.begin(), grid.end(), [](const Trial& a, const Trial& b) { return a.train_gap < b.train_gap; });
-        const double cell = 1.0 / (pts - 1);
-        for (const Trial& g : grid) {
-          if (starts.size() >= static_cast<std::size_t>(opt.starts_2d)) break;
-          bool near = false;
-          for (const std::vector<double>& st : starts)
-            near = near || (std::fabs(g.u[0] - st[0]) <= cell * 1.01 && std::fabs(g.u[1] - st[1]) <= cell * 1.01);
-          if (!near) starts.push_back(g.u);
-        }
-      }
-      for (const std::vector<double>& start : starts) refine(fixed, start, 0.5 / (pts - 1), 1e-3, local);
-      if (local.train_gap < winner.train_gap) {
-        winner = local;
-        winner_fixed = fixed;
-      }
-    }
-    // The winner is polished with a step a tenth as large: with little noise the gap is a sharp
-    // V around the optimum (1 % in a stage's stiffness can be 30 noise units), and a refinement
-    // that ran out of evaluations partway down it leaves most of the gap behind.
-    if (opt.polish && !winner.u.empty())
-      refine(winner_fixed, winner.u, 0.05 / (grid_points(winner.u.size()) - 1), 1e-4, winner);
-  }
-  best.params = winner.params;
-  best.train_gap = winner.train_gap;
-  const model::SimConfig sim = config_of(winner.params, false);
-  best.eval = evaluate_config(sweep, sim, opt.threads, TrialSet::Test);
-  best.gap = best.eval.gap;
-  best.step_scale = best.eval.step_scale;
-  best.shrink = gap_before > 0 ? 1.0 - best.gap / gap_before : 0.0;
-  best.evaluations = evals + 1;
-  if (std::getenv("IDM_GAP_VERBOSE"))
-    std::fprintf(stderr, "  fit %s (+%zu fixed): %d evaluations, %.2f s, train gap %.3g, held-out %.3g\n",
-                 spec.effect.c_str(), base.size(), best.evaluations,
-                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count(), best.train_gap,
-                 best.gap);
-  // Plausibility: a fit on the bound of its range, or a step scale no stage has.
-  for (std::size_t i = 0; i < spec.fit.size() && spec.grid.empty(); ++i)
-    if (!winner.u.empty() && (winner.u[i] < 0.01 || winner.u[i] > 0.99)) {
-      best.plausible = false;
-      best.note = spec.fit[i].name + " ended on the bound of its plausible range [" +
-                  model::format_number(spec.fit[i].lo) + ", " + model::format_number(spec.fit[i].hi) + "]";
-    }
-  if (!(best.step_scale > 0.05 && best.step_scale <= 2.0)) {
-    best.plausible = false;
-    best.note = "needs a step scale of " + model::format_number(best.step_scale) + ", outside (0.05, 2]";
-  }
-  return best;
 }
 
 }  // namespace idm::analysis

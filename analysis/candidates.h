@@ -1,79 +1,127 @@
-// The candidate effects of the diagnosis: every effect of the library (model::effect_library())
-// added alone to the baseline, its parameters fitted on the training trials within bounds of
-// physical plausibility, and scored by the gap it leaves on the held-out trials.
+// The candidate effects of the diagnosis and how a set of them is fitted.
 //
-// Fitting: the parameters are mapped to [0, 1] (log scale where they span decades), a coarse grid
-// finds the basin (the objective is piecewise flat where region labels change), then NLopt's
-// bounded derivative-free Subplex (LN_SBPLX) refines it, and a last Subplex with a tenth of the
-// step polishes the winner. The objective is the training gap of the model with the effect, its
-// step scale (the paper's alpha) refitted at every evaluation.
-// A fit is implausible when it ends on a bound of its range (the data asks for more than the
-// physics allows, or for no effect at all) or needs a step scale outside (0.05, 2].
+// Every effect of model::effect_library() is a candidate. Its fitted parameters are searched in
+// coordinates of the effect's own physics, with ranges taken from this sweep and this stage (never
+// from the paper's Table 1): an amplifier's cutoff and an actuator's resonance against the
+// sweep's fastest phase, the actuator's damping as a damping ratio, a Stribeck velocity against the
+// slider's speeds, a tilt against the friction it competes with, a DAC's clock against the sweep's
+// frequencies. Each coordinate is mapped to [0, 1] (log where it spans decades).
+//
+// A fit: a coarse grid finds the basin (the objective is piecewise flat where region labels
+// change), NLopt's bounded derivative-free Subplex (LN_SBPLX) refines it from the best grid points
+// that are not neighbours, at the cheaper plant rate under an actuator chain; the winner is
+// polished by a short Subplex at the scoring rate and scored there on the held-out trials. The
+// objective is the training gap, alpha and mu refitted at every evaluation (gap.h). A set of
+// several effects is fitted jointly: all their coordinates together, from the single fits' optima.
+// A fit is implausible when a coordinate ends on a bound of its range (the data asks for more than
+// the physics allows, or for no effect at all) or the model needs a step scale outside (0.05, 2].
 #pragma once
 
+#include <functional>
 #include <map>
 #include <string>
 #include <vector>
 
 #include "analysis/gap.h"
-#include "model/simulation.h"
 
 namespace idm::analysis {
 
-struct FitParam {
-  std::string name;
-  double lo = 0, hi = 1;  // the plausible range searched
+struct FitAxis {
+  std::string name;  // e.g. "resonance_hz"
+  double lo = 0, hi = 1;
   bool log_scale = false;
+  double value(double u) const;  // u in [0, 1] -> axis value
+  double coordinate(double value) const;
 };
+
+using Params = std::map<std::string, double>;
 
 struct CandidateSpec {
   std::string effect;
-  std::vector<FitParam> fit;                               // 1 or 2 fitted parameters
-  std::vector<std::map<std::string, double>> variants;     // fixed parameters, each fitted separately
-  std::vector<std::vector<double>> grid;                   // explicit grid (integer parameters): no refinement
+  std::vector<FitAxis> axes;     // fitted coordinates (empty with an explicit grid)
+  std::vector<Params> variants;  // fixed parameters, each variant fitted on its own
+  std::vector<Params> grid;      // explicit parameter sets (integer parameters), no refinement
+  std::function<Params(const std::vector<double>& axis_values)>
+      params;                 // -> the effect's parameters
+  std::vector<double> start;  // a start in axis values (stage.yaml's K and C), or empty
+  // A dense scan instead of the coarse grid for a needle-like objective (a lightly damped
+  // resonance: the gap's basin is a few % wide in frequency): axis 0 in steps of scan_ratio, axis
+  // 1 at each of scan_other.
+  double scan_ratio = 0;
+  std::vector<double> scan_other;
+  std::string physics;  // one line: what the coordinates mean (for the report)
 };
 
-// The candidates for every effect of model::effect_library(), in library order.
-const std::vector<CandidateSpec>& candidate_library();
+// The candidates for every effect of model::effect_library(), in library order, with ranges
+// scaled to this sweep and stage.
+std::vector<CandidateSpec> candidate_library(const SweepCells& sweep);
+const CandidateSpec& spec_of(const std::vector<CandidateSpec>& library, const std::string& effect);
 
-// What the effect's signature needs that the sweep lacks ("a second stroke", "duties above 0.5
-// (the other direction)"), or "" when the effect is identifiable from this sweep.
+// What the effect's signature needs that the sweep lacks ("a second stroke", "both directions"),
+// or "" when the effect is identifiable from this sweep.
 std::string missing_signature(const SweepCells& sweep, const std::string& effect);
 
-struct CandidateResult {
+// One effect of a fitted set: its coordinates and fixed parameters.
+struct MemberFit {
   std::string effect;
-  std::map<std::string, double> params;  // the fitted and the fixed parameters, as reported
-  double train_gap = 0;                  // objective at the optimum
-  double gap = 0;                        // held-out gap with the effect
-  double shrink = 0;                     // 1 - gap / gap_before
-  double step_scale = 1;
+  Params fixed;           // the variant
+  std::vector<double> u;  // coordinates in [0, 1] (empty for an explicit grid point)
+  Params grid_point;      // the explicit parameters when the spec has a grid
+};
+
+struct SetFit {
+  std::vector<MemberFit> members;
+  std::vector<model::EffectSpec> effects;  // completed, as simulated
+  FittedModel fitted;                      // at the scoring rate: train and held-out evaluations
+  double train_gap = 0;                    // objective at the optimum
+  double gap = 0;                          // held-out gap
+  double shrink = 0;                       // 1 - gap / gap_before
   bool plausible = true;
-  std::string note;                      // why not plausible
+  std::string note;  // why not plausible
   int evaluations = 0;
-  GapEvaluation eval;                    // held-out residuals with the effect
+  std::vector<std::string> names() const;
 };
 
 struct FitOptions {
-  int threads = 0;       // 0: all cores
-  int grid_1d = 9;       // coarse grid points for one parameter
-  int grid_2d = 7;       // per axis for two
-  int refine_evals = 16; // NLopt evaluations after the grid (one parameter; twice that for two)
-  int starts_2d = 3;     // refinements for two parameters: the best grid point and the next
-                         // best ones that are not its neighbours
-  bool polish = true;    // a last refinement of the winner with a step a tenth as large
+  int threads = 0;        // 0: all cores
+  int grid_1d = 9;        // coarse grid points for one coordinate
+  int grid_2d = 7;        // per axis for two
+  int refine_evals = 16;  // Subplex evaluations per coordinate after the grid
+  int starts_2d = 3;      // refinements for two coordinates (best grid point, next non-neighbours)
+  int polish_evals = 6;   // Subplex evaluations per coordinate at the scoring rate
 };
 
-// The model with `base` effects (already chosen, fixed) plus one candidate, fitted on the training
-// trials and scored on the held-out ones against `gap_before`.
-CandidateResult fit_candidate(const SweepCells& sweep, const std::vector<model::EffectSpec>& base,
-                              const CandidateSpec& spec, double gap_before, const FitOptions& options);
+// The model of a set of effects at the given members (coordinates -> parameters).
+std::vector<model::EffectSpec> effects_of(const std::vector<CandidateSpec>& library,
+                                          const std::vector<MemberFit>& members);
 
-// The configuration a set of effects is simulated with (rigid plant), at the internal rate it is
-// scored at (internal_rate_for) or, with `search`, the cheaper one a fit searches at.
-model::SimConfig config_with(const std::vector<model::EffectSpec>& effects, bool search = false);
+// Cells a coarse search looks at on a large sweep.
+constexpr std::size_t kCoarseCells = 24;
 
-// Predictions, step scale (fitted on training trials) and held-out evaluation of a configuration.
-GapEvaluation evaluate_config(const SweepCells& sweep, const model::SimConfig& sim, int threads,
-                              TrialSet set = TrialSet::Test);
+// At most `count` cells spread evenly over the sweep's order (stroke, frequency, duty), every
+// other field as in `sweep`; the sweep itself when it is small.
+SweepCells spread_subset(const SweepCells& sweep, std::size_t count);
+
+// One effect alone, fitted on the training trials and scored on the held-out ones against
+// `baseline` (its mu is where the search starts).
+SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                  const CandidateSpec& spec, const FittedModel& baseline,
+                  const FitOptions& options);
+
+// `spec` added to the set `base`: its coarse search with the set held, then the whole set's joint
+// search, both on the subset of cells a coarse search uses (JointStage::Search: its train_gap
+// ranks sets screened alike; fit_joint(..., Finish) takes it to every cell).
+SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                  const std::vector<MemberFit>& base, const CandidateSpec& spec,
+                  const FittedModel& baseline, const FitOptions& options);
+
+// A set of effects fitted jointly from `start` (one member per effect, e.g. the single fits).
+// Search: the Subplex at the search rate only (train_gap is its objective; no held-out score, gap
+// is infinite), to screen sets; Finish: from `start` (a screened set) a short search on every cell,
+// the polish and the score; Full: the search, the polish and the score.
+enum class JointStage { Search, Finish, Full };
+SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                 const std::vector<MemberFit>& start, const FittedModel& baseline,
+                 const FitOptions& options, JointStage stage = JointStage::Full);
 
 }  // namespace idm::analysis

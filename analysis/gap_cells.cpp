@@ -10,31 +10,45 @@ namespace idm::analysis {
 SweepCells collect_cells(const Dataset& ds, int min_trials) {
   std::vector<TrialSeries> series(ds.trials.size());
   for (std::size_t i = 0; i < ds.trials.size(); ++i) series[i] = read_trial(ds, i);
-  return collect_cells(ds.stage, ds.trials, series, ds.path, min_trials);
+  SweepCells out =
+      collect_cells(ds.stage, ds.trials, series, ds.path, min_trials, ds.progress.marked());
+  out.progress = ds.progress;
+  return out;
 }
 
 SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
-                         const std::vector<TrialSeries>& series, const std::string& name, int min_trials) {
-  if (infos.size() != series.size()) throw std::invalid_argument("collect_cells: infos and trials differ in size");
-  if (infos.empty()) throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
+                         const std::vector<TrialSeries>& series, const std::string& name,
+                         int min_trials, bool skip_small) {
+  if (infos.size() != series.size())
+    throw std::invalid_argument("collect_cells: infos and trials differ in size");
+  if (infos.empty())
+    throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
   SweepCells out;
   out.stage = stage;
   out.resolution_m = stage.interferometer.resolution_m;
-  // noise: the spread of the readings while the slider rests before each burst
+  // noise: the spread of the readings while the slider rests before each burst, and after it once
+  // the slider has settled (a period after the last cycle, the command at rest)
   std::vector<double> rest_sd;
-  for (std::size_t i = 0; i < infos.size(); ++i) {
+  auto add_rest = [&](const TrialSeries& s, double from_s, double to_s) {
     double sum = 0, sum2 = 0;
     int n = 0;
-    for (std::size_t k = 0; k < series[i].size() && series[i].t_s[k] < 0; ++k) {
-      sum += series[i].x_m[k];
-      sum2 += series[i].x_m[k] * series[i].x_m[k];
-      ++n;
-    }
+    for (std::size_t k = 0; k < s.size(); ++k)
+      if (s.t_s[k] >= from_s && s.t_s[k] < to_s) {
+        sum += s.x_m[k];
+        sum2 += s.x_m[k] * s.x_m[k];
+        ++n;
+      }
     if (n >= 4) rest_sd.push_back(std::sqrt(std::max(0.0, sum2 / n - (sum / n) * (sum / n))));
+  };
+  for (std::size_t i = 0; i < infos.size(); ++i) {
+    if (series[i].size() == 0) continue;
+    add_rest(series[i], -1e300, 0.0);
+    add_rest(series[i], (infos[i].cycles + 1) / infos[i].freq_hz, 1e300);
   }
   const double quant_sd = out.resolution_m / std::sqrt(12.0);
   out.reading_sd_m = std::max(quant_sd, rest_sd.empty() ? quant_sd : median(rest_sd));
-  const double noise_m = std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
+  const double noise_m =
+      std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
   out.noise_m = noise_m;
   out.name = name;
 
@@ -45,18 +59,41 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
     std::size_t c = 0;
     while (c < out.cells.size() && !(out.cells[c].key == key)) ++c;
     if (c == out.cells.size()) {
-      out.cells.push_back({key, t.cycles, t.sample_rate_hz, {}, {}, model::Region::Cutoff});
+      Cell cell;
+      cell.key = key;
+      cell.cycles = t.cycles;
+      cell.sample_rate_hz = t.sample_rate_hz;
+      out.cells.push_back(std::move(cell));
       members.emplace_back();
     }
     members[c].push_back(i);
+  }
+  if (skip_small) {
+    std::vector<Cell> kept;
+    std::vector<std::vector<std::size_t>> kept_members;
+    for (std::size_t c = 0; c < out.cells.size(); ++c) {
+      if (static_cast<int>(members[c].size()) < min_trials) {
+        out.skipped.push_back(out.cells[c].key);
+        continue;
+      }
+      kept.push_back(out.cells[c]);
+      kept_members.push_back(members[c]);
+    }
+    if (kept.empty())
+      throw InputError(name + ": the sweep is too small to diagnose: no cell has " +
+                       std::to_string(min_trials) + " trials (the recording was cut off after " +
+                       std::to_string(infos.size()) + " trials)");
+    out.cells = std::move(kept);
+    members = std::move(kept_members);
   }
   for (std::size_t c = 0; c < out.cells.size(); ++c) {
     Cell& cell = out.cells[c];
     if (static_cast<int>(members[c].size()) < min_trials) {
       std::ostringstream m;
-      m << name << ": the sweep is too small to diagnose: cell (" << cell.key.freq_hz << " Hz, duty "
-        << cell.key.duty << ", stroke " << cell.key.stroke_m << " m) has " << members[c].size()
-        << " trials, at least " << min_trials << " needed (some to fit, some held out)";
+      m << name << ": the sweep is too small to diagnose: cell (" << cell.key.freq_hz
+        << " Hz, duty " << cell.key.duty << ", stroke " << cell.key.stroke_m << " m) has "
+        << members[c].size() << " trials, at least " << min_trials
+        << " needed (some to fit, some held out)";
       throw InputError(m.str());
     }
     std::vector<model::Region> votes, train_votes, test_votes;
@@ -67,6 +104,7 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
       (j % 2 == 0 ? train_votes : test_votes).push_back(f.region);
       (j % 2 == 0 ? cell.train : cell.test).push_back(std::move(f));
     }
+    cell.read_t_s = read_instants(infos[members[c].front()], series[members[c].front()]);
     cell.measured_region = majority_region(votes);
     cell.train_region = majority_region(train_votes);
     cell.test_region = majority_region(test_votes);
@@ -74,24 +112,30 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
   return out;
 }
 
-TrialFeatures predict_cell(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,
-                           double guide_pos_m) {
-  model::InterferometerParams exact;
-  exact.resolution_m = 1e-12;
-  model::SimConfig quiet = sim;
-  quiet.noise_m = 0;
-  model::SimulatedStage s(stage, exact, quiet);
-  s.reset(guide_pos_m, 1);
-  const model::TriangleWave w{cell.key.freq_hz, cell.key.duty, cell.key.stroke_m, cell.cycles};
-  model::TrialSamples out;
-  const double rate = std::max(cell.sample_rate_hz, 20.0 * cell.key.freq_hz);
-  s.run_burst(w, rate, 0.0, w.period_s(), out);
-  TrialInfo info{"model", cell.key.freq_hz, cell.key.duty, cell.key.stroke_m, cell.cycles, rate, guide_pos_m, ""};
-  TrialSeries series;
-  series.t_s = std::move(out.t_s);
-  series.xi_cmd_m = std::move(out.xi_cmd_m);
-  series.x_m = std::move(out.x_m);
-  return trial_features(info, series, exact.resolution_m, 0.0);
+std::string progress_summary(const SweepCells& sweep) {
+  const recording::SweepProgress& p = sweep.progress;
+  if (!p.marked() || (!p.interrupted() && p.missing.empty())) return "";
+  std::ostringstream s;
+  int empty = 0;
+  for (const recording::MissingCell& m : p.missing) empty += m.recorded == 0 ? 1 : 0;
+  s << (p.interrupted() ? "interrupted sweep" : "sweep")
+    << " (plan.yaml: " << recording::status_name(p.status) << (p.note.empty() ? "" : ", " + p.note)
+    << "): " << p.planned.size() - p.missing.size() << " of " << p.planned.size()
+    << " planned cells complete, " << empty << " missing, " << p.missing.size() - empty
+    << " short of trials; diagnosed on the " << sweep.cells.size() << " cells with enough trials";
+  if (!sweep.skipped.empty()) s << " (" << sweep.skipped.size() << " left out with too few)";
+  s << "\n";
+  constexpr std::size_t kListed = 8;
+  s << "missing or short:";
+  for (std::size_t i = 0; i < p.missing.size() && i < kListed; ++i) {
+    const recording::MissingCell& m = p.missing[i];
+    s << (i ? "," : "") << " " << m.planned.freq_hz << " Hz duty " << m.planned.duty << " stroke "
+      << m.planned.stroke_m * 1e6 << " um (" << m.recorded << "/" << m.planned.trials << ")";
+  }
+  if (p.missing.size() > kListed)
+    s << " and " << p.missing.size() - kListed << " more (all in the JSON)";
+  s << "\n";
+  return s.str();
 }
 
 }  // namespace idm::analysis

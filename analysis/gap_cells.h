@@ -1,14 +1,15 @@
-// The sweep as cells of the (frequency, duty, stroke) map: the features of every trial, a split into
-// training and held-out trials, the sensor's noise read from the data, and the same features of a
-// model's simulated burst, so that measurement and model are compared by one procedure.
+// The sweep as cells of the (frequency, duty, stroke) map: the features of every trial, a split
+// into training and held-out trials, the sensor's noise read from the data, and the sample instants
+// a model is read at (forward_model.h), so that measurement and model are compared by one
+// procedure.
 #pragma once
 
 #include <string>
 #include <vector>
 
-#include "recording/dataset.h"
 #include "analysis/trial_features.h"
-#include "model/simulation.h"
+#include "model/stage.h"
+#include "recording/dataset.h"
 
 namespace idm::analysis {
 
@@ -21,6 +22,7 @@ struct Cell {
   CellKey key;
   int cycles = 0;
   double sample_rate_hz = 0;
+  std::vector<double> read_t_s;  // sample instants of the rest readings (read_instants, 1st trial)
   std::vector<TrialFeatures> train, test;  // even trials train, odd trials are held out
   model::Region measured_region = model::Region::Cutoff;  // committee vote over all trials
   model::Region train_region = model::Region::Cutoff;     // vote of the training trials
@@ -31,24 +33,32 @@ struct SweepCells {
   std::vector<Cell> cells;
   double resolution_m = 0;
   double reading_sd_m = 0;  // one position reading: noise and quantization, from the rest samples
-  double noise_m = 0;       // the sensor's noise without quantization (reading_sd_m less one count's)
-  std::string name;         // the dataset's path as given (messages, the report)
+  double noise_m = 0;  // the sensor's noise without quantization (reading_sd_m less one count's)
+  std::string name;    // the dataset's path as given (messages, the report)
   model::StageFile stage;
+  // The recorder's mark (recording/sweep_plan.h): Unmarked for data from elsewhere. A marked sweep
+  // that was cut off is diagnosed on the cells it has (`skipped`: cells with fewer trials than a
+  // diagnosis needs, left out); progress.missing lists every planned cell short of its trials.
+  recording::SweepProgress progress;
+  std::vector<CellKey> skipped;
 };
 
 // Reads every trial (each error names its file) and groups them. Throws InputError when a cell has
-// fewer than `min_trials` trials ("the sweep is too small to diagnose: ...").
+// fewer than `min_trials` trials ("the sweep is too small to diagnose: ..."), except in a sweep the
+// recorder marked (dataset.progress): there such a cell is left out and listed in `skipped`, and
+// only a sweep with no cell left is refused.
 SweepCells collect_cells(const Dataset& dataset, int min_trials = 3);
 
 // The same from a sweep held in memory (validate, tests): trials[i] is the time series of infos[i].
-// `name` stands for the dataset's path in messages.
+// `name` stands for the dataset's path in messages; `skip_small` leaves out cells with fewer than
+// `min_trials` trials instead of refusing the sweep.
 SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
                          const std::vector<TrialSeries>& trials, const std::string& name,
-                         int min_trials = 3);
+                         int min_trials = 3, bool skip_small = false);
 
-// What a model predicts for a cell: a burst from rest on the simulated stage (no noise), read by
-// the same feature extraction as the measurement.
-TrialFeatures predict_cell(const model::StageParams& stage, const model::SimConfig& sim, const Cell& cell,
-                           double guide_pos_m = 0.0);
+// For a sweep the recorder marked: whether it was cut off, which planned cells are missing or
+// short of trials, and which cells the diagnosis left out (a few lines, each ending in a newline).
+// "" for an unmarked sweep and for a complete one with every planned trial.
+std::string progress_summary(const SweepCells& sweep);
 
 }  // namespace idm::analysis

@@ -13,7 +13,9 @@
 namespace idm::analysis {
 
 // The number of worker threads to use when the caller asks for 0 ("all cores").
-inline int default_threads() { return std::max(1u, std::thread::hardware_concurrency()); }
+inline int default_threads() {
+  return std::max(1u, std::thread::hardware_concurrency());
+}
 
 // Calls fn(i) for i in [0, n) on up to `threads` threads (0: all cores), in no particular order.
 template <class Fn>

@@ -1,11 +1,15 @@
 // The report a person looks at (idm-gap diagnose --report DIR): SVG plots written by hand (no
-// plotting library) and report.html showing them with the text summary.
+// plotting library) and report.html showing them with the text summary. Axes carry round-number
+// ticks (1, 2, 5 times a power of ten) and their units.
 //
+//   steps.svg        the paper's axes (Fig. 13): steady step against duty, one line per
+//                    frequency; measured (held-out and training trials, mean) and the model after
+//                    the diagnosis side by side, one row per stroke; cells carrying the gap ringed
 //   regions.svg      measured and model (baseline, and after the diagnosis) region maps over
 //                    (frequency, duty), one row per stroke, like the paper's Fig. 11
-//   steps.svg        steady step against duty, one colour per frequency, measured (points) and the
-//                    model after the diagnosis (lines), like Fig. 13
-//   gap_before.svg,  the held-out residual of every cell before and after the diagnosis
+//   gap_before.svg,  maps over (frequency, duty) per stroke and direction: the baseline's held-out
+//   effect_gap.svg,  residual, the named effects' footprint (effect_gap), the trial-to-trial
+//   spread_excess.svg, spread beyond the model's, and what is left after the diagnosis
 //   gap_after.svg
 //   ranking.svg      each candidate effect's shrink of the held-out gap
 //   report.html      all of the above with the summary
@@ -13,14 +17,22 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "analysis/selection.h"
 
 namespace idm::analysis {
 
-std::string regions_svg(const SweepCells& sweep, const Diagnosis& d);
+// Round-number ticks covering [lo, hi]: steps of 1, 2 or 5 times a power of ten, about `count` of
+// them; every tick printed with the same number of decimals and never as "-0".
+std::vector<double> nice_ticks(double lo, double hi, int count);
+std::string tick_label(double value, double step);
+
 std::string steps_svg(const SweepCells& sweep, const Diagnosis& d);
-std::string gap_map_svg(const SweepCells& sweep, const GapEvaluation& eval, const std::string& title);
+std::string regions_svg(const SweepCells& sweep, const Diagnosis& d);
+// A map of one value per cell, one panel per stroke and direction.
+std::string cell_map_svg(const SweepCells& sweep, const std::vector<double>& values,
+                         const std::string& title, const std::string& legend);
 std::string ranking_svg(const Diagnosis& d);
 
 // Writes every file above into `dir` (created if missing). Returns the path of report.html.

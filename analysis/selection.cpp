@@ -1,127 +1,397 @@
 #include "analysis/selection.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <map>
 #include <sstream>
 
+#include "analysis/parallel.h"
 #include "model/yaml_util.h"
 
 namespace idm::analysis {
 
 namespace {
-std::vector<std::string> names_of(const std::vector<model::EffectSpec>& e) {
-  std::vector<std::string> out;
-  for (const model::EffectSpec& s : e) out.push_back(s.name);
-  return out;
-}
+
 bool wanted(const DiagnoseOptions& o, const std::string& effect) {
-  return o.effects.empty() || std::find(o.effects.begin(), o.effects.end(), effect) != o.effects.end();
+  return o.effects.empty() ||
+         std::find(o.effects.begin(), o.effects.end(), effect) != o.effects.end();
 }
+
+bool contains(const SetFit& s, const std::string& effect) {
+  const std::vector<std::string> n = s.names();
+  return std::find(n.begin(), n.end(), effect) != n.end();
+}
+
+std::string joined(const std::vector<std::string>& names, const char* sep = " + ") {
+  std::string out;
+  for (const std::string& n : names) out += (out.empty() ? "" : sep) + n;
+  return out.empty() ? "nothing" : out;
+}
+
+std::string key_of(const std::vector<MemberFit>& members) {
+  std::vector<std::string> n;
+  for (const MemberFit& m : members) n.push_back(m.effect);
+  std::sort(n.begin(), n.end());
+  std::string k;
+  for (const std::string& s : n) k += s + "+";
+  return k;
+}
+
+// Every set fitted in one diagnosis, by the names of its effects: screened (the search at the
+// cheaper rate, to rank sets) and finished (polished and scored on held-out trials). The single
+// fits are finished sets already.
+class SetFits {
+ public:
+  SetFits(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+          const FittedModel& baseline, const FitOptions& options,
+          const std::vector<SetFit>& singles)
+      : sweep_(sweep), library_(library), baseline_(baseline), options_(options) {
+    for (const SetFit& s : singles) finished_[key_of(s.members)] = s;
+  }
+
+  // Screens every set not screened yet (spread over the threads), and returns them all.
+  std::vector<SetFit> screen(const std::vector<std::vector<MemberFit>>& sets) {
+    std::vector<std::size_t> todo;
+    for (std::size_t i = 0; i < sets.size(); ++i)
+      if (!screened_.count(key_of(sets[i])) && !finished_.count(key_of(sets[i]))) todo.push_back(i);
+    std::vector<SetFit> done(todo.size());
+    FitOptions one = options_;
+    one.threads = 1;
+    const SweepCells coarse = spread_subset(sweep_, kCoarseCells);
+    parallel_for(todo.size(), options_.threads, [&](std::size_t i) {
+      done[i] = fit_joint(coarse, library_, sets[todo[i]], baseline_, one, JointStage::Search);
+    });
+    for (SetFit& f : done) screened_[key_of(f.members)] = std::move(f);
+    std::vector<SetFit> out;
+    for (const auto& m : sets) {
+      const std::string k = key_of(m);
+      out.push_back(finished_.count(k) ? finished_.at(k) : screened_.at(k));
+    }
+    return out;
+  }
+
+  // Each effect of `specs` added to `base` (fit_on_top), screened; cached like screen().
+  std::vector<SetFit> screen_on_top(const std::vector<MemberFit>& base,
+                                    const std::vector<const CandidateSpec*>& specs) {
+    std::vector<std::vector<MemberFit>> sets;
+    for (const CandidateSpec* spec : specs) {
+      std::vector<MemberFit> m = base;
+      m.push_back({spec->effect, {}, {}, {}});
+      sets.push_back(m);
+    }
+    std::vector<std::size_t> todo;
+    for (std::size_t i = 0; i < sets.size(); ++i)
+      if (!screened_.count(key_of(sets[i])) && !finished_.count(key_of(sets[i]))) todo.push_back(i);
+    std::vector<SetFit> done(todo.size());
+    FitOptions one = options_;
+    one.threads = 1;
+    parallel_for(todo.size(), options_.threads, [&](std::size_t i) {
+      done[i] = fit_on_top(sweep_, library_, base, *specs[todo[i]], baseline_, one);
+    });
+    for (SetFit& f : done) screened_[key_of(f.members)] = std::move(f);
+    std::vector<SetFit> out;
+    for (const auto& m : sets) {
+      const std::string k = key_of(m);
+      out.push_back(finished_.count(k) ? finished_.at(k) : screened_.at(k));
+    }
+    return out;
+  }
+
+  // The finished fit of a set (from its screened optimum when there is one).
+  const SetFit& finish(const std::vector<MemberFit>& members) {
+    const std::string k = key_of(members);
+    if (!finished_.count(k)) {
+      const bool screened = screened_.count(k) > 0;
+      finished_[k] =
+          fit_joint(sweep_, library_, screened ? screened_.at(k).members : members, baseline_,
+                    options_, screened ? JointStage::Finish : JointStage::Full);
+    }
+    return finished_.at(k);
+  }
+
+  // The set of `members` refitted from the parameters they carry (those of a larger set that held
+  // them): a set fitted earlier from its own singles can sit in a local optimum that the larger
+  // set's fit left behind. The better of that and the finished fit becomes the set's fit.
+  const SetFit& refit(const std::vector<MemberFit>& members) {
+    const std::string k = key_of(members);
+    const SetFit& known = finish(members);
+    SetFit again = fit_joint(sweep_, library_, members, baseline_, options_, JointStage::Finish);
+    if (again.plausible && (!known.plausible || again.train_gap < known.train_gap))
+      finished_[k] = std::move(again);
+    return finished_.at(k);
+  }
+
+ private:
+  const SweepCells& sweep_;
+  const std::vector<CandidateSpec>& library_;
+  const FittedModel& baseline_;
+  FitOptions options_;
+  std::map<std::string, SetFit> screened_, finished_;
+};
+
+std::vector<MemberFit> without(const SetFit& s, std::size_t index) {
+  std::vector<MemberFit> m = s.members;
+  m.erase(m.begin() + static_cast<std::ptrdiff_t>(index));
+  return m;
+}
+
+// What the physics says about a pair that explains a sweep equally well.
+std::string why_alike(const std::vector<std::string>& a, const std::vector<std::string>& b,
+                      double ga, double gb) {
+  auto has = [](const std::vector<std::string>& v, const char* e) {
+    return std::find(v.begin(), v.end(), e) != v.end();
+  };
+  std::string s;
+  if ((has(a, "amplifier") && has(b, "actuator_compliance")) ||
+      (has(b, "amplifier") && has(a, "actuator_compliance")))
+    s = "a low-pass amplifier and a damped actuator resonance both round the velocity corners of "
+        "the triangle; "
+        "below the resonance they look alike. ";
+  char buf[200];
+  std::snprintf(buf, sizeof buf, "%s leaves a held-out gap of %.3g, %s %.3g.", joined(a).c_str(),
+                ga, joined(b).c_str(), gb);
+  return s + buf;
+}
+
+// The remainder after a model, in words: where, and whether the stage steps further or less far.
+std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
+                              const std::string& named) {
+  int further = 0, shorter = 0, wider = 0, labels = 0;
+  std::vector<double> rest;
+  for (const CellResidual& r : after.test.cells) {
+    rest.push_back(r.residual);
+    if (!r.significant) continue;
+    if (std::fabs(r.mean_z) >= 2)
+      (std::fabs(r.measured_step_m) > std::fabs(r.model_step_m) ? further : shorter)++;
+    if (r.spread_z >= 2) ++wider;
+    if (r.label > 0) ++labels;
+  }
+  std::ostringstream s;
+  s << "After " << named << ", a held-out gap of " << model::format_number(after.test.gap)
+    << " (systematic part " << model::format_number(systematic_gap(after))
+    << ") remains that no effect of the library explains. " << pattern_summary(sweep, rest, "It")
+    << " In the significant cells the stage steps further than the model in " << further
+    << ", less far in " << shorter << "; its trial-to-trial spread is wider than predicted in "
+    << wider << "; the region label differs in " << labels << ".";
+  return s.str();
+}
+
+// Forward from `first`: every plausible candidate joins the set in a joint fit (screened at the
+// search rate, the best polished and scored) while the gap is above kFurtherGap and the addition
+// shrinks it by kMinFurtherShrink; then backward: every member taken out and the rest refitted
+// from the set's own parameters (SetFits::refit); a member without which the gap grows by less
+// than kBackwardTolerance (or stays within the noise) goes.
+SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool,
+                   const std::vector<CandidateSpec>& library, SetFits& fits,
+                   std::vector<SelectionStep>& steps) {
+  SetFit current = first;
+  steps.push_back({"add", current.names(), current.gap});
+  while (current.members.size() < kMaxEffects && current.gap > kFurtherGap) {
+    std::vector<const CandidateSpec*> tries;
+    for (const SetFit* c : pool)
+      if (!contains(current, c->members.front().effect))
+        tries.push_back(&spec_of(library, c->members.front().effect));
+    if (tries.empty()) break;
+    const std::vector<SetFit> screened = fits.screen_on_top(current.members, tries);
+    const SetFit* lead = &screened.front();
+    for (const SetFit& t : screened)
+      if (t.train_gap < lead->train_gap) lead = &t;
+    const SetFit& best = fits.finish(lead->members);
+    if (!best.plausible || best.gap > (1 - kMinFurtherShrink) * current.gap) break;
+    current = best;
+    steps.push_back({"add", current.names(), current.gap});
+  }
+  while (current.members.size() >= 2) {
+    const SetFit* best = nullptr;
+    std::vector<SetFit> reduced;
+    for (std::size_t i = 0; i < current.members.size(); ++i)
+      reduced.push_back(fits.refit(without(current, i)));
+    for (const SetFit& r : reduced)
+      if (r.plausible && (!best || r.gap < best->gap)) best = &r;
+    if (!best ||
+        (best->gap > (1 + kBackwardTolerance) * current.gap && significant_gap(best->fitted))) {
+      steps.push_back({"keep", current.names(), current.gap});
+      break;
+    }
+    current = *best;
+    steps.push_back({"remove", current.names(), current.gap});
+  }
+  return current;
+}
+
 }  // namespace
+
+double systematic_gap(const FittedModel& m) {
+  if (m.test.cells.empty()) return 0;
+  double s = 0;
+  for (std::size_t c = 0; c < m.test.cells.size(); ++c) {
+    const CellResidual& a = m.train.cells[c];
+    const CellResidual& b = m.test.cells[c];
+    s += a.mean_z * b.mean_z + a.spread_z * b.spread_z + a.label * b.label;
+  }
+  return std::sqrt(std::max(0.0, s / static_cast<double>(m.test.cells.size())));
+}
+
+bool significant_gap(const FittedModel& m) {
+  return m.test.gap > kExplainedGap && systematic_gap(m) > kSystematicGap;
+}
 
 Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   Diagnosis d;
-  d.baseline = baseline_gap(sweep, options.fit.threads);
-  d.gap_before = d.baseline.gap;
-  d.where = where_summary(d.baseline);
+  const std::vector<CandidateSpec> library = candidate_library(sweep);
+  const int threads = options.fit.threads > 0 ? options.fit.threads : default_threads();
+  d.baseline = fit_baseline(sweep, threads);
+  d.gap_before = d.baseline.test.gap;
   std::vector<const CandidateSpec*> specs;
-  for (const CandidateSpec& spec : candidate_library()) {
+  for (const CandidateSpec& spec : library) {
     if (!wanted(options, spec.effect)) continue;
     const std::string needs = missing_signature(sweep, spec.effect);
-    if (!needs.empty()) {
+    if (!needs.empty())
       d.not_identifiable.push_back({spec.effect, needs});
-      continue;
-    }
-    specs.push_back(&spec);
+    else
+      specs.push_back(&spec);
   }
-  for (const CandidateSpec* spec : specs) d.candidates.push_back(fit_candidate(sweep, {}, *spec, d.gap_before, options.fit));
+  // every candidate alone, one per thread; then its intervals
+  FitOptions one = options.fit;
+  one.threads = 1;
+  d.candidates.resize(specs.size());
+  parallel_for(specs.size(), threads, [&](std::size_t i) {
+    d.candidates[i] = fit_single(sweep, library, *specs[i], d.baseline, one);
+  });
   std::stable_sort(d.candidates.begin(), d.candidates.end(),
-                   [](const CandidateResult& a, const CandidateResult& b) { return a.shrink > b.shrink; });
+                   [](const SetFit& a, const SetFit& b) { return a.shrink > b.shrink; });
+  d.intervals.resize(d.candidates.size());
+  parallel_for(d.candidates.size(), threads, [&](std::size_t i) {
+    // a fit on a bound of its range, or one that does not shrink the gap, has no interval to give
+    if (d.candidates[i].plausible && d.candidates[i].shrink > 0)
+      d.intervals[i] = parameter_intervals(sweep, library, d.candidates[i], d.baseline, 1, false);
+  });
 
-  d.after = d.baseline;
-  double gap = d.gap_before;
-  if (gap > kExplainedGap) {
-    // Round 1: the best plausible candidate alone.
-    const CandidateResult* first = nullptr;
-    for (const CandidateResult& c : d.candidates)
-      if (c.plausible && c.shrink >= kMinShrink) {
-        first = &c;
-        break;
+  // The set starts with the best plausible candidate that shrinks the gap; every plausible
+  // candidate may join it (an effect hidden under a larger one shrinks little alone).
+  std::vector<const SetFit*> pool;
+  for (const SetFit& c : d.candidates)
+    if (c.plausible) pool.push_back(&c);
+  SetFits fits(sweep, library, d.baseline, options.fit, d.candidates);
+  SetFit current;
+  bool have = false;
+  if (significant_gap(d.baseline) && !pool.empty() && pool.front()->shrink >= kMinShrink) {
+    // The search starts from the best single and from the runner-up when it comes close (an
+    // amplifier and a compliant actuator trade places); the set that ends with the smaller
+    // held-out gap is kept.
+    std::vector<const SetFit*> firsts{pool.front()};
+    if (pool.size() > 1 && pool[1]->shrink >= kMinShrink &&
+        pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
+      firsts.push_back(pool[1]);
+    for (const SetFit* first : firsts) {
+      std::vector<SelectionStep> steps;
+      const SetFit end = select_from(*first, pool, library, fits, steps);
+      if (!have || end.gap < current.gap) {
+        current = end;
+        d.steps = steps;
       }
-    if (first) {
-      d.chosen.push_back(model::complete_effect({first->effect, first->params}, "diagnosis"));
-      d.after = first->eval;
-      gap = first->gap;
-      d.steps.push_back({names_of(d.chosen), gap});
-    }
-    // Further rounds: each remaining effect on top of the chosen set. These fits refine from the
-    // best grid point only, without the polish: each model run carries the chosen effects too (a
-    // friction spread on top of an amplifier is 6 runs through the actuator chain a cell), and a
-    // second effect is a correction on a fitted model, not a search for a hidden resonance.
-    FitOptions further = options.fit;
-    further.starts_2d = 1;
-    further.polish = false;
-    while (!d.chosen.empty() && gap > kExplainedGap) {
-      CandidateResult best;
-      bool found = false;
-      for (const CandidateSpec* spec : specs) {
-        // Only effects that explained part of the gap on their own are tried on top of the set.
-        const auto alone = std::find_if(d.candidates.begin(), d.candidates.end(),
-                                        [&](const CandidateResult& c) { return c.effect == spec->effect; });
-        if (alone == d.candidates.end() || !alone->plausible || alone->shrink < kMinShrink) continue;
-        if (std::find_if(d.chosen.begin(), d.chosen.end(),
-                         [&](const model::EffectSpec& e) { return e.name == spec->effect; }) != d.chosen.end())
-          continue;
-        CandidateResult r = fit_candidate(sweep, d.chosen, *spec, gap, further);
-        if (r.plausible && r.shrink >= kMinFurtherShrink && (!found || r.gap < best.gap)) {
-          best = std::move(r);
-          found = true;
-        }
-      }
-      if (!found) break;
-      d.chosen.push_back(model::complete_effect({best.effect, best.params}, "diagnosis"));
-      d.after = best.eval;
-      gap = best.gap;
-      d.steps.push_back({names_of(d.chosen), gap});
+      have = true;
     }
   }
-  d.gap_after = d.after.gap;
-  d.shrink = d.gap_before > 0 ? 1.0 - d.gap_after / d.gap_before : 0.0;
-  return d;
-}
-
-std::string text_summary(const SweepCells& sweep, const Diagnosis& d) {
-  std::ostringstream s;
-  char buf[256];
-  int trials = 0;
-  for (const Cell& c : sweep.cells) trials += static_cast<int>(c.train.size() + c.test.size());
-  std::snprintf(buf, sizeof buf, "%s: %zu cells, %d trials; reading noise %.2g m (one count %.4g m)\n",
-                sweep.name.c_str(), sweep.cells.size(), trials, sweep.reading_sd_m, sweep.resolution_m);
-  s << buf;
-  std::snprintf(buf, sizeof buf, "baseline (impulse model, alpha %.3f fitted on training trials): held-out gap %.3g\n",
-                d.baseline.step_scale, d.gap_before);
-  s << buf << "where: " << d.where << "\n";
-  s << "which (each effect alone, fitted on training trials, held-out gap):\n";
-  for (const CandidateResult& c : d.candidates) {
-    std::string params;
-    for (const auto& [k, v] : c.params) params += (params.empty() ? "" : ", ") + k + "=" + model::format_number(v);
-    std::snprintf(buf, sizeof buf, "  %-20s gap %8.3g  shrink %6.1f %%  %s%s%s\n", c.effect.c_str(), c.gap,
-                  100 * c.shrink, params.c_str(), c.plausible ? "" : "  [implausible: ", c.plausible ? "" : (c.note + "]").c_str());
-    s << buf;
+  // honesty: a set that leaves a significant remainder must explain most of the gap
+  if (have) {
+    d.best = current;
+    d.named = !(significant_gap(current.fitted) && current.shrink < kNameShrink);
   }
-  for (const NotIdentifiable& n : d.not_identifiable)
-    s << "  " << n.effect << ": not identifiable from this data (needs " << n.needs << ")\n";
-  if (d.chosen.empty()) {
-    s << (d.gap_before <= kExplainedGap ? "diagnosis: no significant gap to explain\n"
-                                        : "diagnosis: no effect of the library explains the gap\n");
+  if (d.named) {
+    d.chosen = d.best.effects;
+    d.after = d.best.fitted;
+    d.chosen_intervals = parameter_intervals(sweep, library, d.best, d.baseline, threads, true);
   } else {
-    std::string names;
-    for (const model::EffectSpec& e : d.chosen) names += (names.empty() ? "" : " + ") + e.name;
-    std::snprintf(buf, sizeof buf, "diagnosis: %s; held-out gap %.3g -> %.3g (shrink %.1f %%)\n", names.c_str(),
-                  d.gap_before, d.gap_after, 100 * d.shrink);
-    s << buf << "after: " << where_summary(d.after) << "\n";
+    d.after = d.baseline;
   }
-  return s.str();
+  d.gap_after = d.after.test.gap;
+  d.shrink = d.gap_before > 0 ? 1.0 - d.gap_after / d.gap_before : 0.0;
+
+  // what is left
+  Unexplained& u = d.unexplained;
+  u.gap = d.gap_after;
+  u.systematic_gap = systematic_gap(d.after);
+  u.significant = significant_gap(d.after);
+  for (const CellResidual& r : d.after.test.cells)
+    if (r.significant) u.cells.push_back(r.key);
+  const std::string named = d.named ? joined(d.best.names()) : "the impulse model alone";
+  if (u.significant) {
+    u.summary = remainder_summary(sweep, d.after, named);
+    if (have && !d.named)
+      u.closest =
+          "the closest library set, " + joined(d.best.names()) + ", shrinks the gap by only " +
+          model::format_number(std::round(1000 * d.best.shrink) / 10) + " % and is not named";
+    else if (!have && !d.candidates.empty())
+      u.closest = "the closest library effect, " + d.candidates.front().effects.front().name +
+                  ", shrinks the gap by " +
+                  model::format_number(std::round(1000 * d.candidates.front().shrink) / 10) + " %";
+  } else {
+    u.summary = "After " + named + " the held-out gap is " + model::format_number(u.gap) +
+                ", within what the measurement's noise allows (systematic part " +
+                model::format_number(u.systematic_gap) + ").";
+  }
+
+  // sets that explain the data about equally well
+  if (d.named) {
+    std::vector<std::vector<MemberFit>> alternatives;
+    if (d.best.members.size() == 1) {
+      for (const SetFit& c : d.candidates)
+        if (c.plausible && !contains(d.best, c.members.front().effect))
+          alternatives.push_back(c.members);
+    } else {
+      // each member replaced by one of the two best candidates outside the set
+      std::vector<const SetFit*> rivals;
+      for (const SetFit* c : pool)
+        if (rivals.size() < 2 && !contains(d.best, c->members.front().effect)) rivals.push_back(c);
+      for (std::size_t i = 0; i < d.best.members.size(); ++i)
+        for (const SetFit* c : rivals) {
+          std::vector<MemberFit> m = without(d.best, i);
+          m.push_back(c->members.front());
+          alternatives.push_back(m);
+        }
+    }
+    std::vector<SetFit> alt;
+    if (d.best.members.size() == 1) {
+      for (const SetFit& c : d.candidates)
+        if (c.plausible && !contains(d.best, c.members.front().effect)) alt.push_back(c);
+    } else {
+      // screened; the ones whose training gap comes near the chosen set's are finished
+      for (const SetFit& a : fits.screen(alternatives))
+        if (a.train_gap <= kAmbiguousRatio * d.best.train_gap + 1.0)
+          alt.push_back(fits.finish(a.members));
+    }
+    for (const SetFit& a : alt) {
+      if (!a.plausible) continue;
+      const double ratio = d.best.gap > 0 ? a.gap / d.best.gap : 1.0;
+      const bool both_within = a.gap <= kExplainedGap && d.best.gap <= kExplainedGap;
+      if (!(ratio <= kAmbiguousRatio || both_within)) continue;
+      Ambiguity am;
+      am.chosen = d.best.names();
+      am.alternative = a.names();
+      am.effects = am.chosen;
+      for (const std::string& n : am.alternative)
+        if (std::find(am.effects.begin(), am.effects.end(), n) == am.effects.end())
+          am.effects.push_back(n);
+      am.gap_chosen = d.best.gap;
+      am.gap_alternative = a.gap;
+      am.why = why_alike(am.chosen, am.alternative, am.gap_chosen, am.gap_alternative);
+      am.next_sweep = separating_sweep(sweep, d.best, a, threads);
+      d.ambiguous.push_back(am);
+    }
+  }
+
+  // where: the named effects' footprint, the spread beyond the model's, what is left
+  if (d.named) {
+    ModelConfig bare = d.after.model;
+    bare.effects.clear();
+    const std::vector<CellPrediction> no_effects = predict_sweep(sweep, bare, threads);
+    d.where = where_of(sweep, d.baseline, d.after, &no_effects);
+  } else {
+    d.where = where_of(sweep, d.baseline, d.after, nullptr);
+  }
+  return d;
 }
 
 }  // namespace idm::analysis

@@ -1,25 +1,44 @@
-// The whole diagnosis of a sweep: where model and stage part, which effect explains it (forward
-// selection over the candidates), and how far the gap shrinks.
+// The whole diagnosis of a sweep: where model and stage part, which set of effects explains it,
+// how sure the fit is, and what is left unexplained.
 //
-// Forward selection: nothing is named when the baseline's held-out gap is within the noise
-// (<= kExplainedGap). Otherwise every identifiable candidate is fitted alone and the one that leaves
-// the smallest held-out gap is chosen if it is plausible and shrinks the gap by at least
-// kMinShrink; then each remaining effect that shrank the gap by kMinShrink alone is fitted on
-// top of the chosen set, and the best one is
-// added while it shrinks the remaining gap by at least kMinFurtherShrink and the gap is not yet
-// within the noise (a second effect has to earn its place against the freedom it adds).
+// 1. Baseline: the impulse model with alpha and mu fitted (gap.h); its held-out gap is gap_before.
+// 2. Candidates: every identifiable effect fitted alone (candidates.h), ranked by shrink.
+// 3. Forward: the best plausible candidate that shrinks the gap by kMinShrink starts the set; every
+//    other plausible candidate is then fitted on top of the set (its own search with the set held,
+//    then all jointly, screened at the search rate), and the best is added while the set's gap is
+//    above kFurtherGap and the addition shrinks it by kMinFurtherShrink.
+// 4. Backward: every member of a set of two or more is taken out and the rest refitted jointly,
+//    from the set's parameters as well as from the forward fit of the smaller set (the better
+//    counts); a member without which the gap grows by less than kBackwardTolerance goes.
+// 5. Honesty: a set that leaves a significant remainder is named only when it explains most of the
+//    gap (shrink >= kNameShrink); otherwise nothing is named and the gap is reported unexplained,
+//    with the closest library effect. The remainder is significant when the held-out gap is above
+//    kExplainedGap and its systematic part (what the training and the held-out residuals share,
+//    systematic_gap) is above kSystematicGap: noise is not shared between trials.
+// 6. Uncertainty: intervals for every fitted parameter (uncertainty.h); sets whose held-out gap is
+//    within kAmbiguousRatio of the chosen one are ambiguous, with the sweep that would separate
+//    them.
 #pragma once
 
 #include <string>
 #include <vector>
 
 #include "analysis/candidates.h"
+#include "analysis/uncertainty.h"
+#include "analysis/where.h"
 
 namespace idm::analysis {
 
 constexpr double kExplainedGap = 2.0;
+constexpr double kSystematicGap = 1.5;
 constexpr double kMinShrink = 0.3;
-constexpr double kMinFurtherShrink = 0.5;
+constexpr double kMinFurtherShrink = 0.4;
+constexpr double kFurtherGap = 1.5;     // a set's gap above which another effect is looked for
+constexpr double kRunnerUpRatio = 1.5;  // a second start when the runner-up's gap is this close
+constexpr double kBackwardTolerance = 0.25;
+constexpr double kNameShrink = 0.75;
+constexpr double kAmbiguousRatio = 1.25;
+constexpr std::size_t kMaxEffects = 3;
 
 struct NotIdentifiable {
   std::string effect;
@@ -27,19 +46,44 @@ struct NotIdentifiable {
 };
 
 struct SelectionStep {
+  std::string action;                // "add", "remove", "keep"
   std::vector<std::string> effects;  // the set after this step
   double gap = 0;
 };
 
+struct Unexplained {
+  bool significant = false;
+  double gap = 0;              // held-out gap after the named effects
+  double systematic_gap = 0;   // its part shared by training and held-out trials
+  std::vector<CellKey> cells;  // cells whose residual after is significant
+  std::string summary;
+  std::string closest;  // when nothing is named: the library set that came closest, and its shrink
+};
+
+struct Ambiguity {
+  std::vector<std::string>
+      effects;  // the chosen set and the alternative, e.g. [amplifier, actuator_compliance]
+  std::vector<std::string> chosen, alternative;
+  double gap_chosen = 0, gap_alternative = 0;
+  std::string why;
+  std::string next_sweep;
+};
+
 struct Diagnosis {
-  GapEvaluation baseline;                   // held-out, impulse model with fitted alpha
-  std::vector<CandidateResult> candidates;  // each effect alone, ranked by shrink
+  FittedModel baseline;                                    // impulse model, alpha and mu fitted
+  std::vector<SetFit> candidates;                          // each effect alone, ranked by shrink
+  std::vector<std::vector<ParameterIntervals>> intervals;  // per candidate (same order)
   std::vector<NotIdentifiable> not_identifiable;
-  std::vector<model::EffectSpec> chosen;    // the smallest set that explains the gap (fitted)
   std::vector<SelectionStep> steps;
-  GapEvaluation after;                      // held-out, baseline plus the chosen set
+  SetFit best;                                       // the set selection ended with (named or not)
+  bool named = false;                                // best is reported as the diagnosis
+  std::vector<model::EffectSpec> chosen;             // the named effects (fitted), empty when none
+  std::vector<ParameterIntervals> chosen_intervals;  // of the named set (joint fit)
+  FittedModel after;  // the named set's model (the baseline when none)
   double gap_before = 0, gap_after = 0, shrink = 0;
-  std::string where;
+  Unexplained unexplained;
+  std::vector<Ambiguity> ambiguous;
+  WhereReport where;
 };
 
 struct DiagnoseOptions {
@@ -48,6 +92,14 @@ struct DiagnoseOptions {
 };
 
 Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options = {});
+
+// What the training and the held-out residuals of one model share, in noise units: the root of
+// the mean over cells of (train component x held-out component), summed over the mean, spread and
+// label components (noise is independent between the two sets, a model's error is not).
+double systematic_gap(const FittedModel& model);
+
+// Whether a model's held-out gap is beyond what the measurement's noise allows.
+bool significant_gap(const FittedModel& model);
 
 // A short text summary (a few lines) for a person.
 std::string text_summary(const SweepCells& sweep, const Diagnosis& d);

@@ -1,10 +1,15 @@
-// gap_bench: idm-gap diagnose on a paper-size sweep (8 frequencies 100-800 Hz x 10 duties
-// 0.05-0.50 x 10 trials, one stroke, 12 cycles, 100 kHz), read from disk, on both cores (std::thread)
-// and on one for comparison. The stage hides a 3 kHz second-order amplifier.
-//   gap_bench [--quick]   (--quick: 2 x 3 cells x 4 trials, CI checks that it runs)
+// gap_bench: idm-gap diagnose timed on the machine, read from disk, on 2 threads.
+//   * the paper-size sweep: 8 frequencies 100-800 Hz x 10 duties 0.05-0.50 x 10
+//     trials, one stroke, 12 cycles, 100 kHz, a 3 kHz second-order amplifier hidden;
+//   * a lab's 20-cell sweep: 4 x 5 cells, 4 trials, 25 kHz, the same amplifier;
+//   * how it grows: 20, 40 and 80 cells at 4 trials; 3, 5 and 10 trials at 40 cells; and a pair
+//     (amplifier + tilt, both directions), which adds the joint fits.
+//   gap_bench [--quick]   (--quick: the 20-cell sweep only, 3 trials; CI checks that it runs)
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -16,54 +21,78 @@
 using namespace idm;
 
 namespace {
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-}  // namespace
 
-int main(int argc, char** argv) {
-  const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
+double cpu_s() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<double>(u.ru_utime.tv_sec) + 1e-6 * static_cast<double>(u.ru_utime.tv_usec);
+}
+
+struct Case {
+  std::string name;
+  int freqs, duties, trials;
+  bool both_directions;
+  double rate_hz;
+  std::vector<model::EffectSpec> effects;
+};
+
+void run(const Case& c) {
   analysis::SweepPlan plan;
-  if (quick) {
-    plan.freqs_hz = {200, 600};
-    plan.duties = {0.1, 0.25, 0.4};
-    plan.trials = 4;
-  } else {
-    for (int f = 100; f <= 800; f += 100) plan.freqs_hz.push_back(f);
-    for (int d = 1; d <= 10; ++d) plan.duties.push_back(0.05 * d);
-    plan.trials = 10;
-  }
+  for (int i = 0; i < c.freqs; ++i)
+    plan.freqs_hz.push_back(100 + 700.0 * i / std::max(1, c.freqs - 1));
+  for (int i = 0; i < c.duties; ++i)
+    plan.duties.push_back(std::round(1000 * (0.05 + 0.45 * i / std::max(1, c.duties - 1))) / 1000);
+  if (c.both_directions)
+    for (int i = 0; i < c.duties; ++i)
+      plan.duties.push_back(std::round(1000 * (1 - plan.duties[static_cast<std::size_t>(i)])) /
+                            1000);
+  plan.trials = c.trials;
   plan.cycles = 12;
-  plan.sample_rate_hz = 100e3;
+  plan.sample_rate_hz = c.rate_hz;
   plan.seed = 7;
   model::SimConfig sim;
   sim.noise_m = 2e-9;
   sim.seed = 7;
-  sim.effects.push_back(model::complete_effect({"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}}, "bench"));
-  const auto dir = std::filesystem::temp_directory_path() / ("gap_bench_" + std::to_string(getpid()));
+  for (const model::EffectSpec& e : c.effects)
+    sim.effects.push_back(model::complete_effect(e, "bench"));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gap_bench_" + std::to_string(getpid()));
   std::filesystem::remove_all(dir);
-  auto t0 = std::chrono::steady_clock::now();
-  const std::size_t n = analysis::run_simulated_sweep(model::StageFile{}, sim, plan, dir.string());
-  std::printf("sweep: %zu cells x %d trials, %zu trials written in %.1f s (setup, not timed)\n",
-              plan.freqs_hz.size() * plan.duties.size(), plan.trials, n, seconds_since(t0));
-  double two = 0;
-  for (int threads : {2, 1}) {
-    if (quick && threads == 1) break;
-    t0 = std::chrono::steady_clock::now();
-    const analysis::SweepCells cells = analysis::collect_cells(recording::read_dataset(dir.string()));
-    const double load = seconds_since(t0);
-    analysis::DiagnoseOptions opt;
-    opt.fit.threads = threads;
-    const analysis::Diagnosis d = analysis::diagnose(cells, opt);
-    const double total = seconds_since(t0);
-    std::string named;
-    for (const model::EffectSpec& e : d.chosen) named += (named.empty() ? "" : "+") + e.name;
-    std::printf("diagnose, %d thread%s: %.1f s (read and features %.1f s); named %s, gap %.3g -> %.3g\n", threads,
-                threads > 1 ? "s" : "", total, load, named.empty() ? "(nothing)" : named.c_str(), d.gap_before,
-                d.gap_after);
-    if (threads == 2) two = total;
-    else std::printf("speed-up on 2 threads: %.2fx\n", total / two);
+  analysis::run_simulated_sweep(model::StageFile{}, sim, plan, dir.string());
+  const auto t0 = std::chrono::steady_clock::now();
+  const double c0 = cpu_s();
+  const analysis::SweepCells cells = analysis::collect_cells(recording::read_dataset(dir.string()));
+  analysis::DiagnoseOptions opt;
+  opt.fit.threads = 2;
+  const analysis::Diagnosis d = analysis::diagnose(cells, opt);
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::string named;
+  for (const model::EffectSpec& e : d.chosen) named += (named.empty() ? "" : "+") + e.name;
+  std::printf(
+      "%-34s %3zu cells x %2d trials: %6.1f s wall, %6.1f s cpu; named %s, gap %.3g -> %.3g\n",
+      c.name.c_str(), cells.cells.size(), c.trials, wall, cpu_s() - c0,
+      named.empty() ? "(nothing)" : named.c_str(), d.gap_before, d.gap_after);
+  std::fflush(stdout);
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
+  const model::EffectSpec amp{"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}};
+  const model::EffectSpec tilt{"tilt", {{"angle_deg", 1.5}}};
+  if (quick) {
+    run({"20-cell sweep", 4, 5, 3, false, 25e3, {amp}});
+    return 0;
   }
-  std::filesystem::remove_all(dir);
+  run({"paper-size sweep (target <= 60 s)", 8, 10, 10, false, 100e3, {amp}});
+  run({"20-cell sweep (target <= 15 s)", 4, 5, 4, false, 25e3, {amp}});
+  run({"cells: 40", 8, 5, 4, false, 25e3, {amp}});
+  run({"cells: 80", 8, 10, 4, false, 25e3, {amp}});
+  run({"trials: 3", 8, 5, 3, false, 25e3, {amp}});
+  run({"trials: 5", 8, 5, 5, false, 25e3, {amp}});
+  run({"trials: 10", 8, 5, 10, false, 25e3, {amp}});
+  run({"a pair: amplifier + tilt", 8, 5, 4, true, 25e3, {amp, tilt}});
   return 0;
 }

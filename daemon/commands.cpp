@@ -489,11 +489,6 @@ CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<d
   const std::string path = create_dataset_dir(config_.recording.data_dir, dir, error);
   if (path.empty()) return {error_code::kDataOutOfRange, "SWEEP: " + error};
   auto job = std::make_unique<SweepJob>();
-  try {
-    job->writer.emplace(path, a.config().stage);
-  } catch (const std::exception& e) {
-    return {error_code::kExecutionError, std::string("cannot create the dataset: ") + e.what()};
-  }
   const drivers::OutputCapabilities& caps = a.link().output_capabilities(a.channel());
   job->axis = axis;
   job->dir = path;
@@ -507,6 +502,11 @@ CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<d
   job->settle_cycles = config_.recording.sweep_settle_cycles;
   job->span_m = config_.recording.sweep_span_m;
   job->stream_rate_hz = a.link().interferometer_capabilities(a.channel()).stream_rate_hz;
+  try {
+    job->writer.emplace(path, a.config().stage, planned_cells(*job), a.config().name);
+  } catch (const std::exception& e) {
+    return {error_code::kExecutionError, std::string("cannot create the dataset: ") + e.what()};
+  }
   if (!sweeps_->submit(std::move(job))) return {error_code::kSettingsConflict, "a sweep is already running"};
   return {};
 }

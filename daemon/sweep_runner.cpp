@@ -1,5 +1,6 @@
 #include "daemon/sweep_runner.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -17,7 +18,28 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 void nap() { std::this_thread::sleep_for(std::chrono::microseconds(500)); }
 
+model::Segment trial_segment(const SweepJob& job, double freq_hz, double duty) {
+  return model::make_segment(freq_hz, duty, job.stroke_m, static_cast<std::uint64_t>(job.cycles),
+                             job.sample_rate_hz, job.rest_s, job.settle_cycles * (1.0 / freq_hz));
+}
+
 }  // namespace
+
+std::vector<recording::PlannedCell> planned_cells(const SweepJob& job) {
+  std::vector<recording::PlannedCell> cells;
+  for (double f : job.freqs_hz)
+    for (double d : job.duties) {
+      const model::Segment s = trial_segment(job, f, d);
+      auto same = [&](const recording::PlannedCell& c) {
+        return recording::same_cell(c, s.freq_hz, s.duty, s.stroke_m);
+      };
+      if (auto it = std::find_if(cells.begin(), cells.end(), same); it != cells.end())
+        it->trials += job.trials;
+      else
+        cells.push_back({s.freq_hz, s.duty, s.stroke_m, job.trials});
+    }
+  return cells;
+}
 
 SweepRunner::SweepRunner(MotionSupervisor& supervisor, std::vector<Axis*> axes)
     : supervisor_(supervisor), axes_(std::move(axes)) {
@@ -97,10 +119,7 @@ void SweepRunner::run(SweepJob& job) {
         req.index = index;
         req.seq = 0x80000000u | (++next_seq_ & 0x7FFFFFFFu);  // apart from the positioners' chunks
         req.axis = job.axis;
-        const double period_s = 1.0 / f;
-        req.segment = model::make_segment(f, d, job.stroke_m, static_cast<std::uint64_t>(job.cycles),
-                                          job.sample_rate_hz, job.rest_s,
-                                          job.settle_cycles * period_s);
+        req.segment = trial_segment(job, f, d);
         req.return_to_m = kNaN;
         if (std::isfinite(sweep_start_m) && std::isfinite(last_m) &&
             std::fabs(last_m - sweep_start_m) > job.span_m)
@@ -114,6 +133,20 @@ void SweepRunner::run(SweepJob& job) {
         }
       }
     }
+  }
+  // The dataset's mark: complete when the whole plan was played (failed trials are missing from
+  // it), stopped with why otherwise.
+  std::string why;
+  if (stopped)
+    why = abort_.load(std::memory_order_acquire) ? "stopped by a client (STOP or *RST)"
+          : supervisor_.stopping()              ? "the daemon stopped"
+          : first_error.empty()                 ? "stopped"
+                                                : first_error;
+  try {
+    job.writer->finish(stopped ? recording::SweepStatus::Stopped : recording::SweepStatus::Complete,
+                       why);
+  } catch (const std::exception& e) {
+    if (first_error.empty()) first_error = std::string("marking the dataset: ") + e.what();
   }
   std::ostringstream line;
   std::lock_guard<std::mutex> lock(mutex_);

@@ -36,6 +36,10 @@ struct SweepJob {
   double stream_rate_hz = 0;   // the capture's rate (the trials' sample rate)
 };
 
+// The cells the job will play, with the values its trials carry (frequency and duty snapped to the
+// output clock), in playing order; cells that snap to the same values are one cell.
+std::vector<recording::PlannedCell> planned_cells(const SweepJob& job);
+
 class SweepRunner {
  public:
   SweepRunner(MotionSupervisor& supervisor, std::vector<Axis*> axes);

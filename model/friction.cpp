@@ -12,11 +12,17 @@ std::uint64_t mix(std::uint64_t z) {
   z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
   return z ^ (z >> 31);
 }
-double unit_open(std::uint64_t bits) { return (static_cast<double>(bits >> 11) + 0.5) * 0x1.0p-53; }
+double unit_open(std::uint64_t bits) {
+  return (static_cast<double>(bits >> 11) + 0.5) * 0x1.0p-53;
+}
 }  // namespace
 
-GuideProfile::GuideProfile(double relative_sd, double correlation_m, std::uint64_t seed, double mean_shift)
-    : relative_sd_(relative_sd), mean_shift_(mean_shift), correlation_m_(correlation_m), seed_(seed) {}
+GuideProfile::GuideProfile(double relative_sd, double correlation_m, std::uint64_t seed,
+                           double mean_shift)
+    : relative_sd_(relative_sd),
+      mean_shift_(mean_shift),
+      correlation_m_(correlation_m),
+      seed_(seed) {}
 
 double GuideProfile::node_value(std::int64_t index) const {
   const std::uint64_t h = mix(seed_ ^ mix(static_cast<std::uint64_t>(index)));
@@ -25,15 +31,14 @@ double GuideProfile::node_value(std::int64_t index) const {
   return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * M_PI * u2);
 }
 
-double GuideProfile::multiplier(double x_m) const {
-  if (relative_sd_ == 0.0 && mean_shift_ == 0.0) return 1.0;
+double GuideProfile::varying_multiplier(double x_m) const {
   const double s = x_m / correlation_m_;
   const double k = std::floor(s);
   const double w = s - k;
   const auto i = static_cast<std::int64_t>(k);
   // Linear between nodes, rescaled so the variance is 1 everywhere.
-  const double n = ((1 - w) * node_value(i) + w * node_value(i + 1)) /
-                   std::sqrt((1 - w) * (1 - w) + w * w);
+  const double n =
+      ((1 - w) * node_value(i) + w * node_value(i + 1)) / std::sqrt((1 - w) * (1 - w) + w * w);
   const double m = 1.0 + mean_shift_ + relative_sd_ * n;
   return m > 0.05 ? m : 0.05;  // friction never vanishes or turns negative
 }

@@ -19,11 +19,14 @@ namespace idm::model {
 class GuideProfile {
  public:
   GuideProfile() = default;
-  GuideProfile(double relative_sd, double correlation_m, std::uint64_t seed, double mean_shift = 0.0);
-  double multiplier(double x_m) const;
+  GuideProfile(double relative_sd, double correlation_m, std::uint64_t seed,
+               double mean_shift = 0.0);
+  double multiplier(double x_m) const { return flat() ? 1.0 : varying_multiplier(x_m); }
   double relative_sd() const { return relative_sd_; }
+  bool flat() const { return relative_sd_ == 0.0 && mean_shift_ == 0.0; }
 
  private:
+  double varying_multiplier(double x_m) const;
   double node_value(std::int64_t index) const;
   double relative_sd_ = 0.0;
   double mean_shift_ = 0.0;

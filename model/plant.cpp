@@ -38,8 +38,16 @@ void RigidPlant::reset(double x_m, double xi_m) {
   rate_m_s_ = 0;
 }
 
+void RigidPlant::update_tilt() {
+  if (friction_.tilt_rad == tilt_rad_) return;
+  tilt_rad_ = friction_.tilt_rad;
+  sin_tilt_ = std::sin(tilt_rad_);
+  cos_tilt_ = std::cos(tilt_rad_);
+}
+
 void RigidPlant::step(double dt_s, double xi_end_m) {
   if (!(dt_s > 0)) return;
+  update_tilt();
   const double rate = (xi_end_m - xi_m_) / dt_s;
   const double jump = rate - rate_m_s_;
   rate_m_s_ = rate;
@@ -53,8 +61,8 @@ void RigidPlant::step(double dt_s, double xi_end_m) {
     if (v_m_s_ == 0.0) {
       // A rate change spread over the step is a force -m jump/dt; static friction holds it when it
       // can (a smooth command does not creep the slider), a velocity corner breaks it loose.
-      const double force_per_mass = -stage_.mass_ratio() * jump / dt_s - g * std::sin(friction_.tilt_rad);
-      if (std::fabs(force_per_mass) > friction_.static_at(x_m_) * g * std::cos(friction_.tilt_rad))
+      const double force_per_mass = -stage_.mass_ratio() * jump / dt_s - g * sin_tilt_;
+      if (std::fabs(force_per_mass) > friction_.static_at(x_m_) * g * cos_tilt_)
         v_m_s_ = -stage_.mass_ratio() * jump;
     } else {
       v_m_s_ -= stage_.mass_ratio() * jump;
@@ -66,8 +74,8 @@ void RigidPlant::step(double dt_s, double xi_end_m) {
 
 void RigidPlant::slide(double dt_s) {
   const double g = stage_.gravity_m_s2;
-  const double g_along = g * std::sin(friction_.tilt_rad);  // pulls towards -x
-  const double g_normal = g * std::cos(friction_.tilt_rad);
+  const double g_along = g * sin_tilt_;  // pulls towards -x
+  const double g_normal = g * cos_tilt_;
   double remaining = dt_s;
   for (int segment = 0; segment < 4 && remaining > 0; ++segment) {
     if (v_m_s_ == 0.0) {
@@ -134,7 +142,7 @@ void DampedOscillator::set(double c0, double c1) {
     l1_ = cplx(q, 0);
     l2_ = cplx(c0 / q, 0);
   }
-  cached_t_s_ = -1;
+  cached_t_s_[0] = cached_t_s_[1] = -1;
 }
 
 DampedOscillator::Transition DampedOscillator::transition(double t) const {
@@ -161,13 +169,23 @@ DampedOscillator::State DampedOscillator::at(double e0, double w0, double c, dou
   const double ep = c / c0_;
   const double d = e0 - ep;
   Transition local;
-  // steps that differ only by rounding (t_k - t_{k-1}) share the coefficients
-  if (reuse && std::fabs(t - cached_t_s_) > 1e-12 * t) {
-    cached_ = transition(t);
-    cached_t_s_ = t;
+  const Transition* use = &local;
+  if (reuse) {
+    // steps that differ only by rounding (t_k - t_{k-1}) share the coefficients
+    int slot = -1;
+    for (int k = 0; k < 2; ++k)
+      if (std::fabs(t - cached_t_s_[k]) <= 1e-12 * t) slot = k;
+    if (slot < 0) {
+      slot = next_slot_;
+      next_slot_ = 1 - next_slot_;
+      cached_[slot] = transition(t);
+      cached_t_s_[slot] = t;
+    }
+    use = &cached_[slot];
+  } else {
+    local = transition(t);
   }
-  if (!reuse) local = transition(t);
-  const Transition& x = reuse ? cached_ : local;
+  const Transition& x = *use;
   State s;
   s.e = ep + x.e[0] * d + x.e[1] * w0;
   s.w = x.w[0] * d + x.w[1] * w0;
@@ -217,16 +235,18 @@ double CompliantPlant::slip_friction_n(double direction) const {
   return -direction * mu * normal_force_n_;
 }
 
-CompliantPlant::SlipState CompliantPlant::slip_at(double t, bool reuse) const {
+CompliantPlant::SlipState CompliantPlant::slip_from(const SlipState& a, double t,
+                                                    bool reuse) const {
   const double M = stage_.slider_mass_kg;
   const double K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
-  const DampedOscillator::State o = sliding_.at(e_m_, w_m_s_, -f_slip_n_ / M, t, reuse);
+  const DampedOscillator::State o = sliding_.at(a.e, a.w, -f_slip_n_ / M, t, reuse);
   const double net = f_slip_n_ - tilt_force_n_;
   SlipState s;
   s.e = o.e;
   s.w = o.w;
-  s.v = v_m_s_ + (C * (o.e - e_m_) + K * o.integral + net * t) / M;
-  s.x = x_m_ + v_m_s_ * t + (C * (o.integral - e_m_ * t) + K * o.double_integral + 0.5 * net * t * t) / M;
+  s.v = a.v + (C * (o.e - a.e) + K * o.integral + net * t) / M;
+  s.x =
+      a.x + a.v * t + (C * (o.integral - a.e * t) + K * o.double_integral + 0.5 * net * t * t) / M;
   return s;
 }
 
@@ -236,7 +256,9 @@ void CompliantPlant::step(double dt_s, double xi_end_m) {
   w_m_s_ -= rate - rate_m_s_;  // the counter mass's velocity is continuous; e' = x' - xi'
   rate_m_s_ = rate;
   double remaining = dt_s;
-  for (int segment = 0; segment < 64 && remaining > 0; ++segment) {
+  // Each segment ends at a stick/slip transition or at the step's end; a long step (the analysis
+  // steps from event to event) can hold many transitions of a ringing counter mass.
+  for (int segment = 0; segment < 1000000 && remaining > 0; ++segment) {
     if (direction_ == 0)
       advance_stuck(remaining);
     else
@@ -249,17 +271,76 @@ void CompliantPlant::step(double dt_s, double xi_end_m) {
 
 void CompliantPlant::advance_stuck(double& remaining) {
   const double c_stuck = -gravity_along_m_s2_;
-  const DampedOscillator::State end = stuck_.at(e_m_, w_m_s_, c_stuck, remaining, true);
   const double limit = friction_.static_at(x_m_) * normal_force_n_;
-  if (held_ || std::fabs(hold_force_n(end.e, end.w)) <= limit) {
-    e_m_ = end.e;
-    w_m_s_ = end.w;
-    v_m_s_ = 0;
-    remaining = 0;
-    return;
+  // A step longer than an eighth of the counter mass's oscillation can hide a break-away that its
+  // end does not show: the hold force is looked at every eighth of a period, for as long as the
+  // ringing could still carry it over the limit (energy bound). Shorter steps: the end only.
+  double lo = 0, hi = -1;
+  if (!held_ && remaining > stuck_.probe_s()) {
+    const double K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
+    const double hold_rest = hold_force_n(c_stuck / stuck_.c0(), 0.0);
+    const double probe = stuck_.probe_s();
+    auto excess = [&](double t) {
+      const DampedOscillator::State s = stuck_.at(e_m_, w_m_s_, c_stuck, t);
+      return std::fabs(hold_force_n(s.e, s.w)) - limit;
+    };
+    double e = e_m_, w = w_m_s_, f_lo = -limit, t_before = -1, f_before = 0;
+    for (double t = probe; t < remaining; t += probe) {
+      const double bound = stuck_.energy_bound(e, w, c_stuck);
+      if (std::fabs(hold_rest) + K * bound / std::sqrt(stuck_.c0()) + C * bound <= limit) break;
+      const DampedOscillator::State s =
+          stuck_.at(e, w, c_stuck, probe, true);  // from the last probe
+      const double f = std::fabs(hold_force_n(s.e, s.w)) - limit;
+      if (f > 0) {
+        lo = t - probe;
+        hi = t;
+        break;
+      }
+      if (t_before >= 0 && f_lo > f_before && f < f_lo) {
+        // a peak between t_before and t: its top, by golden section, may cross the limit
+        double a = t_before, d = t, x1 = d - 0.618 * (d - a), x2 = a + 0.618 * (d - a);
+        double f1 = excess(x1), f2 = excess(x2);
+        for (int i = 0; i < 40 && std::max(f1, f2) <= 0; ++i) {
+          if (f1 > f2) {
+            d = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = d - 0.618 * (d - a);
+            f1 = excess(x1);
+          } else {
+            a = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = a + 0.618 * (d - a);
+            f2 = excess(x2);
+          }
+        }
+        if (std::max(f1, f2) > 0) {
+          lo = t_before;
+          hi = f1 > 0 ? x1 : x2;
+          break;
+        }
+      }
+      t_before = lo;
+      f_before = f_lo;
+      e = s.e;
+      w = s.w;
+      lo = t;
+      f_lo = f;
+    }
+  }
+  if (hi < 0) {
+    const DampedOscillator::State end = stuck_.at(e_m_, w_m_s_, c_stuck, remaining, true);
+    if (held_ || std::fabs(hold_force_n(end.e, end.w)) <= limit) {
+      e_m_ = end.e;
+      w_m_s_ = end.w;
+      v_m_s_ = 0;
+      remaining = 0;
+      return;
+    }
+    hi = remaining;
   }
   // Break-away inside the step: the first time |hold force| reaches the static limit.
-  double lo = 0, hi = remaining;
   for (int i = 0; i < 60 && hi - lo > 1e-15 * remaining; ++i) {
     const double mid = 0.5 * (lo + hi);
     const DampedOscillator::State s = stuck_.at(e_m_, w_m_s_, c_stuck, mid);
@@ -275,23 +356,100 @@ void CompliantPlant::advance_stuck(double& remaining) {
   f_slip_n_ = slip_friction_n(direction_);
 }
 
+double CompliantPlant::first_stop_probe(double remaining, double& lo, double& v_lo,
+                                        double& v_hi) const {
+  // A long step can hide a stop that its end does not show (the ringing dips the velocity to 0):
+  // the velocity is looked at every eighth of a period while the ringing could still bring it to 0.
+  // v(t) = trend + (C x + K integral of x) / M with x the ringing of the spring deflection, whose
+  // change from any later time is bounded through the oscillator's energy.
+  const double M = stage_.slider_mass_kg, K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
+  const double c = -f_slip_n_ / M, c0 = sliding_.c0(), c1 = sliding_.c1();
+  const double accel = (K * c / c0 + f_slip_n_ - tilt_force_n_) / M;  // the trend of v
+  const double probe = sliding_.probe_s();
+  SlipState last{e_m_, w_m_s_, v_m_s_, x_m_};  // at the last probe, lo
+  double e = e_m_, w = w_m_s_, v = v_m_s_;
+  double t_before = -1, v_before = 0;  // the probe before lo, for a dip between probes
+  for (double t = probe; t < remaining; t += probe) {
+    const double b = sliding_.energy_bound(e, w, c);
+    const double swing =
+        (2 * C * b / std::sqrt(c0) + (K / c0) * (2 * b + 2 * c1 * b / std::sqrt(c0))) / M;
+    const double t_last = lo;  // the last probe: where (e, w, v) were taken
+    const double v_trend_end = direction_ * (v + accel * (remaining - t_last));
+    if (std::min(direction_ * v, v_trend_end) > swing) return -1;  // no stop can hide in the rest
+    // nor before the trend comes within the swing of 0: the probes may skip ahead to there
+    if (direction_ * accel < 0 && direction_ * v > swing) {
+      const double reach = t_last + (direction_ * v - swing) / (-direction_ * accel);
+      if (reach > t) t = std::min(reach, remaining - 0.5 * probe);
+    }
+    // from the last probe, the probe step's coefficients kept
+    const double dt = t - t_last;
+    const SlipState s = slip_from(last, dt, std::fabs(dt - probe) <= 1e-12 * probe);
+    const double vt = s.v * direction_;
+    if (vt <= 0) {
+      v_hi = vt;
+      return t;
+    }
+    if (t_before >= 0 && v_lo < v_before && vt > v_lo) {
+      // a dip between t_before and t: its bottom, by golden section, may touch 0
+      double a = t_before, d = t, x1 = d - 0.618 * (d - a), x2 = a + 0.618 * (d - a);
+      double f1 = slip_at(x1).v * direction_, f2 = slip_at(x2).v * direction_;
+      for (int i = 0; i < 40 && std::min(f1, f2) > 0; ++i) {
+        if (f1 < f2) {
+          d = x2;
+          x2 = x1;
+          f2 = f1;
+          x1 = d - 0.618 * (d - a);
+          f1 = slip_at(x1).v * direction_;
+        } else {
+          a = x1;
+          x1 = x2;
+          f1 = f2;
+          x2 = a + 0.618 * (d - a);
+          f2 = slip_at(x2).v * direction_;
+        }
+      }
+      if (std::min(f1, f2) <= 0) {
+        const bool first = f1 <= 0;
+        v_hi = first ? f1 : f2;
+        lo = t_before;
+        v_lo = v_before;
+        return first ? x1 : x2;
+      }
+    }
+    t_before = lo;
+    v_before = v_lo;
+    lo = t;
+    v_lo = vt;
+    last = s;
+    e = s.e;
+    w = s.w;
+    v = s.v;
+  }
+  return -1;
+}
+
 void CompliantPlant::advance_sliding(double& remaining) {
   f_slip_n_ = slip_friction_n(direction_);
-  const SlipState end = slip_at(remaining, true);
-  if (end.v * direction_ > 0) {
-    e_m_ = end.e;
-    w_m_s_ = end.w;
-    v_m_s_ = end.v;
-    x_m_ = end.x;
-    remaining = 0;
-    return;
+  double lo = 0, hi = -1;
+  double v_lo = v_m_s_ * direction_, v_hi = 0;
+  if (remaining > sliding_.probe_s()) hi = first_stop_probe(remaining, lo, v_lo, v_hi);
+  if (hi < 0) {
+    const SlipState end = slip_at(remaining, true);
+    if (end.v * direction_ > 0) {
+      e_m_ = end.e;
+      w_m_s_ = end.w;
+      v_m_s_ = end.v;
+      x_m_ = end.x;
+      remaining = 0;
+      return;
+    }
+    hi = remaining;
+    v_hi = end.v * direction_;
   }
   // The slider stops inside the step: find where v crosses 0 (false position, Illinois).
-  double lo = 0, hi = remaining;
-  double v_lo = v_m_s_ * direction_, v_hi = end.v * direction_;
   if (v_lo <= 0) {
     // starting from rest (break-away): find a point where it moves
-    double t = remaining;
+    double t = hi;
     for (int i = 0; i < 40; ++i) {
       t *= 0.5;
       const double v = slip_at(t).v * direction_;

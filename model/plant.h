@@ -6,11 +6,14 @@
 //   sample is a momentum-exact impulse on the slider, -m/(M+m) times the change (eqs 1-3).
 // * CompliantPlant: the mass-damper-spring model of eq 30 (stiffness K, damping C). Integrated
 //   exactly: within a sample and a friction state the equations are linear with constant input, and
-//   the closed-form solution is evaluated; stick<->slip switches are found as roots within the step.
-// Both use the same friction law: Coulomb slip, stick while the force needed to hold the slider is at
-// most mu_s N, N = (M+m) g cos(tilt). A slider at rest stays exactly at rest (no creep, no chatter).
+//   the closed-form solution is evaluated; stick<->slip switches are found as roots within the
+//   step.
+// Both use the same friction law: Coulomb slip, stick while the force needed to hold the slider is
+// at most mu_s N, N = (M+m) g cos(tilt). A slider at rest stays exactly at rest (no creep, no
+// chatter).
 #pragma once
 
+#include <cmath>
 #include <complex>
 #include <limits>
 #include <memory>
@@ -50,7 +53,8 @@ class Plant {
   const FrictionLaw& friction() const { return friction_; }
 
  protected:
-  Plant(const StageParams& stage, const FrictionLaw& friction) : stage_(stage), friction_(friction) {}
+  Plant(const StageParams& stage, const FrictionLaw& friction)
+      : stage_(stage), friction_(friction) {}
   // After a step: a slider past a stop is put on it and its velocity into the stop is dropped.
   // Returns true when it is on a stop.
   bool apply_end_stops(double& x_m, double& v_m_s) const;
@@ -76,7 +80,10 @@ class RigidPlant final : public Plant {
 
  private:
   void slide(double dt_s);
+  // sin and cos of the friction law's tilt, computed again only when the tilt changes
+  void update_tilt();
   double x_m_ = 0, v_m_s_ = 0, xi_m_ = 0, rate_m_s_ = 0;
+  double tilt_rad_ = 0, sin_tilt_ = 0, cos_tilt_ = 1;
 };
 
 // e'' + c1 e' + c0 e = c: closed-form value, rate and first two time integrals of e.
@@ -88,6 +95,17 @@ class DampedOscillator {
   void set(double c0, double c1);
   // `reuse`: t_s is the plant's regular step; its coefficients are kept for the next call.
   State at(double e0, double w0, double c, double t_s, bool reuse = false) const;
+  double c0() const { return c0_; }
+  double c1() const { return c1_; }
+  // An eighth of the period of the undamped oscillation: steps up to this long cannot hide a
+  // turn of it.
+  double probe_s() const { return 2.0 * 3.14159265358979323846 / std::sqrt(c0_) / 8.0; }
+  // A bound on |x| * sqrt(c0) and |x'| for all later times, x = e - c / c0: the energy
+  // x'^2 + c0 x^2 never grows (it falls by 2 c1 x'^2).
+  double energy_bound(double e, double w, double c) const {
+    const double x = e - c / c0_;
+    return std::sqrt(w * w + c0_ * x * x);
+  }
 
  private:
   // The state at t is linear in (e0 - ep, w0): four real coefficient pairs, cached for the last t
@@ -98,8 +116,10 @@ class DampedOscillator {
   Transition transition(double t_s) const;
   double c0_ = 1, c1_ = 0;
   std::complex<double> l1_, l2_;
-  mutable double cached_t_s_ = -1;
-  mutable Transition cached_{};
+  // two slots: the plant's regular step and a probe step (compliant plant) alternate
+  mutable double cached_t_s_[2] = {-1, -1};
+  mutable Transition cached_[2]{};
+  mutable int next_slot_ = 0;
 };
 
 class CompliantPlant final : public Plant {
@@ -118,11 +138,18 @@ class CompliantPlant final : public Plant {
     double e, w, v, x;
   };
   // from the current state, sliding with force f_slip_n_
-  SlipState slip_at(double t_s, bool reuse = false) const;
+  SlipState slip_at(double t_s, bool reuse = false) const {
+    return slip_from({e_m_, w_m_s_, v_m_s_, x_m_}, t_s, reuse);
+  }
+  // from `start`, sliding with force f_slip_n_
+  SlipState slip_from(const SlipState& start, double t_s, bool reuse = false) const;
   double hold_force_n(double e, double w) const;  // friction force needed to hold the slider
   double slip_friction_n(double direction) const;
   void advance_stuck(double& remaining_s);
   void advance_sliding(double& remaining_s);
+  // The first probe time (every eighth of the sliding oscillation) at which the velocity has
+  // reached 0, or -1; lo and v_lo: the last probe before it that still moved, v_hi at the probe.
+  double first_stop_probe(double remaining_s, double& lo_s, double& v_lo, double& v_hi) const;
 
   double gravity_along_m_s2_ = 0;  // g sin(tilt)
   double tilt_force_n_ = 0;        // M g sin(tilt), along -x on the slider

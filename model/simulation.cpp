@@ -232,6 +232,12 @@ SimulatedStage::SimulatedStage(const StageParams& stage, const InterferometerPar
   reset(0.0, config.seed);
 }
 
+double SimulatedStage::next_kink_s(double rate_m_s) const {
+  // one piecewise-linear effect sees the command itself; a chain of them is not handled here
+  if (chain_.size() != 1) return -1.0;
+  return chain_.front()->next_kink_s(rate_m_s);
+}
+
 void SimulatedStage::reset(double x_m, std::uint64_t noise_seed) {
   plant_->reset(x_m, 0.0);
   for (auto& e : chain_) e->reset(0.0);

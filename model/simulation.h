@@ -96,6 +96,11 @@ class SimulatedStage {
   const SimConfig& config() const { return config_; }
   const StageParams& stage() const { return stage_; }
   bool smooths_command() const { return !chain_.empty(); }
+  // With a chain whose every effect is piecewise linear (hysteresis): for a command moving at
+  // rate_m_s, the time until the actuator's slope next changes; negative when the chain is not
+  // piecewise linear. Steps that end at these kinks (with internal_rate_hz low enough not to
+  // subdivide them) give the plant the chain's output exactly.
+  double next_kink_s(double rate_m_s) const;
 
  private:
   void advance(double dt_s, double xi_cmd_end_m);

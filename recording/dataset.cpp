@@ -22,6 +22,8 @@
 #include <unordered_map>
 #include <utility>
 
+#include "recording/durable_file.h"
+
 namespace idm::recording {
 
 namespace fs = std::filesystem;
@@ -353,80 +355,6 @@ std::optional<Problem> trial_problem(const TrialInfo& t) {
   return std::nullopt;
 }
 
-// ---------------------------------------------------------------- durable writes
-
-[[noreturn]] void throw_errno(int error, const std::string& what) {
-  throw std::system_error(error, std::generic_category(), what);
-}
-
-// fsync of a directory, so that a rename or a new entry in it survives a crash. File systems that
-// cannot sync a directory (EINVAL) are accepted.
-void fsync_directory(const fs::path& dir) {
-  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) throw_errno(errno, dir.string() + ": cannot open directory to sync it");
-  if (::fsync(fd) != 0 && errno != EINVAL) {
-    const int error = errno;
-    ::close(fd);
-    throw_errno(error, dir.string() + ": cannot sync directory");
-  }
-  ::close(fd);
-}
-
-fs::path temporary_name(const fs::path& final_path) {
-  return final_path.parent_path() / ("." + final_path.filename().string() + ".tmp");
-}
-
-// Writes `content` to a temporary name next to `final_path`, fsyncs it, renames it over
-// `final_path` and fsyncs the directory. On failure the temporary file is removed and
-// `final_path` is as it was.
-void write_file_durably(const fs::path& final_path, std::string_view content) {
-  const fs::path tmp = temporary_name(final_path);
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) throw_errno(errno, final_path.string() + ": cannot create " + tmp.string());
-  auto fail = [&](int error, const std::string& what, bool close_fd) {
-    if (close_fd) ::close(fd);
-    ::unlink(tmp.c_str());
-    throw_errno(error, final_path.string() + ": " + what);
-  };
-  const char* data = content.data();
-  std::size_t left = content.size();
-  while (left > 0) {
-    const ssize_t n = ::write(fd, data, left);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      fail(errno, "cannot write " + tmp.string(), true);
-    }
-    data += n;
-    left -= static_cast<std::size_t>(n);
-  }
-  if (::fsync(fd) != 0) fail(errno, "cannot sync " + tmp.string(), true);
-  if (::close(fd) != 0) fail(errno, "cannot close " + tmp.string(), false);
-  if (::rename(tmp.c_str(), final_path.c_str()) != 0)
-    fail(errno, "cannot rename " + tmp.string() + " to " + final_path.filename().string(), false);
-  fsync_directory(final_path.parent_path().empty() ? fs::path(".") : final_path.parent_path());
-}
-
-// Creates `dir` (and missing parents) and makes the new entries durable.
-void create_directory_durably(const fs::path& dir) {
-  std::error_code ec;
-  const fs::path absolute = fs::absolute(dir, ec).lexically_normal();
-  if (ec) throw_errno(ec.value(), dir.string() + ": cannot resolve path");
-  // The topmost directory that does not exist yet: its parent gets the new entry.
-  fs::path top;
-  for (fs::path p = absolute; !p.empty() && !fs::exists(p, ec); p = p.parent_path()) {
-    top = p;
-    if (p == p.parent_path()) break;
-  }
-  if (top.empty()) {
-    if (!fs::is_directory(absolute, ec)) throw_errno(ENOTDIR, dir.string() + ": not a directory");
-    return;
-  }
-  fs::create_directories(absolute, ec);
-  if (ec) throw_errno(ec.value(), dir.string() + ": cannot create directory");
-  for (fs::path p = absolute; p != top.parent_path(); p = p.parent_path()) fsync_directory(p);
-  fsync_directory(top.parent_path());
-}
-
 // CSV field as the reader will read it back: quoted when it has a comma, a quote or blanks at
 // its ends (which an unquoted field loses).
 void append_text_field(std::string& out, const std::string& text) {
@@ -507,6 +435,15 @@ Dataset read_dataset(const std::string& dir) {
       csv.fail(col[kFile], in_quotes(t.file) + " is not a regular file");
     out.trials.push_back(std::move(t));
   }
+  const fs::path plan_path = fs::path(dir) / kPlanFile;
+  if (fs::exists(plan_path, ec)) {
+    const SweepPlanFile plan = read_plan_file(plan_path.string());
+    out.progress.status = plan.status;
+    out.progress.planned = plan.cells;
+    out.progress.note = plan.note;
+    out.progress.axis = plan.axis;
+    out.progress.missing = missing_cells(plan.cells, out.trials);
+  }
   return out;
 }
 
@@ -556,7 +493,11 @@ std::string trial_name(double freq_hz, double duty, double stroke_m, int index) 
   return name;
 }
 
-DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage) {
+DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage)
+    : DatasetWriter(std::move(dir), stage, {}) {}
+
+DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage,
+                             std::vector<PlannedCell> planned, std::string axis) {
   const fs::path root(dir);
   if (fs::exists(root / kSweepFile))
     throw InputError(dir +
@@ -564,13 +505,30 @@ DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage) {
                      "directory");
   model::validate(stage.stage, "stage");
   model::validate(stage.interferometer, "interferometer");
+  validate_plan(planned, dir);
+  planned_ = std::move(planned);
+  axis_ = std::move(axis);
   dataset_.path = std::move(dir);
   dataset_.stage = stage;
   create_directory_durably(root);
   create_directory_durably(root / kTrialsDir);
   // stage.yaml first: once sweep.csv exists the dataset is complete.
   write_file_durably(root / kStageFile, model::to_yaml(stage));
+  // The mark before sweep.csv: a dataset that has trials is never unmarked by accident.
+  if (!planned_.empty()) write_plan(SweepStatus::InProgress, "");
   write_sweep_csv();
+}
+
+void DatasetWriter::write_plan(SweepStatus status, const std::string& note) const {
+  write_file_durably(fs::path(dataset_.path) / kPlanFile, plan_yaml({status, planned_, note, axis_}));
+}
+
+void DatasetWriter::finish(SweepStatus status, const std::string& note) {
+  if (status != SweepStatus::Complete && status != SweepStatus::Stopped)
+    throw std::invalid_argument("DatasetWriter::finish: the status must be Complete or Stopped");
+  if (finished_) throw std::logic_error("DatasetWriter::finish: " + dataset_.path + " is finished");
+  if (!planned_.empty()) write_plan(status, note);
+  finished_ = true;
 }
 
 void DatasetWriter::write_sweep_csv() const {
@@ -596,6 +554,8 @@ void DatasetWriter::write_sweep_csv() const {
 }
 
 const TrialInfo& DatasetWriter::add_trial(TrialInfo info, const TrialSeries& series) {
+  if (finished_)
+    throw std::logic_error("DatasetWriter::add_trial: " + dataset_.path + " is finished");
   auto reject = [&](const std::string& what) {
     throw InputError(dataset_.path + ": trial " + in_quotes(info.id) + ": " + what);
   };
@@ -614,6 +574,13 @@ const TrialInfo& DatasetWriter::add_trial(TrialInfo info, const TrialSeries& ser
   }
   if (auto p = trial_problem(info)) reject(std::string(p->column) + ": " + p->message);
   if (ids_.count(info.id)) reject("the id is already in the dataset");
+  if (!planned_.empty() &&
+      std::none_of(planned_.begin(), planned_.end(), [&](const PlannedCell& c) {
+        return same_cell(c, info.freq_hz, info.duty, info.stroke_m);
+      }))
+    reject("(" + format_number(info.freq_hz) + " Hz, duty " + format_number(info.duty) +
+           ", stroke " + format_number(info.stroke_m) +
+           " m) is not a planned cell; the plan must hold the values the trials carry");
   const std::string normal_file = fs::path(info.file).lexically_normal().string();
   if (files_.count(normal_file))
     reject("file " + in_quotes(info.file) + " already belongs to another trial");

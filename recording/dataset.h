@@ -4,6 +4,8 @@
 //   DATASET/sweep.csv      one row per trial (TrialInfo)
 //   DATASET/stage.yaml     nominal stage parameters (model::StageFile)
 //   DATASET/trials/*.csv   one time series per trial (TrialSeries)
+//   DATASET/plan.yaml      optional: the recorder's plan and how the recording ended
+//                          (sweep_plan.h; an extension of the format, recording/README.md)
 //
 // Every error in the input is a model::InputError that names the file, the line and the column:
 // "DATASET/trials/x.csv:17:3 (x_m): 'nan' is not a finite number".
@@ -15,6 +17,7 @@
 #include <vector>
 
 #include "model/stage.h"
+#include "recording/sweep_plan.h"
 
 namespace idm::recording {
 
@@ -45,13 +48,16 @@ struct Dataset {
   std::string path;               // DATASET/ as given
   model::StageFile stage;         // stage.yaml
   std::vector<TrialInfo> trials;  // sweep.csv, in file order
+  SweepProgress progress;         // plan.yaml against sweep.csv (Unmarked without plan.yaml)
 
   // path/trials[index].file
   std::string trial_path(std::size_t index) const;
 };
 
 // Reads sweep.csv and stage.yaml and checks that every trial file exists; the trial files
-// themselves are read on demand by read_trial. Throws InputError.
+// themselves are read on demand by read_trial. With a plan.yaml, `progress` says whether the
+// recording was interrupted and which planned cells have fewer trials than planned; without one it
+// is Unmarked and nothing else changes. Throws InputError.
 Dataset read_dataset(const std::string& dir);
 
 // Reads the time series of dataset.trials[index]. Throws InputError (std::out_of_range for a bad
@@ -75,10 +81,25 @@ std::string trial_name(double freq_hz, double duty, double stroke_m, int index);
 //
 // Bad arguments (out-of-range values, non-finite samples, a repeated id) throw InputError before
 // anything is written; file system failures throw std::system_error naming the file.
+//
+// With a plan (the second constructor) the writer also marks the dataset (sweep_plan.h): plan.yaml
+// says `in_progress` from before the first trial until finish() rewrites it, so a sweep that never
+// reaches finish() (SIGKILL, a crash, a power loss) reads back as interrupted, with its missing
+// cells. The daemon's recorder:
+//
+//   DatasetWriter w(dir, stage, planned_cells, axis_name);   // every (f, duty, stroke) the sweep will play,
+//                                                 // with the values its trials will carry
+//   for each trial: w.add_trial(info, series);    // failed trials are simply not added
+//   w.finish(SweepStatus::Complete);              // or Stopped with a note ("STOP", an error)
 class DatasetWriter {
  public:
-  // `dir` may exist but must not already hold a sweep.csv.
+  // `dir` may exist but must not already hold a sweep.csv. No mark: the dataset looks like one
+  // from any other source (finish() does nothing).
   DatasetWriter(std::string dir, const model::StageFile& stage);
+  // Marks the dataset in progress with `planned` (checked first: InputError for a bad cell);
+  // `axis`, when not empty, is the name of the axis that plays the sweep (plan.yaml's `axis`).
+  DatasetWriter(std::string dir, const model::StageFile& stage, std::vector<PlannedCell> planned,
+                std::string axis = "");
 
   DatasetWriter(const DatasetWriter&) = delete;
   DatasetWriter& operator=(const DatasetWriter&) = delete;
@@ -90,15 +111,24 @@ class DatasetWriter {
   // Returns the row as written to sweep.csv (valid until the next add_trial).
   const TrialInfo& add_trial(TrialInfo info, const TrialSeries& series);
 
+  // Ends the recording: plan.yaml gets `status` (Complete or Stopped; `note`, one line, says why
+  // a sweep stopped). Once finished, add_trial throws std::logic_error. Without a plan, only that.
+  void finish(SweepStatus status = SweepStatus::Complete, const std::string& note = "");
+  bool finished() const { return finished_; }
+
   // What has been written so far (read_trial works on it).
   const Dataset& dataset() const { return dataset_; }
 
  private:
   void write_sweep_csv() const;
+  void write_plan(SweepStatus status, const std::string& note) const;
 
   Dataset dataset_;
   std::unordered_set<std::string> ids_;    // ids in dataset_.trials
   std::unordered_set<std::string> files_;  // their files, lexically normalized
+  std::vector<PlannedCell> planned_;       // empty: no mark
+  std::string axis_;                       // plan.yaml's axis ("" none)
+  bool finished_ = false;
 };
 
 }  // namespace idm::recording

@@ -1,6 +1,8 @@
 #include "model/effects/hysteresis.h"
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
 
 #include "model/effects/param_check.h"
 
@@ -38,6 +40,20 @@ void Hysteresis::reset(double xi_m) {
   for (int i = 0; i < kOperators; ++i) play_m_[i] = xi_m + half_width_m_[i];
   offset_m_ = 0.0;
   offset_m_ = xi_m - output(xi_m);
+  input_m_ = xi_m;
+}
+
+double Hysteresis::next_kink_s(double rate_m_s) const {
+  // Operator i stays put until the input leaves [F_i - r_i, F_i + r_i] on the side it moves to.
+  double first = std::numeric_limits<double>::infinity();
+  if (rate_m_s == 0.0) return first;
+  for (int i = 0; i < kOperators; ++i) {
+    const double gap = rate_m_s > 0 ? play_m_[i] + half_width_m_[i] - input_m_
+                                    : input_m_ - (play_m_[i] - half_width_m_[i]);
+    if (gap > 1e-16)
+      first = std::min(first, gap / std::fabs(rate_m_s));  // 0.1 fm: already following
+  }
+  return first;
 }
 
 double Hysteresis::step(double xi_in_m, double /*dt_s*/) {
@@ -46,6 +62,7 @@ double Hysteresis::step(double xi_in_m, double /*dt_s*/) {
     const double r = half_width_m_[i];
     play_m_[i] = std::max(xi_in_m - r, std::min(xi_in_m + r, play_m_[i]));
   }
+  input_m_ = xi_in_m;
   return output(xi_in_m);
 }
 

@@ -32,6 +32,8 @@ class Hysteresis final : public ActuatorEffect {
 
   void reset(double xi_m) override;
   double step(double xi_in_m, double dt_s) override;
+  // The output is piecewise linear in the input: a kink where an operator starts to follow.
+  double next_kink_s(double rate_m_s) const override;
 
   const Params& params() const { return params_; }
 
@@ -44,6 +46,7 @@ class Hysteresis final : public ActuatorEffect {
   std::array<double, kOperators> weight_{};        // w_i
   std::array<double, kOperators> play_m_{};        // F_i
   double offset_m_ = 0.0;
+  double input_m_ = 0.0;  // the last input
 };
 
 }  // namespace idm::model

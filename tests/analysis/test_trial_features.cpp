@@ -10,7 +10,8 @@ using namespace idm;
 using namespace idm::analysis;
 
 namespace {
-TrialSeries simulate(const model::TriangleWave& w, double rate_hz, double noise_m, std::uint64_t seed) {
+TrialSeries simulate(const model::TriangleWave& w, double rate_hz, double noise_m,
+                     std::uint64_t seed) {
   model::SimConfig c;
   c.noise_m = noise_m;
   model::StageParams s;
@@ -83,20 +84,23 @@ TEST(TrialFeatures, ATrialThatDoesNotCoverItsBurstIsAnError) {
 
 TEST(TrialFeatures, MajorityVote) {
   using model::Region;
-  EXPECT_EQ(majority_region({Region::OneStep, Region::OneStep, Region::MultiStep}), Region::OneStep);
+  EXPECT_EQ(majority_region({Region::OneStep, Region::OneStep, Region::MultiStep}),
+            Region::OneStep);
   EXPECT_EQ(majority_region({Region::Cutoff, Region::MultiStep}), Region::MultiStep);
 }
 
 // The sample sweep from another simulator (amplifier at 3.5 kHz): at 100 Hz the stage follows the
 // impulse model; the features read it whatever its time grid.
 TEST(TrialFeatures, SampleSweepAtLowFrequencyFollowsTheModel) {
-  const Dataset ds = recording::read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier");
+  const Dataset ds =
+      recording::read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier");
   const model::StageParams& s = ds.stage.stage;
   int checked = 0;
   for (std::size_t i = 0; i < ds.trials.size(); ++i) {
     const TrialInfo& info = ds.trials[i];
     if (info.freq_hz != 100 || info.stroke_m < 2e-5) continue;
-    const TrialFeatures tf = trial_features(info, read_trial(ds, i), ds.stage.interferometer.resolution_m, 3e-9);
+    const TrialFeatures tf =
+        trial_features(info, read_trial(ds, i), ds.stage.interferometer.resolution_m, 3e-9);
     const double beta = model::impulse_ratio(s, info.freq_hz, info.stroke_m);
     if (!robust(beta, info.duty)) continue;
     EXPECT_EQ(tf.region, model::region(beta, info.duty)) << info.id;

@@ -599,6 +599,15 @@ TEST_F(DaemonSim, SweepWritesADatasetFromTheLoopsSamples) {
       << d->last_sweep_report();
   const idm::recording::Dataset ds = idm::recording::read_dataset(dir.string());
   ASSERT_EQ(ds.trials.size(), 8u);
+  // The recorder's mark: the whole plan played, by axis x, every planned cell full.
+  EXPECT_EQ(ds.progress.status, idm::recording::SweepStatus::Complete);
+  EXPECT_EQ(ds.progress.axis, "x");
+  ASSERT_EQ(ds.progress.planned.size(), 4u);
+  for (const auto& c : ds.progress.planned) {
+    EXPECT_EQ(c.trials, 2);
+    EXPECT_DOUBLE_EQ(c.stroke_m, 20.35e-6);
+  }
+  EXPECT_TRUE(ds.progress.missing.empty());
   for (std::size_t i = 0; i < ds.trials.size(); ++i) {
     const auto series = idm::recording::read_trial(ds, i);
     EXPECT_EQ(ds.trials[i].cycles, 3);
@@ -765,6 +774,14 @@ TEST_F(DaemonSim, ResetDuringASweepLetsTheSweepWindDownInTheBackground) {
   EXPECT_EQ(d.status(0).last_error, "");
   EXPECT_EQ(d.sweep_status().state, "STOPPED");
   for (const auto& note : d.take_notes()) EXPECT_FALSE(note.warning) << note.text;
+  // The dataset says it was stopped, why, and which planned cells are short.
+  const idm::recording::Dataset ds = idm::recording::read_dataset(dir.string());
+  EXPECT_EQ(ds.progress.status, idm::recording::SweepStatus::Stopped);
+  EXPECT_TRUE(ds.progress.interrupted());
+  EXPECT_NE(ds.progress.note.find("stopped by a client"), std::string::npos) << ds.progress.note;
+  EXPECT_EQ(ds.progress.axis, "x");
+  EXPECT_EQ(ds.progress.planned.size(), 4u);
+  EXPECT_FALSE(ds.progress.missing.empty());
   // The daemon moves again after the reset.
   const CommandError m = d.move_relative(0, 2e-6);
   EXPECT_TRUE(m.ok()) << m.text;

@@ -1,0 +1,104 @@
+// The text summary of a diagnosis (selection.h: text_summary).
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "analysis/selection.h"
+#include "model/yaml_util.h"
+
+namespace idm::analysis {
+
+namespace {
+
+std::string params_text(const std::vector<model::EffectSpec>& effects) {
+  std::string out;
+  for (const model::EffectSpec& e : effects)
+    for (const auto& [k, v] : e.params) {
+      if (k == "correlation_m" || k == "mean_shift" || (k == "slew_rate_m_s" && v == 0)) continue;
+      out += (out.empty() ? "" : ", ") + k + "=" + model::format_number(v);
+    }
+  return out;
+}
+
+std::string intervals_text(const std::vector<ParameterIntervals>& intervals) {
+  std::string out;
+  for (const ParameterIntervals& pi : intervals)
+    for (const ParameterInterval& p : pi.params) {
+      out += (out.empty() ? "" : ", ") + p.param + " " + model::format_number(p.lo) + " to " +
+             model::format_number(p.hi) + (p.limited_by_range ? " (range)" : "");
+    }
+  return out;
+}
+
+std::string names_of(const std::vector<std::string>& n) {
+  std::string out;
+  for (const std::string& s : n) out += (out.empty() ? "" : " + ") + s;
+  return out;
+}
+
+}  // namespace
+
+std::string text_summary(const SweepCells& sweep, const Diagnosis& d) {
+  std::ostringstream s;
+  char buf[512];
+  int trials = 0;
+  for (const Cell& c : sweep.cells) trials += static_cast<int>(c.train.size() + c.test.size());
+  std::snprintf(
+      buf, sizeof buf, "%s: %zu cells, %d trials; reading noise %.2g m (one count %.4g m)\n",
+      sweep.name.c_str(), sweep.cells.size(), trials, sweep.reading_sd_m, sweep.resolution_m);
+  s << buf << progress_summary(sweep);
+  const Calibration& b = d.baseline.calibration;
+  std::snprintf(buf, sizeof buf,
+                "baseline (impulse model; alpha %.3f and mu %.4g fitted on training trials, "
+                "stage.yaml: mu %.4g): "
+                "held-out gap %.3g\n",
+                b.alpha, b.mu, sweep.stage.stage.friction_coefficient, d.gap_before);
+  s << buf << "where: " << d.where.summary << "\n";
+  s << "which (each effect alone, fitted on training trials; held-out gap; 95 % intervals from "
+       "held-out trials):\n";
+  for (std::size_t i = 0; i < d.candidates.size(); ++i) {
+    const SetFit& c = d.candidates[i];
+    std::snprintf(buf, sizeof buf, "  %-20s gap %8.3g  shrink %6.1f %%  ",
+                  c.effects.front().name.c_str(), c.gap, 100 * c.shrink);
+    s << buf << params_text(c.effects);
+    if (i < d.intervals.size() && !d.intervals[i].empty())
+      s << "  [" << intervals_text(d.intervals[i]) << "]";
+    if (!c.plausible) s << "  [implausible: " << c.note << "]";
+    s << "\n";
+  }
+  for (const NotIdentifiable& n : d.not_identifiable)
+    s << "  " << n.effect << ": not identifiable from this data (needs " << n.needs << ")\n";
+  if (!d.steps.empty()) {
+    s << "selection:";
+    for (const SelectionStep& st : d.steps)
+      s << " " << st.action << " -> " << names_of(st.effects) << " (gap "
+        << model::format_number(st.gap) << ");";
+    s << "\n";
+  }
+  if (d.named) {
+    std::snprintf(buf, sizeof buf, "diagnosis: %s; held-out gap %.3g -> %.3g (shrink %.1f %%)\n",
+                  names_of(d.best.names()).c_str(), d.gap_before, d.gap_after, 100 * d.shrink);
+    s << buf << "  fitted jointly: " << params_text(d.chosen);
+    s << "; alpha " << model::format_number(d.after.calibration.alpha) << ", mu "
+      << model::format_number(d.after.calibration.mu) << "\n";
+    if (!d.chosen_intervals.empty())
+      s << "  95 % intervals (held-out): " << intervals_text(d.chosen_intervals) << "\n";
+  } else if (d.unexplained.significant) {
+    s << "diagnosis: no effect of the library explains the gap (nothing named)\n";
+  } else {
+    s << "diagnosis: no significant gap to explain (held-out gap "
+      << model::format_number(d.gap_before) << ", systematic part "
+      << model::format_number(systematic_gap(d.baseline)) << ")\n";
+  }
+  s << "unexplained: " << (d.unexplained.significant ? "SIGNIFICANT. " : "no. ")
+    << d.unexplained.summary;
+  if (!d.unexplained.closest.empty()) s << " (" << d.unexplained.closest << ")";
+  s << "\n";
+  for (const Ambiguity& a : d.ambiguous)
+    s << "ambiguous: " << names_of(a.chosen) << " or " << names_of(a.alternative) << ": " << a.why
+      << " To tell them apart: " << a.next_sweep << "\n";
+  if (d.named) s << "after: " << d.where.summary_after << "\n";
+  return s.str();
+}
+
+}  // namespace idm::analysis

@@ -1,0 +1,402 @@
+// Fitting one effect or a set of effects (candidates.h): grid, Subplex refinement at the search
+// rate, polish and score at the scoring rate.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <functional>
+#include <limits>
+#include <nlopt.hpp>
+
+#include "analysis/candidates.h"
+#include "model/yaml_util.h"
+
+namespace idm::analysis {
+
+std::vector<model::EffectSpec> effects_of(const std::vector<CandidateSpec>& library,
+                                          const std::vector<MemberFit>& members) {
+  std::vector<model::EffectSpec> out;
+  for (const MemberFit& m : members) {
+    const CandidateSpec& spec = spec_of(library, m.effect);
+    Params p = m.fixed;
+    if (!spec.grid.empty()) {
+      for (const auto& [k, v] : m.grid_point) p[k] = v;
+    } else {
+      std::vector<double> x;
+      for (std::size_t i = 0; i < spec.axes.size(); ++i) x.push_back(spec.axes[i].value(m.u[i]));
+      for (const auto& [k, v] : spec.params(x)) p[k] = v;
+    }
+    out.push_back(model::complete_effect({m.effect, p}, "candidate " + m.effect));
+  }
+  return out;
+}
+
+namespace {
+
+bool verbose() {
+  return std::getenv("IDM_GAP_VERBOSE") != nullptr;
+}
+
+// The training gap of a set of effects (alpha and mu refitted around the baseline's mu).
+class Objective {
+ public:
+  Objective(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+            const FittedModel& baseline, int threads)
+      : sweep_(sweep),
+        library_(library),
+        baseline_(baseline),
+        model_(baseline.model),
+        threads_(threads) {
+    model_.stage.friction_coefficient = sweep.stage.stage.friction_coefficient;
+  }
+
+  double train_gap(const std::vector<MemberFit>& members, bool search) {
+    ++evaluations;
+    ModelConfig model = model_;
+    model.effects = effects_of(library_, members);
+    model.chain_rate_hz = search ? search_rate_hz(model.effects) : score_rate_hz(model.effects);
+    model.search = search;
+    const std::vector<CellPrediction> pred = predict_sweep(sweep_, model, threads_);
+    const Calibration calib =
+        fit_calibration(sweep_, pred, model.stage.friction_coefficient, false);
+    last_mu_ = fit_calibration(sweep_, pred, model.stage.friction_coefficient).mu;  // a proposal
+    return evaluate_gap(sweep_, pred, calib, TrialSet::Train).gap;
+  }
+
+  // The search keeps mu at stage.yaml's (alpha alone is fitted: a free mu would let every
+  // candidate trade its own parameters against the friction). Before the polish, mu moves to the
+  // linearized fit's proposal at the best point when that lowers the training gap there.
+  void recenter(const std::vector<MemberFit>& members) {
+    const double here = train_gap(members, true);
+    const double mu = model_.stage.friction_coefficient, proposal = last_mu_;
+    model_.stage.friction_coefficient = proposal;
+    if (!(train_gap(members, true) < here)) model_.stage.friction_coefficient = mu;
+  }
+
+  // The set scored at the scoring rate, mu re-simulated at its fitted value.
+  SetFit score(const std::vector<MemberFit>& members, double train_gap) {
+    SetFit f;
+    f.members = members;
+    f.effects = effects_of(library_, members);
+    ModelConfig model = model_;
+    model.effects = f.effects;
+    model.chain_rate_hz = score_rate_hz(model.effects);
+    f.fitted = fit_model(sweep_, model, threads_, 1);
+    f.train_gap = train_gap;
+    f.gap = f.fitted.test.gap;
+    f.shrink = baseline_.test.gap > 0 ? 1.0 - f.gap / baseline_.test.gap : 0.0;
+    f.evaluations = evaluations + 1 + 1;
+    return f;
+  }
+
+  int evaluations = 0;
+
+ private:
+  const SweepCells& sweep_;
+  const std::vector<CandidateSpec>& library_;
+  const FittedModel& baseline_;
+  ModelConfig model_;  // the model searched: stage.yaml's, at the mu of the current search
+  int threads_;
+  double last_mu_ = 0;
+};
+
+// Bounded Subplex on [0, 1]^n from `start`; returns the best point met (and its value in `best`).
+std::vector<double> subplex(const std::function<double(const std::vector<double>&)>& f,
+                            std::vector<double> start, double step, int max_evals, double xtol,
+                            double& best) {
+  const std::size_t n = start.size();
+  std::vector<double> best_x = start;
+  best = std::numeric_limits<double>::infinity();
+  if (n == 0 || max_evals <= 0) return best_x;
+  nlopt::opt solver(nlopt::LN_SBPLX, static_cast<unsigned>(n));
+  solver.set_lower_bounds(std::vector<double>(n, 0.0));
+  solver.set_upper_bounds(std::vector<double>(n, 1.0));
+  solver.set_initial_step(std::vector<double>(n, step));
+  solver.set_maxeval(max_evals);
+  solver.set_xtol_abs(xtol);
+  std::function<double(const std::vector<double>&)> eval = [&](const std::vector<double>& x) {
+    const double v = f(x);
+    if (v < best) {
+      best = v;
+      best_x = x;
+    }
+    return v;
+  };
+  solver.set_min_objective(
+      [](const std::vector<double>& x, std::vector<double>&, void* data) {
+        return (*static_cast<std::function<double(const std::vector<double>&)>*>(data))(x);
+      },
+      &eval);
+  double fx = 0;
+  try {
+    solver.optimize(start, fx);
+  } catch (const nlopt::roundoff_limited&) {
+  } catch (const nlopt::forced_stop&) {
+  }
+  return best_x;
+}
+
+// Plausibility of a fitted set: no coordinate on a bound, a step scale some stage has.
+void judge(const std::vector<CandidateSpec>& library, SetFit& f) {
+  for (const MemberFit& m : f.members) {
+    const CandidateSpec& spec = spec_of(library, m.effect);
+    for (std::size_t i = 0; i < m.u.size(); ++i)
+      if (m.u[i] < 0.01 || m.u[i] > 0.99) {
+        f.plausible = false;
+        f.note = m.effect + " " + spec.axes[i].name +
+                 " ended on the bound of its plausible range [" +
+                 model::format_number(spec.axes[i].lo) + ", " +
+                 model::format_number(spec.axes[i].hi) + "]";
+      }
+  }
+  const double alpha = f.fitted.calibration.alpha;
+  if (!(alpha > 0.05 && alpha <= 2.0)) {
+    f.plausible = false;
+    f.note = "needs a step scale of " + model::format_number(alpha) + ", outside (0.05, 2]";
+  }
+}
+
+void log_fit(const char* what, const SetFit& f, std::chrono::steady_clock::time_point t0) {
+  if (!verbose()) return;
+  std::string names;
+  for (const std::string& n : f.names()) names += (names.empty() ? "" : "+") + n;
+  std::fprintf(stderr, "  %s %s: %d evaluations, %.2f s, train gap %.3g, held-out %.3g%s\n", what,
+               names.c_str(), f.evaluations,
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+               f.train_gap, f.gap, f.plausible ? "" : " (implausible)");
+}
+
+}  // namespace
+
+SweepCells spread_subset(const SweepCells& sweep, std::size_t count) {
+  if (sweep.cells.size() <= 2 * count) return sweep;
+  SweepCells out = sweep;
+  out.cells.clear();
+  const double stride = static_cast<double>(sweep.cells.size()) / static_cast<double>(count);
+  for (std::size_t k = 0; k < count; ++k)
+    out.cells.push_back(
+        sweep.cells[static_cast<std::size_t>((static_cast<double>(k) + 0.5) * stride)]);
+  return out;
+}
+
+namespace {
+
+// Starting points for a refinement: the best grid point and the next best ones that are not its
+// grid neighbours (a narrow valley can hide between grid points and trap a single start).
+std::vector<std::vector<double>> starts_from(
+    std::vector<std::pair<double, std::vector<double>>> grid, int points, int max_starts) {
+  std::sort(grid.begin(), grid.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<std::vector<double>> starts;
+  const double cell = 1.0 / (points - 1);
+  for (const auto& [value, u] : grid) {
+    if (starts.size() >= static_cast<std::size_t>(max_starts)) break;
+    bool near = false;
+    for (const std::vector<double>& s : starts) {
+      bool all = true;
+      for (std::size_t i = 0; i < u.size(); ++i) all = all && std::fabs(u[i] - s[i]) <= cell * 1.01;
+      near = near || all;
+    }
+    if (!near) starts.push_back(u);
+  }
+  return starts;
+}
+
+}  // namespace
+
+namespace {
+
+// The coarse search for one effect, on top of `fixed` members (held where they are): its grid or
+// scan, then Subplex from the best points that are not neighbours. `value`: the objective there;
+// `per_variant`, when given, receives the best of each variant.
+MemberFit coarse_search(Objective& coarse, const CandidateSpec& spec,
+                        const std::vector<MemberFit>& fixed_members, const FitOptions& opt,
+                        double& value, std::vector<MemberFit>* per_variant = nullptr) {
+  MemberFit best{spec.effect, spec.variants.front(), {}, {}};
+  value = std::numeric_limits<double>::infinity();
+  auto with = [&](const MemberFit& m) {
+    std::vector<MemberFit> all = fixed_members;
+    all.push_back(m);
+    return coarse.train_gap(all, true);
+  };
+  if (!spec.grid.empty()) {
+    for (const Params& g : spec.grid) {
+      const MemberFit m{spec.effect, spec.variants.front(), {}, g};
+      const double v = with(m);
+      if (v < value) {
+        value = v;
+        best = m;
+      }
+    }
+    return best;
+  }
+  const std::size_t n = spec.axes.size();
+  const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
+  for (const Params& fixed : spec.variants) {
+    MemberFit m{spec.effect, fixed, std::vector<double>(n, 0.0), {}};
+    auto f = [&](const std::vector<double>& u) {
+      m.u = u;
+      return with(m);
+    };
+    std::vector<std::pair<double, std::vector<double>>> grid;
+    int spacing = pts;  // grid points per unit of u, for telling neighbours apart
+    if (spec.scan_ratio > 1 && n == 2) {
+      const FitAxis& a = spec.axes[0];
+      const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
+      spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
+      for (double other : spec.scan_other)
+        for (double u0 = 0; u0 <= 1 + 1e-9; u0 += du) {
+          const std::vector<double> u{std::min(u0, 1.0), spec.axes[1].coordinate(other)};
+          grid.push_back({f(u), u});
+        }
+    } else {
+      const int total = n == 1 ? pts : pts * pts;
+      for (int k = 0; k < total; ++k) {
+        std::vector<double> u(n);
+        u[0] = (k % pts) / double(pts - 1);
+        if (n == 2) u[1] = (k / pts) / double(pts - 1);
+        grid.push_back({f(u), u});
+      }
+    }
+    if (!spec.start.empty()) {
+      std::vector<double> u;
+      for (std::size_t i = 0; i < n; ++i) u.push_back(spec.axes[i].coordinate(spec.start[i]));
+      grid.push_back({f(u), u});
+    }
+    MemberFit variant_best = m;
+    double variant_value = std::numeric_limits<double>::infinity();
+    for (const std::vector<double>& start :
+         starts_from(grid, spacing, n == 1 ? 1 : opt.starts_2d)) {
+      double v = 0;
+      const std::vector<double> u =
+          subplex(f, start, 0.5 / (spacing - 1), opt.refine_evals * static_cast<int>(n), 1e-3, v);
+      if (v < variant_value) {
+        variant_value = v;
+        variant_best = {spec.effect, fixed, u, {}};
+      }
+    }
+    if (per_variant) per_variant->push_back(variant_best);
+    if (variant_value < value) {
+      value = variant_value;
+      best = variant_best;
+    }
+  }
+  return best;
+}
+
+}  // namespace
+
+SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                  const CandidateSpec& spec, const FittedModel& baseline, const FitOptions& opt) {
+  const auto t0 = std::chrono::steady_clock::now();
+  Objective obj(sweep, library, baseline, opt.threads);
+  // The grid or scan looks for basins on a subset of the cells spread over the map (cheaper on a
+  // large sweep); the refinement runs on every cell.
+  const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
+  Objective coarse(coarse_cells, library, baseline, opt.threads);
+  double best_value = 0;
+  std::vector<MemberFit> variants;
+  MemberFit best = coarse_search(coarse, spec, {}, opt, best_value, &variants);
+  if (spec.grid.empty()) {
+    const int n = static_cast<int>(spec.axes.size());
+    const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
+    auto on_all = [&](bool search) {
+      return [&, search](const std::vector<double>& u) {
+        MemberFit m = best;
+        m.u = u;
+        return obj.train_gap({m}, search);
+      };
+    };
+    // On a large sweep each variant's coarse optimum is refined on every cell (a short Subplex
+    // from there) and the variants are compared there.
+    if (coarse_cells.cells.size() < sweep.cells.size()) {
+      best_value = std::numeric_limits<double>::infinity();
+      for (const MemberFit& v : variants) {
+        MemberFit keep = best;
+        best = v;
+        double value = 0;
+        best.u = subplex(on_all(true), v.u, 0.1 / (pts - 1), opt.refine_evals * n / 2, 1e-3, value);
+        if (value < best_value) {
+          best_value = value;
+          keep = best;
+        }
+        best = keep;
+      }
+    }
+    // The winner polished at the scoring rate, simulated at its own mu: with little noise the gap
+    // is a sharp V around the optimum, and the search rate's error and the linearized mu move it.
+    obj.recenter({best});
+    const double step = spec.scan_ratio > 1 ? 0.005 : 0.05 / (pts - 1);
+    best.u = subplex(on_all(false), best.u, step, opt.polish_evals * n, 1e-4, best_value);
+  }
+  SetFit out = obj.score({best}, best_value);
+  out.evaluations += coarse.evaluations;
+  judge(library, out);
+  log_fit("fit", out, t0);
+  return out;
+}
+
+SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                  const std::vector<MemberFit>& base, const CandidateSpec& spec,
+                  const FittedModel& baseline, const FitOptions& opt) {
+  // the new effect searched with the set held, on the coarse cells; then all of them jointly
+  const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
+  Objective coarse(coarse_cells, library, baseline, opt.threads);
+  double value = 0;
+  std::vector<MemberFit> start = base;
+  start.push_back(coarse_search(coarse, spec, base, opt, value));
+  SetFit out = fit_joint(coarse_cells, library, start, baseline, opt, JointStage::Search);
+  out.evaluations += coarse.evaluations;
+  return out;
+}
+
+SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                 const std::vector<MemberFit>& start, const FittedModel& baseline,
+                 const FitOptions& opt, JointStage stage) {
+  const auto t0 = std::chrono::steady_clock::now();
+  Objective obj(sweep, library, baseline, opt.threads);
+  std::vector<MemberFit> members = start;
+  std::vector<double> u0;
+  for (const MemberFit& m : members) u0.insert(u0.end(), m.u.begin(), m.u.end());
+  auto unpack = [&](const std::vector<double>& u) {
+    std::size_t k = 0;
+    for (MemberFit& m : members)
+      for (double& v : m.u) v = u[k++];
+  };
+  const int n = static_cast<int>(u0.size());
+  double value = std::numeric_limits<double>::infinity();
+  auto f = [&](bool search) {
+    return [&, search](const std::vector<double>& u) {
+      unpack(u);
+      return obj.train_gap(members, search);
+    };
+  };
+  // the search (screening runs it on a subset of the cells), then on every cell: a short search
+  // when the set was screened, mu recentered, the polish at the scoring rate
+  if (stage != JointStage::Finish)
+    u0 = subplex(f(true), u0, 0.02, opt.refine_evals * n + 8, 1e-3, value);
+  if (stage == JointStage::Finish) u0 = subplex(f(true), u0, 0.01, opt.refine_evals * n / 2, 1e-3, value);
+  if (stage != JointStage::Search) {
+    unpack(u0);
+    obj.recenter(members);
+    u0 = subplex(f(false), u0, 0.005, opt.polish_evals * n, 1e-4, value);
+  }
+  if (n == 0) value = obj.train_gap(members, stage == JointStage::Search);
+  unpack(u0);
+  if (stage == JointStage::Search) {
+    SetFit out;
+    out.members = members;
+    out.effects = effects_of(library, members);
+    out.train_gap = value;
+    out.gap = std::numeric_limits<double>::infinity();
+    out.evaluations = obj.evaluations;
+    return out;
+  }
+  SetFit out = obj.score(members, value);
+  judge(library, out);
+  log_fit("joint", out, t0);
+  return out;
+}
+
+}  // namespace idm::analysis

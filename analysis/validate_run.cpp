@@ -1,0 +1,235 @@
+// Running and scoring validate (validate.h): generate, diagnose, compare with the truth.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "analysis/report_json.h"
+#include "analysis/unknown_effects.h"
+#include "analysis/validate.h"
+
+namespace idm::analysis {
+
+namespace {
+
+struct Generated {
+  std::vector<TrialInfo> infos;
+  std::vector<TrialSeries> series;
+};
+
+Generated generate(const Scenario& sc, const model::SimConfig& sim, const SweepPlan& plan) {
+  Generated g;
+  std::map<std::string, double> unused;
+  std::unique_ptr<HiddenDistortion> distortion;
+  SweepPlan p = plan;
+  if (!sc.unknown.empty()) {
+    distortion = make_unknown_effect(sc.unknown, sc.unknown_strength, sc.stage.stage.stroke_m,
+                                     plan.freqs_hz.back(), unused);
+    p.distortion = distortion.get();
+  }
+  simulate_sweep(sc.stage, sim, p, [&](const TrialInfo& info, TrialSeries&& s) {
+    g.infos.push_back(info);
+    g.series.push_back(std::move(s));
+  });
+  return g;
+}
+
+// The true footprint of the hidden effects per cell: the noise-free sweep with them against the
+// same sweep without them (one trial a cell; friction that varies along the guide by the
+// predictor's distribution), in the units of the diagnosis's held-out residual of the cell.
+std::vector<double> true_footprint(const Scenario& sc, const SweepCells& cells,
+                                   const Diagnosis& d) {
+  std::vector<double> out(cells.cells.size(), 0.0);
+  if (sc.sim.effects.empty() && sc.unknown.empty()) return out;
+  if (sc.unknown.empty()) {
+    ModelConfig with, bare;
+    with.stage = bare.stage = sc.stage.stage;
+    with.effects = sc.sim.effects;
+    const std::vector<CellPrediction> a = predict_sweep(cells, with, 1),
+                                      b = predict_sweep(cells, bare, 1);
+    for (std::size_t c = 0; c < out.size(); ++c)
+      out[c] =
+          prediction_change(d.after.test.cells[c], a[c].steady_step_m, a[c].step_sd_m, a[c].region,
+                            b[c].steady_step_m, b[c].step_sd_m, b[c].region, cells.reading_sd_m);
+    return out;
+  }
+  model::SimConfig quiet = sc.sim;
+  quiet.noise_m = 0;
+  SweepPlan one = sc.plan;
+  one.trials = 1;
+  model::StageFile exact = sc.stage;
+  exact.interferometer.resolution_m = 1e-12;
+  Scenario with = sc;
+  with.stage = exact;
+  Scenario without = with;
+  without.unknown.clear();
+  const Generated a = generate(with, quiet, one), b = generate(without, quiet, one);
+  for (std::size_t i = 0; i < a.infos.size(); ++i) {
+    const TrialFeatures fa = trial_features(a.infos[i], a.series[i], 1e-12, 0);
+    const TrialFeatures fb = trial_features(b.infos[i], b.series[i], 1e-12, 0);
+    for (std::size_t c = 0; c < cells.cells.size(); ++c) {
+      const CellKey& k = cells.cells[c].key;
+      if (k.freq_hz == a.infos[i].freq_hz && k.duty == a.infos[i].duty &&
+          k.stroke_m == a.infos[i].stroke_m)
+        out[c] = prediction_change(d.after.test.cells[c], fa.steady_step_m, 0, fa.region,
+                                   fb.steady_step_m, 0, fb.region, cells.reading_sd_m);
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+ValidateRun validate_one(const Scenario& sc, int threads, Diagnosis* out) {
+  const auto t0 = std::chrono::steady_clock::now();
+  ValidateRun run;
+  run.hidden = sc.name;
+  run.cls = sc.cls;
+  run.setup = sc.describe();
+  run.params = sc.params;
+  run.seed = sc.seed;
+  run.expected = sc.expected;
+  run.expect_unexplained = sc.expect_unexplained;
+  Generated g = generate(sc, sc.sim, sc.plan);
+  const SweepCells cells = collect_cells(sc.stage, g.infos, g.series,
+                                         "validate:" + sc.name + ":seed" + std::to_string(sc.seed));
+  g = Generated{};
+  DiagnoseOptions opt;
+  opt.fit.threads = threads;
+  const Diagnosis d = diagnose(cells, opt);
+  for (const model::EffectSpec& e : d.chosen) run.named.push_back(e.name);
+  std::sort(run.named.begin(), run.named.end());
+  for (const Ambiguity& a : d.ambiguous)
+    for (const std::string& n : a.alternative) run.ambiguous_with.push_back(n);
+  for (const NotIdentifiable& n : d.not_identifiable) run.not_identifiable.push_back(n.effect);
+  run.correct = run.named == run.expected;
+  if (sc.cls == "not_identifiable")
+    run.correct = run.correct && std::find(run.not_identifiable.begin(), run.not_identifiable.end(),
+                                           sc.name.substr(17)) != run.not_identifiable.end();
+  run.unexplained = d.unexplained.significant;
+  run.gap_before = d.gap_before;
+  run.gap_after = d.gap_after;
+  run.shrink = d.named ? d.shrink : (d.candidates.empty() ? 0.0 : d.candidates.front().shrink);
+  // where: what the report locates against where the hidden effects act
+  if (sc.cls != "none" && sc.cls != "not_identifiable") {
+    const std::vector<double> truth = true_footprint(sc, cells, d);
+    std::vector<double> located;
+    for (std::size_t c = 0; c < cells.cells.size(); ++c)
+      located.push_back(d.named ? d.where.cells[c].effect_gap : d.where.cells[c].remainder);
+    run.where_rank = spearman(located, truth);
+    run.where_scored = true;
+  }
+  run.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (out) *out = d;
+  return run;
+}
+
+ValidateResult run_validate(const ValidateOptions& options, void (*progress)(const ValidateRun&)) {
+  ValidateResult r;
+  const std::vector<std::string> cases =
+      options.cases.empty() ? validate_cases(options.quick) : options.cases;
+  for (const std::string& c : cases) case_class(c);  // every name checked before the first run
+  int correct = 0;
+  for (int k = 0; k < options.seeds; ++k)
+    for (const std::string& c : cases) {
+      const Scenario sc =
+          make_scenario(c, options.first_seed + static_cast<std::uint64_t>(k), options.quick);
+      ValidateRun run = validate_one(sc, options.threads);
+      auto& tally = r.by_effect[c];
+      ++tally.first;
+      ClassScore& cs = r.by_class[run.cls];
+      ++cs.runs;
+      cs.shrink_sum += run.shrink;
+      if (run.unexplained) ++cs.unexplained_said;
+      if (run.where_scored) {
+        cs.where_sum += run.where_rank;
+        ++cs.where_runs;
+      }
+      if (run.correct) {
+        ++tally.second;
+        ++cs.correct;
+        ++correct;
+      }
+      if (progress) progress(run);
+      r.runs.push_back(std::move(run));
+    }
+  r.accuracy =
+      r.runs.empty() ? 0.0 : static_cast<double>(correct) / static_cast<double>(r.runs.size());
+  return r;
+}
+
+namespace {
+std::string names(const std::vector<std::string>& v) {
+  std::string out = "[";
+  for (std::size_t i = 0; i < v.size(); ++i) out += (i ? ", " : "") + json_string(v[i]);
+  return out + "]";
+}
+}  // namespace
+
+std::string validate_json(const ValidateResult& r) {
+  std::ostringstream s;
+  s << "{\"runs\": [\n";
+  for (std::size_t i = 0; i < r.runs.size(); ++i) {
+    const ValidateRun& run = r.runs[i];
+    s << "  {\"hidden\": " << json_string(run.hidden) << ", \"class\": " << json_string(run.cls)
+      << ", \"params\": {";
+    bool first = true;
+    for (const auto& [k, v] : run.params) {
+      s << (first ? "" : ", ") << json_string(k) << ": " << json_number(v);
+      first = false;
+    }
+    s << "}, \"seed\": " << run.seed << ", \"setup\": " << json_string(run.setup)
+      << ", \"named\": " << names(run.named) << ", \"expected\": " << names(run.expected)
+      << ", \"correct\": " << (run.correct ? "true" : "false")
+      << ", \"unexplained\": " << (run.unexplained ? "true" : "false")
+      << ", \"expect_unexplained\": " << (run.expect_unexplained ? "true" : "false")
+      << ", \"ambiguous_with\": " << names(run.ambiguous_with)
+      << ", \"shrink\": " << json_number(run.shrink)
+      << ", \"gap_before\": " << json_number(run.gap_before)
+      << ", \"gap_after\": " << json_number(run.gap_after)
+      << ", \"where_rank\": " << (run.where_scored ? json_number(run.where_rank) : "null")
+      << ", \"seconds\": " << json_number(run.seconds) << "}" << (i + 1 < r.runs.size() ? "," : "")
+      << "\n";
+  }
+  s << "],\n\"accuracy\": " << json_number(r.accuracy) << ",\n\"by_effect\": {";
+  bool first = true;
+  for (const auto& [e, t] : r.by_effect) {
+    s << (first ? "" : ", ") << json_string(e) << ": {\"runs\": " << t.first
+      << ", \"correct\": " << t.second << "}";
+    first = false;
+  }
+  s << "},\n\"by_class\": {";
+  first = true;
+  for (const auto& [c, t] : r.by_class) {
+    s << (first ? "" : ", ") << json_string(c) << ": {\"runs\": " << t.runs
+      << ", \"correct\": " << t.correct << ", \"unexplained_said\": " << t.unexplained_said
+      << ", \"mean_shrink\": " << json_number(t.shrink_sum / t.runs) << ", \"mean_where_rank\": "
+      << (t.where_runs ? json_number(t.where_sum / t.where_runs) : "null") << "}";
+    first = false;
+  }
+  s << "}}\n";
+  return s.str();
+}
+
+std::string validate_table(const ValidateResult& r) {
+  std::ostringstream s;
+  char buf[200];
+  std::snprintf(buf, sizeof buf, "accuracy %.3f (%zu runs)\n", r.accuracy, r.runs.size());
+  s << buf;
+  s << "  class              correct   says unexplained   mean shrink   where (rank correlation)\n";
+  for (const auto& [c, t] : r.by_class) {
+    std::snprintf(
+        buf, sizeof buf, "  %-18s %3d / %-3d %6d / %-3d       %6.1f %%     %s\n", c.c_str(),
+        t.correct, t.runs, t.unexplained_said, t.runs, 100 * t.shrink_sum / t.runs,
+        t.where_runs ? std::to_string(t.where_sum / t.where_runs).substr(0, 5).c_str() : "-");
+    s << buf;
+  }
+  for (const auto& [e, t] : r.by_effect) {
+    std::snprintf(buf, sizeof buf, "  %-40s %d / %d\n", e.c_str(), t.second, t.first);
+    s << buf;
+  }
+  return s.str();
+}
+
+}  // namespace idm::analysis
