@@ -121,7 +121,7 @@ AxisStatus parse_status(std::string_view reply) {
   s.cycles = parse_reply_count(need(kv, "cycles", reply));
   s.referenced = flag(need(kv, "referenced", reply), "referenced");
   s.device = need(kv, "device", reply);
-  if (const auto it = kv.find("eot"); it != kv.end()) s.eot = it->second;
+  if (const auto it = kv.find("eot"); it != kv.end() && it->second != "none") s.eot = it->second;
   if (const auto it = kv.find("daemon_error"); it != kv.end()) s.daemon_error = it->second;
   return s;
 }

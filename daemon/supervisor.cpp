@@ -48,6 +48,9 @@ void MotionSupervisor::tick(double now_s) {
   const bool park = park_request_.load(std::memory_order_acquire);
   if (!park && parked_.load(std::memory_order_relaxed))
     parked_.store(false, std::memory_order_release);
+  // Parked: the main thread is swapping the axes' positioners. The loop touches no axis (commands
+  // wait in their queue, readings in the links') until it is let go.
+  if (park && parked_.load(std::memory_order_relaxed)) return;
   // The server waits for one command at a time: at most one is applied per tick, and acknowledged
   // after the status that reflects it is published (MOVE:DONE? right after MOVE sees the motion).
   AxisCommand cmd;

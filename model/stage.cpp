@@ -24,7 +24,7 @@ constexpr StageKey kStageKeys[] = {
     {"counter_mass_kg", &StageParams::counter_mass_kg, {0.0, 1e3, true}, true},
     {"friction_coefficient", &StageParams::friction_coefficient, {0.0, 2.0, true}, true},
     {"gravity_m_s2", &StageParams::gravity_m_s2, {0.0, 100.0, true}, true},
-    {"stroke_m", &StageParams::stroke_m, 0.0, 1e-3, true, true},
+    {"stroke_m", &StageParams::stroke_m, {0.0, 1e-3, true}, true},
     {"step_correction", &StageParams::step_correction, {0.0, 1.0, true}, true},
     {"stiffness_n_m", &StageParams::stiffness_n_m, {0.0, 1e12, true}, false},
     {"damping_n_s_m", &StageParams::damping_n_s_m, {0.0, 1e6, false}, false},

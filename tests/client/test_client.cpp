@@ -37,6 +37,8 @@ TEST(Replies, StatusHasEveryField) {
   EXPECT_TRUE(s.referenced);
   EXPECT_EQ(s.device, "up");
   EXPECT_EQ(s.eot, "");
+  // The daemon says eot=none away from the ends: no end of travel.
+  EXPECT_EQ(parse_status(std::string(kStatus) + " eot=none").eot, "");
 }
 
 TEST(Replies, AnUntrustedPositionIsNaNAndUnsetLimitsAreInfinite) {

@@ -58,7 +58,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   try {
     const idm::daemon::DaemonConfig config = idm::daemon::load_daemon_config(path);
     // What SIGHUP and *RST do with the same file.
-    (void)idm::daemon::parse_control_config(idm::model::load_yaml_file(path), path, config.stage);
+    (void)idm::daemon::reload_control_configs(idm::model::load_yaml_file(path), path, config);
   } catch (const idm::model::InputError& e) {
     const std::string what = e.what();
     if (what.rfind(path, 0) != 0) fail("an error that does not name the file", what);
