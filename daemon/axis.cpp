@@ -12,8 +12,6 @@ namespace idm::daemon {
 
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
 bool grid_changed(const ControlConfig& a, const ControlConfig& b) {
   return a.freq_step_hz != b.freq_step_hz || a.duty_step != b.duty_step ||
          a.stroke_count != b.stroke_count || a.min_freq_hz != b.min_freq_hz ||
