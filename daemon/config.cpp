@@ -7,6 +7,9 @@
 #include <utility>
 
 #include "drivers/backends.h"
+#include "drivers/modbus/modbus_backend.h"
+#include "drivers/sim/sim_backend.h"
+#include "drivers/usb/usb_backend.h"
 #include "model/yaml_util.h"
 
 namespace idm::daemon {
@@ -395,7 +398,7 @@ const model::ParamTable<RecordingConfig>& recording_params() {
 const model::ParamTable<DeviceConfig>& device_params() {
   using D = DeviceConfig;
   const auto driver_section = [](const char* name) {
-    return custom<D>(name, "map", "drivers/README.md", "", "the driver's own keys (only for that driver)",
+    return custom<D>(name, "map", "see its section", "", "the driver's own keys (only for that driver)",
                      [](D&, const Node& v, const std::string& f, const std::string& k) {
                        if (!v.IsMap()) throw InputError(located(f, v, k, "expected a map"));
                      });
@@ -495,7 +498,17 @@ std::string config_reference() {
          section("server", server_params().markdown()) +
          section("realtime", realtime_params().markdown()) +
          section("logging", logging_params().markdown()) +
-         section("recording", recording_params().markdown());
+         section("recording", recording_params().markdown()) +
+         section("stage (axes.NAME.stage; model/stage.h, the paper's Table 1)", model::stage_reference_rows()) +
+         section("interferometer (axes.NAME.interferometer; drivers/config.h)",
+                 drivers::interferometer_reference_rows()) +
+         section("interferometer.air", drivers::air_reference_rows()) +
+         section("sim (axes.NAME.sim; model/simulation.h): the simulated stage, whatever the driver",
+                 model::sim_params().markdown()) +
+         section("devices.NAME.sim (drivers/sim/)", drivers::sim::sim_device_params().markdown()) +
+         section("devices.NAME.sim.faults", drivers::sim::sim_fault_params().markdown("faults.")) +
+         section("devices.NAME.modbus (drivers/modbus/)", drivers::modbus::modbus_params().markdown()) +
+         section("devices.NAME.usb (drivers/usb/)", drivers::usb::usb_device_params().markdown());
 }
 
 // ---- the map's limits ----

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <sstream>
 
+#include "model/param_table.h"
 #include "model/yaml_util.h"
 
 namespace idm::drivers {
@@ -35,107 +36,134 @@ void check_keys(const YAML::Node& map, const std::string& file, const std::strin
   }
 }
 
-bool read_output_capability(const std::string& key, const YAML::Node& v, const std::string& file,
-                            const std::string& section, OutputCapabilities& caps) {
-  const std::string k = section + "." + key;
-  if (key == "max_sample_rate_hz") {
-    caps.max_sample_rate_hz = read_double(v, file, k, 0, 1e9, true);
-  } else if (key == "max_burst_samples") {
-    caps.max_burst_samples = static_cast<std::size_t>(read_integer(v, file, k, 2, 1L << 28));
-  } else if (key == "resolution_bits") {
-    caps.resolution_bits = static_cast<unsigned>(read_integer(v, file, k, 1, 32));
-  } else if (key == "min_voltage_v") {
-    caps.min_voltage_v = read_double(v, file, k, -1000, 0);
-  } else if (key == "max_voltage_v") {
-    caps.max_voltage_v = read_double(v, file, k, 0, 1000, true);
-  } else if (key == "volts_per_m") {
-    caps.volts_per_m = read_double(v, file, k, 0, 1e12, true);
-  } else if (key == "max_freq_hz") {
-    caps.max_freq_hz = read_double(v, file, k, 0, 1e6, true);
-  } else if (key == "max_cycles") {
-    caps.max_cycles = static_cast<std::uint32_t>(read_integer(v, file, k, 1, 100000000));
-  } else {
-    return false;
-  }
-  return true;
-}
-
 }  // namespace detail
 
+using model::ParamTable;
+
+const ParamTable<OutputCapabilities>& output_capability_params() {
+  using C = OutputCapabilities;
+  static const ParamTable<C> table({
+      model::real<C>("max_sample_rate_hz", "Hz", {0, 1e9, true}, "buffered output: the highest DAC clock",
+                     [](auto& c) -> auto& { return c.max_sample_rate_hz; }),
+      model::integer<C>("max_burst_samples", "count", 2, 1L << 28, "buffered output: the largest burst",
+                        [](auto& c) -> auto& { return c.max_burst_samples; }),
+      model::integer<C>("resolution_bits", "bits", 1, 32, "the DAC's resolution",
+                        [](auto& c) -> auto& { return c.resolution_bits; }),
+      model::real<C>("min_voltage_v", "V", {-1000, 0}, "the output range's low end",
+                     [](auto& c) -> auto& { return c.min_voltage_v; }),
+      model::real<C>("max_voltage_v", "V", {0, 1000, true}, "the output range's high end",
+                     [](auto& c) -> auto& { return c.max_voltage_v; }),
+      model::real<C>("volts_per_m", "V/m", {0, 1e12, true}, "output volts per metre of actuator elongation",
+                     [](auto& c) -> auto& { return c.volts_per_m; }),
+      model::real<C>("max_freq_hz", "Hz", {0, 1e6, true}, "burst parameters: the highest frequency",
+                     [](auto& c) -> auto& { return c.max_freq_hz; }),
+      model::integer<C>("max_cycles", "count", 1, 100000000, "burst parameters: most cycles in one burst",
+                        [](auto& c) -> auto& { return c.max_cycles; }),
+  });
+  return table;
+}
+
+namespace {
+
+// The `interferometer:` section as written, before the keys that depend on each other are
+// combined (divisor and optics, air and air_index, resolution_m and the wavelength).
+struct InterferometerYaml {
+  InterferometerConfig config;
+  bool has_air = false;
+  AirConditions air;
+  double resolution_m = 0.0;  // 0: not given
+};
+
+const ParamTable<AirConditions>& air_params() {
+  using A = AirConditions;
+  static const ParamTable<A> table({
+      model::real<A>("temperature_c", "°C", {-40, 60}, "air temperature along the beam",
+                     [](auto& a) -> auto& { return a.temperature_c; }),
+      model::real<A>("pressure_pa", "Pa", {50e3, 120e3}, "air pressure",
+                     [](auto& a) -> auto& { return a.pressure_pa; }),
+      model::real<A>("relative_humidity_pct", "%", {0, 100}, "relative humidity",
+                     [](auto& a) -> auto& { return a.relative_humidity_pct; }),
+      model::real<A>("co2_ppm", "ppm", {0, 2000}, "CO2 content",
+                     [](auto& a) -> auto& { return a.co2_ppm; }),
+  });
+  return table;
+}
+
+const ParamTable<InterferometerYaml>& interferometer_params() {
+  using Y = InterferometerYaml;
+  static const ParamTable<Y> table({
+      model::custom<Y>("word_bits", "bits", "32, 36", "32", "the position word's width (HP10885A: 32; 36 with the extension)",
+                       [](Y& y, const YAML::Node& v, const std::string& file, const std::string& key) {
+                         const long bits = read_integer(v, file, key, 32, 36);
+                         if (bits != 32 && bits != 36)
+                           throw InputError(located(file, v, key, std::to_string(bits) + " is not allowed, allowed 32, 36"));
+                         y.config.word.width = bits == 32 ? WordWidth::Bits32 : WordWidth::Bits36;
+                       }),
+      model::choice<Y, Optics>("optics",
+                               {{optics_name(Optics::SingleBeamLinear), Optics::SingleBeamLinear},
+                                {optics_name(Optics::PlaneMirror), Optics::PlaneMirror},
+                                {optics_name(Optics::Custom), Optics::Custom}},
+                               "the optics, which fix the counts per wavelength (64, 128; custom: divisor)",
+                               [](auto& y) -> auto& { return y.config.word.optics; }),
+      model::with_default(model::real<Y>("divisor", "1", {0, 1e6, true}, "counts per wavelength; only with optics: custom, and required there",
+                                         [](auto& y) -> auto& { return y.config.word.divisor; }),
+                          "(the optics)"),
+      model::real<Y>("lambda_vac_m", "m", {100e-9, 20e-6}, "the laser's vacuum wavelength",
+                     [](auto& y) -> auto& { return y.config.word.lambda_vac_m; }),
+      model::real<Y>("air_index", "1", {1.0, 1.01}, "the air's refractive index (or air:, not both)",
+                     [](auto& y) -> auto& { return y.config.word.air_index; }),
+      model::custom<Y>("air", "map", "keys: temperature_c, pressure_pa, relative_humidity_pct, co2_ppm", "(below)",
+                       "air conditions: the index from the modified Edlen equation (interferometer.air below)",
+                       [](Y& y, const YAML::Node& v, const std::string& file, const std::string& key) {
+                         air_params().read(v, file, key, y.air);
+                         y.has_air = true;
+                       }),
+      model::real<Y>("max_velocity_m_s", "m/s", {0, 100, true},
+                     "the decoder's plausibility bound; the positioner refuses one slower than the map's jumps (the shipped files give 1)",
+                     [](auto& y) -> auto& { return y.config.word.max_velocity_m_s; }),
+      model::integer<Y>("max_consecutive_jumps", "count", 1, 1000000, "implausible words in a row before continuity is declared lost",
+                        [](auto& y) -> auto& { return y.config.word.max_consecutive_jumps; }),
+      model::with_default(model::real<Y>("resolution_m", "m", {0, 1e-6, true}, "one count; must agree with lambda_vac / (n_air divisor) to 1e-3",
+                                         [](auto& y) -> auto& { return y.resolution_m; }),
+                          "lambda_vac / (n_air divisor)"),
+      model::real<Y>("noise_m", "m", {0, 1e-6}, "simulated stage: rms position noise before quantization",
+                     [](auto& y) -> auto& { return y.config.sensor.noise_m; }),
+  });
+  return table;
+}
+
+}  // namespace
+
 InterferometerConfig parse_interferometer_yaml(const YAML::Node& root, const std::string& file) {
-  InterferometerConfig c;
+  InterferometerYaml y;
   const YAML::Node ifm = detail::child(root, "interferometer");
-  if (!detail::present(ifm)) {
-    c.sensor.resolution_m = c.word.count_m();
-    return c;
-  }
-  detail::check_keys(ifm, file, "interferometer",
-                     {"word_bits", "optics", "divisor", "lambda_vac_m", "air_index", "air",
-                      "max_velocity_m_s", "max_consecutive_jumps", "resolution_m", "noise_m"});
-  if (const YAML::Node v = ifm["word_bits"]) {
-    const long bits = read_integer(v, file, "interferometer.word_bits", 32, 36);
-    if (bits != 32 && bits != 36)
-      throw InputError(located(file, v, "interferometer.word_bits",
-                               std::to_string(bits) + " is not allowed, allowed 32 or 36"));
-    c.word.width = bits == 32 ? WordWidth::Bits32 : WordWidth::Bits36;
-  }
-  if (const YAML::Node v = ifm["optics"]) {
-    try {
-      c.word.optics = parse_optics(read_string(v, file, "interferometer.optics"), "optics");
-    } catch (const InputError& e) {
-      throw InputError(located(file, v, "interferometer.optics",
-                               "unknown optics '" + v.Scalar() +
-                                   "', allowed single_beam_linear, plane_mirror, custom"));
-    }
-  }
-  if (const YAML::Node v = ifm["divisor"]) {
-    if (c.word.optics != Optics::Custom)
+  interferometer_params().read(detail::present(ifm) ? ifm : YAML::Node(), file, "interferometer", y);
+  InterferometerConfig& c = y.config;
+  if (detail::present(ifm)) {
+    if (const YAML::Node v = ifm["divisor"]; v && c.word.optics != Optics::Custom)
       throw InputError(located(file, v, "interferometer.divisor",
                                "only with optics: custom (the optics fix the divisor)"));
-    c.word.divisor = read_double(v, file, "interferometer.divisor", 0, 1e6, true);
-  } else if (c.word.optics == Optics::Custom) {
-    throw InputError(located(file, ifm, "interferometer.divisor", "required with optics: custom"));
+    if (!ifm["divisor"] && c.word.optics == Optics::Custom)
+      throw InputError(located(file, ifm, "interferometer.divisor", "required with optics: custom"));
+    if (ifm["air_index"] && ifm["air"])
+      throw InputError(located(file, ifm["air"], "interferometer.air",
+                               "give either air_index or air conditions, not both"));
   }
-  if (const YAML::Node v = ifm["lambda_vac_m"])
-    c.word.lambda_vac_m = read_double(v, file, "interferometer.lambda_vac_m", 100e-9, 20e-6);
-  if (ifm["air_index"] && ifm["air"])
-    throw InputError(located(file, ifm["air"], "interferometer.air",
-                             "give either air_index or air conditions, not both"));
-  if (const YAML::Node v = ifm["air_index"])
-    c.word.air_index = read_double(v, file, "interferometer.air_index", 1.0, 1.01);
-  if (const YAML::Node air = ifm["air"]) {
-    detail::check_keys(air, file, "interferometer.air",
-                       {"temperature_c", "pressure_pa", "relative_humidity_pct", "co2_ppm"});
-    AirConditions a;
-    if (air["temperature_c"])
-      a.temperature_c = read_double(air["temperature_c"], file, "interferometer.air.temperature_c", -40, 60);
-    if (air["pressure_pa"])
-      a.pressure_pa = read_double(air["pressure_pa"], file, "interferometer.air.pressure_pa", 50e3, 120e3);
-    if (air["relative_humidity_pct"])
-      a.relative_humidity_pct = read_double(air["relative_humidity_pct"], file,
-                                            "interferometer.air.relative_humidity_pct", 0, 100);
-    if (air["co2_ppm"])
-      a.co2_ppm = read_double(air["co2_ppm"], file, "interferometer.air.co2_ppm", 0, 2000);
-    c.word.air_index = air_refractive_index(a, c.word.lambda_vac_m);
-  }
-  if (const YAML::Node v = ifm["max_velocity_m_s"])
-    c.word.max_velocity_m_s = read_double(v, file, "interferometer.max_velocity_m_s", 0, 100, true);
-  if (const YAML::Node v = ifm["max_consecutive_jumps"])
-    c.word.max_consecutive_jumps = static_cast<std::uint32_t>(
-        read_integer(v, file, "interferometer.max_consecutive_jumps", 1, 1000000));
-  c.sensor.resolution_m = c.word.count_m();
-  if (const YAML::Node v = ifm["resolution_m"]) {
-    const double r = read_double(v, file, "interferometer.resolution_m", 0, 1e-6, true);
-    if (std::fabs(r / c.word.count_m() - 1.0) > 1e-3) {
-      std::ostringstream msg;
-      msg.precision(9);
-      msg << r << " disagrees with lambda_vac / (n_air divisor) = " << c.word.count_m()
-          << " m (set optics, divisor or lambda_vac_m instead)";
-      throw InputError(located(file, v, "interferometer.resolution_m", msg.str()));
+  if (y.has_air) {
+    try {
+      c.word.air_index = air_refractive_index(y.air, c.word.lambda_vac_m);
+    } catch (const InputError& e) {  // the equation's own range (of the wavelength)
+      throw InputError(located(file, ifm["air"], "interferometer", e.what()));
     }
   }
-  if (const YAML::Node v = ifm["noise_m"])
-    c.sensor.noise_m = read_double(v, file, "interferometer.noise_m", 0, 1e-6);
+  c.sensor.resolution_m = c.word.count_m();
+  if (y.resolution_m > 0 && std::fabs(y.resolution_m / c.word.count_m() - 1.0) > 1e-3) {
+    std::ostringstream msg;
+    msg.precision(9);
+    msg << y.resolution_m << " disagrees with lambda_vac / (n_air divisor) = " << c.word.count_m()
+        << " m (set optics, divisor or lambda_vac_m instead)";
+    throw InputError(located(file, ifm["resolution_m"], "interferometer.resolution_m", msg.str()));
+  }
   try {
     validate(c.word, "interferometer");
   } catch (const InputError& e) {
@@ -143,6 +171,9 @@ InterferometerConfig parse_interferometer_yaml(const YAML::Node& root, const std
   }
   return c;
 }
+
+std::string interferometer_reference_rows() { return interferometer_params().markdown(); }
+std::string air_reference_rows() { return air_params().markdown("air."); }
 
 std::string parse_daq_driver(const YAML::Node& root, const std::string& file) {
   const YAML::Node daq = detail::child(root, "daq");

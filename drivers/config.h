@@ -11,6 +11,7 @@
 #include "drivers/air_index.h"
 #include "drivers/interfaces.h"
 #include "drivers/position_word.h"
+#include "model/param_table.h"
 #include "model/stage.h"
 
 namespace idm::drivers {
@@ -27,6 +28,15 @@ struct InterferometerConfig {
 //   lambda_vac / (n_air divisor) to 1e-3), noise_m. Unknown keys are errors.
 InterferometerConfig parse_interferometer_yaml(const YAML::Node& root, const std::string& file);
 
+// config/README.md's rows for the `interferometer:` keys and its `air:` map, from the tables the
+// reader checks with.
+std::string interferometer_reference_rows();
+std::string air_reference_rows();
+
+// The output capability keys every driver's section takes (max_sample_rate_hz, ..., max_cycles):
+// the backends lift them into their own tables (model::lifted).
+const model::ParamTable<OutputCapabilities>& output_capability_params();
+
 // The `daq:` section: `driver` (default "sim") and one section per driver (sim, modbus, usb).
 // Unknown keys are errors. Returns the driver name.
 std::string parse_daq_driver(const YAML::Node& root, const std::string& file);
@@ -42,16 +52,6 @@ YAML::Node child(const YAML::Node& root, const char* key);
 // key, allowed ..."), or when `map` is present but not a map.
 void check_keys(const YAML::Node& map, const std::string& file, const std::string& section,
                 std::initializer_list<const char*> allowed);
-
-// Reads `key` of `map` into `caps` when it is one of the output capability keys
-// (max_sample_rate_hz, max_burst_samples, resolution_bits, min_voltage_v, max_voltage_v,
-// volts_per_m, max_freq_hz, max_cycles); returns false for any other key.
-bool read_output_capability(const std::string& key, const YAML::Node& value,
-                            const std::string& file, const std::string& section,
-                            OutputCapabilities& caps);
-inline constexpr const char* kOutputCapabilityKeys =
-    "max_sample_rate_hz, max_burst_samples, resolution_bits, min_voltage_v, max_voltage_v, "
-    "volts_per_m, max_freq_hz, max_cycles";
 
 }  // namespace detail
 

@@ -183,15 +183,15 @@ Param<S> choice(const char* name, std::vector<std::pair<std::string, T>> choices
   p.unit = "";
   for (const auto& c : choices) p.range += (p.range.empty() ? "" : ", ") + c.first;
   p.doc = doc;
-  p.read = [choices, get, allowed = p.range](S& s, const YAML::Node& v, const std::string& file,
-                                             const std::string& key) {
+  p.read = [choices, get, allowed = p.range, what = std::string(name)](
+               S& s, const YAML::Node& v, const std::string& file, const std::string& key) {
     const std::string t = read_string(v, file, key);
     for (const auto& c : choices)
       if (c.first == t) {
         get(s) = c.second;
         return;
       }
-    throw InputError(located(file, v, key, "'" + t + "' is not allowed, allowed " + allowed));
+    throw InputError(located(file, v, key, "unknown " + what + " '" + t + "', allowed " + allowed));
   };
   p.show = [choices, get](const S& s) {
     for (const auto& c : choices)

@@ -130,60 +130,64 @@ const EffectSpec* SimConfig::find(const std::string& effect) const {
   return nullptr;
 }
 
+const ParamTable<SimConfig>& sim_params() {
+  using C = SimConfig;
+  static const ParamTable<C> table({
+      choice<C, PlantKind>("plant",
+                           {{plant_name(PlantKind::Rigid), PlantKind::Rigid},
+                            {plant_name(PlantKind::Impulse), PlantKind::Impulse},
+                            {plant_name(PlantKind::MassDamperSpring), PlantKind::MassDamperSpring}},
+                           "rigid: the two-mass plant; impulse: the ideal model, no effects; mck: the actuator's K and C",
+                           [](auto& c) -> auto& { return c.plant; }),
+      custom<C>("effects", "map", "NAME: {PARAM: value}, specs/gap-report.md", "none",
+                "unmodelled effects the simulated stage adds",
+                [](C& c, const YAML::Node& v, const std::string& file, const std::string& key) {
+                  if (!v.IsMap()) throw InputError(located(file, v, key, "expected a map NAME: {PARAM: value}"));
+                  for (const auto& e : v) {
+                    EffectSpec spec;
+                    spec.name = e.first.as<std::string>();
+                    const std::string k = key + "." + spec.name;
+                    if (e.second && !e.second.IsNull()) {
+                      if (!e.second.IsMap())
+                        throw InputError(located(file, e.second, k, "expected a map PARAM: value"));
+                      for (const auto& p : e.second) {
+                        const std::string pk = p.first.as<std::string>();
+                        spec.params[pk] = read_double(p.second, file, k + "." + pk, -1e300, 1e300);
+                      }
+                    }
+                    const std::string at = file + ":" + std::to_string(e.first.Mark().line + 1) + ": " + key;
+                    c.effects.push_back(complete_effect(spec, at));
+                  }
+                }),
+      integer<C>("seed", "", 0, 1L << 62, "the random streams' seed (noise, effects)",
+                 [](auto& c) -> auto& { return c.seed; }),
+      real<C>("noise_m", "m", {0, 1e-6}, "interferometer noise, rms, before quantization",
+              [](auto& c) -> auto& { return c.noise_m; }),
+      real<C>("internal_rate_hz", "Hz", {1e3, 1e8}, "the plant's rate when actuator effects smooth the command",
+              [](auto& c) -> auto& { return c.internal_rate_hz; }),
+      real<C>("start_position_m", "m", {-10, 10}, "where the slider rests when the device is first opened",
+              [](auto& c) -> auto& { return c.start_position_m; }),
+      custom<C>("end_stops_m", "m", "[low, high] in [-10, 10], low < high", "the ends of stage.travel_m",
+                "hard stops the slider cannot pass",
+                [](C& c, const YAML::Node& v, const std::string& file, const std::string& key) {
+                  if (!v.IsSequence() || v.size() != 2)
+                    throw InputError(located(file, v, key, "expected [low, high] in metres"));
+                  c.end_stop_low_m = read_double(v[0], file, key + "[0]", -10, 10);
+                  c.end_stop_high_m = read_double(v[1], file, key + "[1]", -10, 10);
+                  if (!(c.end_stop_low_m < c.end_stop_high_m))
+                    throw InputError(located(file, v, key, "low must be below high"));
+                }),
+      with_default(real<C>("reference_mark_m", "m", {-10, 10}, "an index mark REFerence MARK finds",
+                           [](auto& c) -> auto& { return c.reference_mark_m; }),
+                   "none"),
+  });
+  return table;
+}
+
 SimConfig parse_sim_yaml(const YAML::Node& node, const std::string& file) {
   SimConfig c;
   if (!node) return c;
-  if (!node.IsMap()) throw InputError(located(file, node, "sim", "expected a map"));
-  for (const auto& kv : node) {
-    const std::string key = kv.first.as<std::string>();
-    const YAML::Node v = kv.second;
-    if (key == "plant") {
-      try {
-        c.plant = parse_plant_name(read_string(v, file, "sim.plant"));
-      } catch (const InputError& e) {
-        throw InputError(located(file, v, "sim.plant", "unknown plant '" + v.Scalar() +
-                                                           "', allowed impulse, rigid, mck"));
-      }
-    } else if (key == "seed") {
-      c.seed = static_cast<std::uint64_t>(read_integer(v, file, "sim.seed", 0, 1L << 62));
-    } else if (key == "noise_m") {
-      c.noise_m = read_double(v, file, "sim.noise_m", 0, 1e-6);
-    } else if (key == "internal_rate_hz") {
-      c.internal_rate_hz = read_double(v, file, "sim.internal_rate_hz", 1e3, 1e8);
-    } else if (key == "start_position_m") {
-      c.start_position_m = read_double(v, file, "sim.start_position_m", -10, 10);
-    } else if (key == "reference_mark_m") {
-      c.reference_mark_m = read_double(v, file, "sim.reference_mark_m", -10, 10);
-    } else if (key == "end_stops_m") {
-      if (!v.IsSequence() || v.size() != 2)
-        throw InputError(located(file, v, "sim.end_stops_m", "expected [low, high] in metres"));
-      c.end_stop_low_m = read_double(v[0], file, "sim.end_stops_m[0]", -10, 10);
-      c.end_stop_high_m = read_double(v[1], file, "sim.end_stops_m[1]", -10, 10);
-      if (!(c.end_stop_low_m < c.end_stop_high_m))
-        throw InputError(located(file, v, "sim.end_stops_m", "low must be below high"));
-    } else if (key == "effects") {
-      if (!v.IsMap()) throw InputError(located(file, v, "sim.effects", "expected a map NAME: {PARAM: value}"));
-      for (const auto& e : v) {
-        EffectSpec spec;
-        spec.name = e.first.as<std::string>();
-        const std::string where = located(file, e.first, "sim.effects." + spec.name, "").substr(0);
-        if (e.second && !e.second.IsNull()) {
-          if (!e.second.IsMap())
-            throw InputError(located(file, e.second, "sim.effects." + spec.name, "expected a map PARAM: value"));
-          for (const auto& p : e.second) {
-            const std::string pk = p.first.as<std::string>();
-            spec.params[pk] = read_double(p.second, file, "sim.effects." + spec.name + "." + pk, -1e300, 1e300);
-          }
-        }
-        const std::string at = file + ":" + std::to_string(e.first.Mark().line + 1) + ": sim.effects";
-        c.effects.push_back(complete_effect(spec, at));
-      }
-    } else {
-      throw InputError(located(file, kv.first, "sim." + key,
-                               "unknown key, allowed plant, effects, seed, noise_m, internal_rate_hz, "
-                               "start_position_m, end_stops_m, reference_mark_m"));
-    }
-  }
+  sim_params().read(node, file, "sim", c);
   if (c.plant == PlantKind::Impulse && !c.effects.empty())
     throw InputError(file + ": sim.plant: the impulse plant is the ideal model and takes no effects; use rigid or mck");
   return c;

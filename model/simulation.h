@@ -16,6 +16,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "model/effects/actuator_effect.h"
+#include "model/param_table.h"
 #include "model/plant.h"
 #include "model/stage.h"
 #include "model/waveform.h"
@@ -63,6 +64,8 @@ struct SimConfig {
   bool has(const std::string& effect) const;
   const EffectSpec* find(const std::string& effect) const;
 };
+// The `sim:` section's keys (the reader's table; config/README.md's rows).
+const ParamTable<SimConfig>& sim_params();
 // The `sim:` section: plant, effects {NAME: {PARAM: value}}, seed, noise_m, internal_rate_hz,
 // start_position_m, end_stops_m [low, high], reference_mark_m. Unknown keys: errors.
 SimConfig parse_sim_yaml(const YAML::Node& node, const std::string& file);

@@ -11,23 +11,34 @@ namespace idm::model {
 
 namespace {
 
-// One table of the stage keys: name, member, range. Used for reading, writing and validating.
+// One table of the stage keys: name, member, range, unit, meaning. Used for reading, writing,
+// validating and config/README.md's rows.
 struct StageKey {
   const char* name;
   double StageParams::*member;
   Range range;
   bool required_in_dataset;
+  const char* unit;
+  const char* doc;
 };
 
 constexpr StageKey kStageKeys[] = {
-    {"slider_mass_kg", &StageParams::slider_mass_kg, {0.0, 1e3, true}, true},
-    {"counter_mass_kg", &StageParams::counter_mass_kg, {0.0, 1e3, true}, true},
-    {"friction_coefficient", &StageParams::friction_coefficient, {0.0, 2.0, true}, true},
-    {"gravity_m_s2", &StageParams::gravity_m_s2, {0.0, 100.0, true}, true},
-    {"stroke_m", &StageParams::stroke_m, {0.0, 1e-3, true}, true},
-    {"step_correction", &StageParams::step_correction, {0.0, 1.0, true}, true},
-    {"stiffness_n_m", &StageParams::stiffness_n_m, {0.0, 1e12, true}, false},
-    {"damping_n_s_m", &StageParams::damping_n_s_m, {0.0, 1e6, false}, false},
+    {"slider_mass_kg", &StageParams::slider_mass_kg, {0.0, 1e3, true}, true, "kg",
+     "M, the slider (Table 1)"},
+    {"counter_mass_kg", &StageParams::counter_mass_kg, {0.0, 1e3, true}, true, "kg",
+     "m, the counter mass on the actuator's free end (Table 1)"},
+    {"friction_coefficient", &StageParams::friction_coefficient, {0.0, 2.0, true}, true, "1",
+     "mu, kinetic (Coulomb) friction between slider and guide"},
+    {"gravity_m_s2", &StageParams::gravity_m_s2, {0.0, 100.0, true}, true, "m/s²",
+     "g, the normal load per mass"},
+    {"stroke_m", &StageParams::stroke_m, {0.0, 1e-3, true}, true, "m",
+     "S, the actuator's nominal stroke"},
+    {"step_correction", &StageParams::step_correction, {0.0, 1.0, true}, true, "1",
+     "alpha of eq 22 (the shipped files give 1.0: the rigid plant is the ideal model)"},
+    {"stiffness_n_m", &StageParams::stiffness_n_m, {0.0, 1e12, true}, false, "N/m",
+     "K of eq 30, the actuator (mck plant)"},
+    {"damping_n_s_m", &StageParams::damping_n_s_m, {0.0, 1e6, false}, false, "N s/m",
+     "C of eq 30, the actuator (mck plant)"},
 };
 
 }  // namespace
@@ -104,6 +115,18 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
 
 StageFile load_stage_file(const std::string& path, const StageYamlOptions& options) {
   return parse_stage_yaml(load_yaml_file(path), path, options);
+}
+
+std::string stage_reference_rows() {
+  const StageParams defaults;
+  std::string out;
+  for (const StageKey& k : kStageKeys)
+    out += std::string("| ") + k.name + " | " + k.unit + " | " + format_number(defaults.*k.member) +
+           " | " + k.range.text() + " | " + k.doc + " |\n";
+  out += "| travel_m | m | **required** by idmd | [lower, upper] in [-10, 10], lower < upper | the "
+         "stage's mechanical range; the soft limits default to it, and no move, STEP or LIM may "
+         "leave it |\n";
+  return out;
 }
 
 std::string to_yaml(const StageFile& f) {

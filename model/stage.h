@@ -67,6 +67,10 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file_name,
                            const StageYamlOptions& options = {});
 StageFile load_stage_file(const std::string& path, const StageYamlOptions& options = {});
 
+// config/README.md's rows of the stage keys ("| key | unit | default | range | meaning |"), from
+// the same table the reader checks with.
+std::string stage_reference_rows();
+
 // Writes the two sections, full precision, so that parse_stage_yaml reads the same values back.
 std::string to_yaml(const StageFile& stage_file);
 

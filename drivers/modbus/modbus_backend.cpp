@@ -30,39 +30,44 @@ std::string registers_text(const char* op, std::uint16_t address, std::size_t n)
 
 }  // namespace
 
+const model::ParamTable<ModbusConfig>& modbus_params() {
+  using C = ModbusConfig;
+  static const model::ParamTable<C> table(model::join<C>({
+      {
+          model::text<C>("host", "the device's address", [](auto& c) -> auto& { return c.host; },
+                         "a host name or address"),
+          model::integer<C>("port", "", 1, 65535, "its Modbus TCP port", [](auto& c) -> auto& { return c.port; }),
+          model::integer<C>("unit_id", "", 0, 255, "the unit of channel 0; channel k is unit_id + k (<= 247)",
+                            [](auto& c) -> auto& { return c.unit_id; }),
+          model::real<C>("timeout_s", "s", {1e-3, 60}, "response (and connect) timeout",
+                         [](auto& c) -> auto& { return c.timeout_s; }),
+          model::real<C>("poll_interval_s", "s", {1e-4, 10}, "a burst's status is polled this often",
+                         [](auto& c) -> auto& { return c.poll_interval_s; }),
+          model::custom<C>("registers", "map", "drivers/modbus/README.md", "(the default map)",
+                           "the register map: addresses, formats, scales, word order",
+                           [](C& c, const YAML::Node& v, const std::string& file, const std::string&) {
+                             c.registers = parse_register_map(v, file, c.interferometer.word.width);
+                           }),
+      },
+      model::lifted<C>(output_capability_params(), [](auto& c) -> auto& { return c.output; }),
+  }));
+  return table;
+}
+
 ModbusConfig parse_modbus_yaml(const YAML::Node& root, const std::string& file) {
   ModbusConfig c;
   c.output.mode = OutputMode::BurstParameters;
   c.interferometer = parse_interferometer_yaml(root, file);
   const YAML::Node node = detail::child(detail::child(root, "daq"), "modbus");
-  YAML::Node registers(YAML::NodeType::Undefined);
-  if (detail::present(node)) {
-    if (!node.IsMap()) throw InputError(located(file, node, "daq.modbus", "expected a map"));
-    const std::string s = "daq.modbus";
-    for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
-      const YAML::Node v = kv.second;
-      const std::string k = s + "." + key;
-      if (detail::read_output_capability(key, v, file, s, c.output)) continue;
-      if (key == "host") c.host = model::read_string(v, file, k);
-      else if (key == "port") c.port = static_cast<int>(model::read_integer(v, file, k, 1, 65535));
-      else if (key == "unit_id") c.unit_id = static_cast<int>(model::read_integer(v, file, k, 0, 255));
-      else if (key == "timeout_s") c.timeout_s = model::read_double(v, file, k, 1e-3, 60);
-      else if (key == "poll_interval_s") c.poll_interval_s = model::read_double(v, file, k, 1e-4, 10);
-      else if (key == "registers") registers = v;
-      else
-        throw InputError(located(file, kv.first, k,
-                                 std::string("unknown key, allowed host, port, unit_id, timeout_s, "
-                                             "poll_interval_s, registers, ") +
-                                     detail::kOutputCapabilityKeys));
-    }
-    try {
-      validate(c.output, s);
-    } catch (const InputError& e) {
-      throw InputError(located(file, node, s, e.what()));
-    }
+  modbus_params().read(node, file, "daq.modbus", c);
+  try {
+    validate(c.output, "daq.modbus");
+  } catch (const InputError& e) {
+    throw InputError(located(file, node, "daq.modbus", e.what()));
   }
-  c.registers = parse_register_map(registers, file, c.interferometer.word.width);
+  if (!detail::present(node) || !node["registers"])
+    c.registers = parse_register_map(YAML::Node(YAML::NodeType::Undefined), file,
+                                     c.interferometer.word.width);
   // The daemon's document for one axis names its channel on the card: channel k is unit
   // unit_id + k (a multi-channel Modbus device answers each channel as its own unit).
   if (const YAML::Node ch = detail::child(root, "channel"); detail::present(ch)) {

@@ -36,6 +36,9 @@ struct ModbusConfig {
   InterferometerConfig interferometer;
 };
 
+// The keys of `daq.modbus:` (with the output capability keys).
+const model::ParamTable<ModbusConfig>& modbus_params();
+
 // `interferometer:` and `daq.modbus:` of root (host, port, unit_id, timeout_s, poll_interval_s,
 // registers, and the output capability keys). Unknown keys: errors with file:line.
 ModbusConfig parse_modbus_yaml(const YAML::Node& root, const std::string& file);

@@ -35,21 +35,9 @@ PositionWordConfig word_of(const SimDeviceConfig& c) {
 }
 
 void validate(const SimDeviceConfig& c) {
-  using model::check_range;
   const std::string where = "daq.sim";
+  sim_device_params().validate(c, where);
   validate(c.output, where);
-  check_range(c.stream_rate_hz > 0 && c.stream_rate_hz <= 1e8, where, "stream_rate_hz",
-              c.stream_rate_hz, "(0, 1e8]");
-  check_range(c.stream_capacity >= 1 && c.stream_capacity <= (std::size_t{1} << 28), where,
-              "stream_capacity", static_cast<double>(c.stream_capacity), "[1, 268435456]");
-  check_range(c.settle_s >= 0 && c.settle_s <= 10, where, "settle_s", c.settle_s, "[0, 10]");
-  check_range(c.stop_ramp_s > 0 && c.stop_ramp_s <= 1, where, "stop_ramp_s", c.stop_ramp_s,
-              "(0, 1]");
-  check_range(c.timeout_s >= 0 && c.timeout_s <= 60, where, "timeout_s", c.timeout_s, "[0, 60]");
-  check_range(c.faults.glitch_probability >= 0 && c.faults.glitch_probability <= 1, where,
-              "faults.glitch_probability", c.faults.glitch_probability, "[0, 1]");
-  check_range(c.faults.friction_scale > 0 && c.faults.friction_scale <= 100, where,
-              "faults.friction_scale", c.faults.friction_scale, "(0, 100]");
   validate(word_of(c), "interferometer");
 }
 
@@ -65,6 +53,57 @@ const char* clock_mode_name(ClockMode mode) {
   return mode == ClockMode::Synthetic ? "synthetic" : "wall";
 }
 
+const model::ParamTable<SimFaults>& sim_fault_params() {
+  using F = SimFaults;
+  static const model::ParamTable<F> table({
+      model::boolean<F>("beam_lost", "every word carries measurement-signal-lost",
+                        [](auto& f) -> auto& { return f.beam_lost; }),
+      model::real<F>("glitch_probability", "1", {0, 1}, "per word: a wild count (off by 2^20 .. 2^24 counts)",
+                     [](auto& f) -> auto& { return f.glitch_probability; }),
+      model::boolean<F>("glitch_flagged", "a glitch word carries the board's glitch bit",
+                        [](auto& f) -> auto& { return f.glitch_flagged; }),
+      model::boolean<F>("slider_stalled", "the slider is held (it does not move)",
+                        [](auto& f) -> auto& { return f.slider_stalled; }),
+      model::real<F>("friction_scale", "1", {0, 100, true}, "kinetic friction coefficient times this",
+                     [](auto& f) -> auto& { return f.friction_scale; }),
+      model::boolean<F>("disconnected", "every call fails (Disconnected) until reconnect",
+                        [](auto& f) -> auto& { return f.disconnected; }),
+      model::boolean<F>("timeouts", "latch and read_stream time out",
+                        [](auto& f) -> auto& { return f.timeouts; }),
+  });
+  return table;
+}
+
+const model::ParamTable<SimDeviceConfig>& sim_device_params() {
+  using C = SimDeviceConfig;
+  static const model::ParamTable<C> table(model::join<C>({
+      {
+          model::choice<C, ClockMode>("clock", {{"synthetic", ClockMode::Synthetic}, {"wall", ClockMode::Wall}},
+                                      "synthetic: time advances as the device is driven; wall: real time",
+                                      [](auto& c) -> auto& { return c.clock; }),
+          model::choice<C, OutputMode>("output",
+                                       {{"samples", OutputMode::BufferedSamples},
+                                        {"parameters", OutputMode::BurstParameters}},
+                                       "the output it reports: buffered DAC samples or burst parameters",
+                                       [](auto& c) -> auto& { return c.output.mode; }),
+          model::real<C>("stream_rate_hz", "Hz", {0, 1e8, true}, "the burst stream's sample rate",
+                         [](auto& c) -> auto& { return c.stream_rate_hz; }),
+          model::integer<C>("stream_capacity", "count", 1, 1L << 28, "samples the stream buffer holds",
+                            [](auto& c) -> auto& { return c.stream_capacity; }),
+          model::real<C>("settle_s", "s", {0, 10}, "the plant runs (and the stream records) this long after a burst's last sample",
+                         [](auto& c) -> auto& { return c.settle_s; }),
+          model::real<C>("stop_ramp_s", "s", {0, 1, true}, "a stop ramps the output to zero over this time",
+                         [](auto& c) -> auto& { return c.stop_ramp_s; }),
+          model::real<C>("timeout_s", "s", {0, 60}, "an injected timeout waits this long (wall clock only)",
+                         [](auto& c) -> auto& { return c.timeout_s; }),
+          model::nested<C>("faults", "injected faults (daq.sim.faults below)", sim_fault_params(),
+                           [](auto& c) -> auto& { return c.faults; }),
+      },
+      model::lifted<C>(output_capability_params(), [](auto& c) -> auto& { return c.output; }),
+  }));
+  return table;
+}
+
 SimDeviceConfig parse_sim_device_yaml(const YAML::Node& root, const std::string& file) {
   SimDeviceConfig c;
   const bool has_root = detail::present(root);
@@ -78,56 +117,7 @@ SimDeviceConfig parse_sim_device_yaml(const YAML::Node& root, const std::string&
     validate(c);
     return c;
   }
-  if (!node.IsMap()) throw InputError(located(file, node, "daq.sim", "expected a map"));
-  const std::string s = "daq.sim";
-  for (const auto& kv : node) {
-    const std::string key = kv.first.as<std::string>();
-    const YAML::Node v = kv.second;
-    const std::string k = s + "." + key;
-    if (detail::read_output_capability(key, v, file, s, c.output)) continue;
-    if (key == "clock") {
-      const std::string m = read_string(v, file, k);
-      if (m == "synthetic") c.clock = ClockMode::Synthetic;
-      else if (m == "wall") c.clock = ClockMode::Wall;
-      else throw InputError(located(file, v, k, "unknown clock '" + m + "', allowed synthetic, wall"));
-    } else if (key == "output") {
-      const std::string m = read_string(v, file, k);
-      if (m == "samples") c.output.mode = OutputMode::BufferedSamples;
-      else if (m == "parameters") c.output.mode = OutputMode::BurstParameters;
-      else throw InputError(located(file, v, k, "unknown output '" + m + "', allowed samples, parameters"));
-    } else if (key == "stream_rate_hz") {
-      c.stream_rate_hz = read_double(v, file, k, 0, 1e8, true);
-    } else if (key == "stream_capacity") {
-      c.stream_capacity = static_cast<std::size_t>(read_integer(v, file, k, 1, 1L << 28));
-    } else if (key == "settle_s") {
-      c.settle_s = read_double(v, file, k, 0, 10);
-    } else if (key == "stop_ramp_s") {
-      c.stop_ramp_s = read_double(v, file, k, 0, 1, true);
-    } else if (key == "timeout_s") {
-      c.timeout_s = read_double(v, file, k, 0, 60);
-    } else if (key == "faults") {
-      detail::check_keys(v, file, k,
-                         {"beam_lost", "glitch_probability", "glitch_flagged", "slider_stalled",
-                          "friction_scale", "disconnected", "timeouts"});
-      for (const auto& f : v) {
-        const std::string fk = f.first.as<std::string>();
-        const std::string kk = k + "." + fk;
-        if (fk == "beam_lost") c.faults.beam_lost = read_bool(f.second, file, kk);
-        else if (fk == "glitch_probability") c.faults.glitch_probability = read_double(f.second, file, kk, 0, 1);
-        else if (fk == "glitch_flagged") c.faults.glitch_flagged = read_bool(f.second, file, kk);
-        else if (fk == "slider_stalled") c.faults.slider_stalled = read_bool(f.second, file, kk);
-        else if (fk == "friction_scale") c.faults.friction_scale = read_double(f.second, file, kk, 0, 100, true);
-        else if (fk == "disconnected") c.faults.disconnected = read_bool(f.second, file, kk);
-        else if (fk == "timeouts") c.faults.timeouts = read_bool(f.second, file, kk);
-      }
-    } else {
-      throw InputError(located(file, kv.first, k,
-                               std::string("unknown key, allowed clock, output, stream_rate_hz, "
-                                           "stream_capacity, settle_s, stop_ramp_s, "
-                                           "timeout_s, faults, ") +
-                                   detail::kOutputCapabilityKeys));
-    }
-  }
+  sim_device_params().read(node, file, "daq.sim", c);
   try {
     validate(c);
   } catch (const InputError& e) {

@@ -55,6 +55,10 @@ struct SimDeviceConfig {
   SimFaults faults;
 };
 
+// The keys of `daq.sim:` (with the output capability keys) and of its `faults:` map.
+const model::ParamTable<SimDeviceConfig>& sim_device_params();
+const model::ParamTable<SimFaults>& sim_fault_params();
+
 // Reads `stage:`, `interferometer:`, `sim:` (model::parse_sim_yaml) and `daq.sim:` of root.
 // Unknown keys and out-of-range values throw InputError with file:line.
 SimDeviceConfig parse_sim_device_yaml(const YAML::Node& root, const std::string& file);

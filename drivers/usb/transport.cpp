@@ -42,26 +42,30 @@ DriverStatus codec_failure(const CodecStatus& c, const std::string& what) {
 
 }  // namespace
 
-bool read_usb_transport_key(const std::string& key, const YAML::Node& v, const std::string& file,
-                            UsbTransportConfig& c) {
-  const std::string k = "daq.usb." + key;
-  if (key == "vendor_id") c.vendor_id = read_id(v, file, k);
-  else if (key == "product_id") c.product_id = read_id(v, file, k);
-  else if (key == "serial") c.serial = model::read_string(v, file, k);
-  else if (key == "interface_number")
-    c.interface_number = static_cast<int>(model::read_integer(v, file, k, 0, 255));
-  else if (key == "timeout_s") c.timeout_s = model::read_double(v, file, k, 1e-3, 60);
-  else return false;
-  return true;
+const model::ParamTable<UsbTransportConfig>& usb_transport_params() {
+  using C = UsbTransportConfig;
+  const auto id = [](std::uint16_t C::*member) {
+    return [member](C& c, const YAML::Node& v, const std::string& file, const std::string& key) {
+      c.*member = read_id(v, file, key);
+    };
+  };
+  static const model::ParamTable<C> table({
+      model::custom<C>("vendor_id", "", "[0, 0xffff], e.g. 0x1209", "0x1209", "the bridge's USB vendor id",
+                       id(&C::vendor_id)),
+      model::custom<C>("product_id", "", "[0, 0xffff], e.g. 0x4944", "0x4944", "the bridge's USB product id",
+                       id(&C::product_id)),
+      model::text<C>("serial", "its serial number; \"\": the only matching device",
+                     [](auto& c) -> auto& { return c.serial; }),
+      model::integer<C>("interface_number", "", 0, 255, "the USB interface it claims",
+                        [](auto& c) -> auto& { return c.interface_number; }),
+      model::real<C>("timeout_s", "s", {1e-3, 60}, "per transfer", [](auto& c) -> auto& { return c.timeout_s; }),
+  });
+  return table;
 }
 
 UsbTransportConfig parse_usb_yaml(const YAML::Node& root, const std::string& file) {
   UsbTransportConfig c;
-  const YAML::Node node = detail::child(detail::child(root, "daq"), "usb");
-  if (!detail::present(node)) return c;
-  detail::check_keys(node, file, "daq.usb",
-                     {"vendor_id", "product_id", "serial", "interface_number", "timeout_s"});
-  for (const auto& kv : node) read_usb_transport_key(kv.first.as<std::string>(), kv.second, file, c);
+  usb_transport_params().read(detail::child(detail::child(root, "daq"), "usb"), file, "daq.usb", c);
   return c;
 }
 

@@ -17,6 +17,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "drivers/interfaces.h"
+#include "model/param_table.h"
 #include "drivers/usb/protocol.h"
 
 struct libusb_context;
@@ -37,9 +38,8 @@ struct UsbTransportConfig {
 // `daq.usb:` of root: vendor_id, product_id (integers or "0x1209" strings), serial,
 // interface_number, timeout_s. Unknown keys: errors with file:line.
 UsbTransportConfig parse_usb_yaml(const YAML::Node& root, const std::string& file);
-// One of those keys into config; false for any other key (for parsers of a larger section).
-bool read_usb_transport_key(const std::string& key, const YAML::Node& value,
-                            const std::string& file, UsbTransportConfig& config);
+// Those keys' table (the device's parser lifts them into its own).
+const model::ParamTable<UsbTransportConfig>& usb_transport_params();
 
 // "1209:4944" or "1209:4944 serial ABC".
 std::string device_text(const UsbTransportConfig& config);

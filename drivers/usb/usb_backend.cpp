@@ -27,6 +27,21 @@ std::string fault_names(std::uint16_t flags) {
 
 }  // namespace
 
+const model::ParamTable<UsbDeviceConfig>& usb_device_params() {
+  using C = UsbDeviceConfig;
+  static const model::ParamTable<C> table(model::join<C>({
+      model::lifted<C>(usb_transport_params(), [](auto& c) -> auto& { return c.transport; }),
+      {
+          model::real<C>("position_rate_hz", "Hz", {1, 1e8}, "the bridge's position latch rate during a burst",
+                         [](auto& c) -> auto& { return c.position_rate_hz; }),
+          model::real<C>("tail_s", "s", {0, 10}, "positions latched after a burst's last sample",
+                         [](auto& c) -> auto& { return c.tail_s; }),
+      },
+      model::lifted<C>(output_capability_params(), [](auto& c) -> auto& { return c.output; }),
+  }));
+  return table;
+}
+
 UsbDeviceConfig parse_usb_device_yaml(const YAML::Node& root, const std::string& file) {
   UsbDeviceConfig c;
   c.interferometer = parse_interferometer_yaml(root, file);
@@ -34,27 +49,11 @@ UsbDeviceConfig parse_usb_device_yaml(const YAML::Node& root, const std::string&
   if (const YAML::Node ch = detail::child(root, "channel"); detail::present(ch) && ch.as<std::string>() != "0")
     throw InputError(located(file, ch, "channel", "the USB bridge has one channel (0); give each "
                                                   "axis on USB its own device"));
-  if (detail::present(node)) {
-    if (!node.IsMap()) throw InputError(located(file, node, "daq.usb", "expected a map"));
-    for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
-      const std::string k = "daq.usb." + key;
-      if (read_usb_transport_key(key, kv.second, file, c.transport)) continue;
-      if (detail::read_output_capability(key, kv.second, file, "daq.usb", c.output)) continue;
-      if (key == "position_rate_hz") c.position_rate_hz = model::read_double(kv.second, file, k, 1, 1e8);
-      else if (key == "tail_s") c.tail_s = model::read_double(kv.second, file, k, 0, 10);
-      else
-        throw InputError(located(file, kv.first, k,
-                                 std::string("unknown key, allowed vendor_id, product_id, serial, "
-                                             "interface_number, timeout_s, position_rate_hz, "
-                                             "tail_s, ") +
-                                     detail::kOutputCapabilityKeys));
-    }
-    try {
-      validate(c.output, "daq.usb");
-    } catch (const InputError& e) {
-      throw InputError(located(file, node, "daq.usb", e.what()));
-    }
+  usb_device_params().read(node, file, "daq.usb", c);
+  try {
+    validate(c.output, "daq.usb");
+  } catch (const InputError& e) {
+    throw InputError(located(file, node, "daq.usb", e.what()));
   }
   c.output.mode = OutputMode::BufferedSamples;
   return c;

@@ -26,6 +26,9 @@ struct UsbDeviceConfig {
   double tail_s = 2e-3;               // positions latched after the burst's last sample
 };
 
+// The keys of `daq.usb:` (the transport's, the bridge's and the output capability keys).
+const model::ParamTable<UsbDeviceConfig>& usb_device_params();
+
 // `interferometer:` and `daq.usb:` (the transport keys, position_rate_hz, tail_s and the output
 // capability keys). Unknown keys: errors with file:line.
 UsbDeviceConfig parse_usb_device_yaml(const YAML::Node& root, const std::string& file);

@@ -205,6 +205,51 @@ TEST(SimConfig, InterferometerSectionSetsTheCodec) {
   EXPECT_DOUBLE_EQ(c.sensor.resolution_m, c.word.count_m());
 }
 
+TEST(SimConfig, AirIndexUsesTheWavelengthWhereverItIsWritten) {
+  // The air's index depends on the wavelength: air: before lambda_vac_m must give the same index
+  // as after it (the keys are read in file order, then combined).
+  const char* air = "air: {temperature_c: 20, pressure_pa: 101325, relative_humidity_pct: 50}";
+  const InterferometerConfig before = parse_interferometer_yaml(
+      YAML::Load(std::string("interferometer: {") + air + ", lambda_vac_m: 0.9e-6}"), "f.yaml");
+  const InterferometerConfig after = parse_interferometer_yaml(
+      YAML::Load(std::string("interferometer: {lambda_vac_m: 0.9e-6, ") + air + "}"), "f.yaml");
+  const InterferometerConfig red = parse_interferometer_yaml(
+      YAML::Load(std::string("interferometer: {") + air + "}"), "f.yaml");
+  EXPECT_DOUBLE_EQ(before.word.air_index, after.word.air_index);
+  EXPECT_LT(before.word.air_index, red.word.air_index) << "air disperses: n falls with wavelength";
+}
+
+TEST(SimConfig, DriverSectionsNameTheKeyTheLineAndTheAllowedValues) {
+  const auto error_of = [](const std::string& text) {
+    try {
+      sim::parse_sim_device_yaml(YAML::Load(text), "idmd.yaml");
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  std::string e = error_of("daq:\n  sim:\n    faults: {friction_scale: 0}\n");
+  EXPECT_NE(e.find("idmd.yaml:3: daq.sim.faults.friction_scale: 0 is out of range, allowed (0, 100]"),
+            std::string::npos) << e;
+  e = error_of("daq:\n  sim:\n    faults: {beam_lots: true}\n");
+  EXPECT_NE(e.find("daq.sim.faults.beam_lots: unknown key, allowed beam_lost,"), std::string::npos) << e;
+  e = error_of("daq:\n  sim:\n    output: volts\n");
+  EXPECT_NE(e.find("idmd.yaml:3: daq.sim.output: unknown output 'volts', allowed samples, parameters"),
+            std::string::npos) << e;
+  e = error_of("interferometer:\n  optics: custom\n");
+  EXPECT_NE(e.find("interferometer.divisor: required with optics: custom"), std::string::npos) << e;
+  e = error_of("interferometer:\n  divisor: 64\n");
+  EXPECT_NE(e.find("idmd.yaml:2: interferometer.divisor: only with optics: custom"), std::string::npos) << e;
+  e = error_of("interferometer:\n  air_index: 1.0003\n  air: {co2_ppm: 400}\n");
+  EXPECT_NE(e.find("give either air_index or air conditions, not both"), std::string::npos) << e;
+  e = error_of("interferometer:\n  air: {co2_ppm: 4000}\n");
+  EXPECT_NE(e.find("interferometer.air.co2_ppm: 4000 is out of range, allowed [0, 2000]"),
+            std::string::npos) << e;
+  e = error_of("interferometer:\n  lambda_vac_m: 1.5e-6\n  air: {co2_ppm: 400}\n");
+  EXPECT_NE(e.find("idmd.yaml:3: interferometer: air.lambda_vac_m: 1.5e-6 is out of range"),
+            std::string::npos) << e;
+}
+
 // ---- bursts through the plant ----
 
 TEST(SimBackend, SampledBurstMovesTheSliderByTheImpulseModelsAmount) {
