@@ -144,6 +144,24 @@ LoopStats parse_loop(std::string_view reply) {
   return l;
 }
 
+ClientTable parse_client_table(std::string_view reply) {
+  const auto kv = parse_key_values(reply);
+  ClientTable t;
+  t.connected = parse_reply_count(need(kv, "connected", reply));
+  t.slots = parse_reply_count(need(kv, "slots", reply));
+  t.max_clients = parse_reply_count(need(kv, "max_clients", reply));
+  t.stop_only = parse_reply_count(need(kv, "stop_only", reply));
+  t.overflow_slots = parse_reply_count(need(kv, "overflow_slots", reply));
+  t.draining = parse_reply_count(need(kv, "draining", reply));
+  for (const std::uint64_t n : {t.connected, t.max_clients, t.overflow_slots})
+    if (n > 1000000) throw ReplyError("'" + shown(reply) + "': more than 1e6 clients");
+  // connected bounds the three below (as long as they add up), so the sum cannot wrap.
+  if (t.slots > t.connected || t.stop_only > t.connected || t.draining > t.connected ||
+      t.slots + t.stop_only + t.draining != t.connected)
+    throw ReplyError("'" + shown(reply) + "': slots + stop_only + draining is not connected");
+  return t;
+}
+
 SweepInfo parse_sweep(std::string_view reply) {
   // The directory is last and quoted; the five fields before it hold no comma or quote.
   const std::size_t quote = reply.find('"');

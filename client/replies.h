@@ -62,6 +62,18 @@ struct LoopStats {
 };
 LoopStats parse_loop(std::string_view reply);
 
+// SYSTem:CLIents:TABLe?: idmd's client table (every connection, the asking one included).
+// Invariant (checked): slots + stop_only + draining == connected.
+struct ClientTable {
+  std::uint64_t connected = 0;
+  std::uint64_t slots = 0;  // holding one of max_clients' slots
+  std::uint64_t max_clients = 0;
+  std::uint64_t stop_only = 0;  // in a stop-only slot (the table was full)
+  std::uint64_t overflow_slots = 0;
+  std::uint64_t draining = 0;  // half-closed, still owed a *OPC? reply
+};
+ClientTable parse_client_table(std::string_view reply);
+
 // SWEEP?: `<state>,<axis>,<written>,<failed>,<planned>,"<dir>"` (axis 0-based, -1: none yet).
 struct SweepInfo {
   std::string state;  // NONE, RUNNING, DONE, STOPPED, FAILED

@@ -134,6 +134,24 @@ const std::vector<CommandInfo>& command_table();
 bool split_axis_prefix(std::string_view header, int& axis, std::string_view& rest);
 
 // ---------------------------------------------------------------------------------------------
+// The command server's client table, as SYSTem:CLIents? and SYSTem:CLIents:TABLe? report it.
+struct ClientTableStats {
+  int connected = 0;       // every connection open now, the asking one included
+  int slots = 0;           // of those, the ones holding one of max_clients' slots
+  int max_clients = 0;     // server.max_clients
+  int stop_only = 0;       // in a stop-only slot (the table was full when they came)
+  int overflow_slots = 0;  // server.overflow_slots
+  int draining = 0;        // half-closed, still owed a *OPC? reply (they hold no slot)
+};
+// What knows the table: the command server. Called on the server's thread only, which alone
+// touches the table, so it needs no lock (and never concerns the real-time loop).
+class ClientTable {
+ public:
+  virtual ~ClientTable() = default;
+  virtual ClientTableStats client_table() const = 0;
+};
+
+// ---------------------------------------------------------------------------------------------
 // One client's session: line framing, the error queue, the command table. Not thread-safe; the
 // server calls it from its one thread. The Instrument must outlive it.
 class Session {
@@ -162,6 +180,9 @@ class Session {
   // A stop-only session (the server's overflow slot): STOP, ABORt, *IDN?, *CLS and the error
   // queries run; every other line is refused with -221 naming why.
   void set_stop_only(bool stop_only) { stop_only_ = stop_only; }
+  // The table SYSTem:CLIents? reads (the server's; it must outlive the session). Without one
+  // (a session outside the server) those queries are -200.
+  void set_client_table(const ClientTable* table) { client_table_ = table; }
 
  private:
   enum class Wait { None, OpcQuery, Wai };
@@ -202,6 +223,9 @@ class Session {
   CommandError error_all(const Args&, std::string& reply);
   CommandError version(const Args&, std::string& reply);
   CommandError loop(const Args&, std::string& reply);
+  CommandError clients(const Args&, std::string& reply);
+  CommandError client_table(const Args&, std::string& reply);
+  CommandError read_client_table(ClientTableStats& stats) const;
   CommandError axis_count(const Args&, std::string& reply);
   CommandError positions(const Args&, std::string& reply);
   CommandError sweep_query(const Args&, std::string& reply);
@@ -265,6 +289,7 @@ class Session {
   bool axis_given_ = false;      // it came with an AXIS<n>: prefix
   std::uint64_t started_axes_ = 0;  // axes (bits) whose motion this session started, not yet seen end
   bool stop_only_ = false;
+  const ClientTable* client_table_ = nullptr;
   // IEEE 488.2 standard event status register and its enable mask (*ESR?, *ESE).
   std::uint8_t esr_ = 0;
   std::uint8_t ese_ = 0xFF;

@@ -64,12 +64,25 @@ struct Client {
 
 }  // namespace
 
-// The thread's state: lives in run() only.
-struct Server::Impl {
+// The thread's state: lives in run() only. It is also the sessions' ClientTable: they ask it on
+// this thread, the only one that touches `clients`.
+struct Server::Impl final : ClientTable {
+  explicit Impl(Server& s) : server(s) {}
   Server& server;
   std::map<int, std::unique_ptr<Client>> clients;
   bool listeners_paused = false;
   std::chrono::steady_clock::time_point resume_listeners_at;
+
+  ClientTableStats client_table() const override {
+    ClientTableStats t;
+    t.connected = static_cast<int>(clients.size());
+    t.slots = live_clients();
+    t.max_clients = server.config_.max_clients;
+    t.stop_only = count_if([](const Client& c) { return c.overflow; });
+    t.overflow_slots = server.config_.overflow_slots;
+    t.draining = count_if([](const Client& c) { return c.draining(); });
+    return t;
+  }
 
   void log(const std::string& line) const {
     if (server.config_.log) server.config_.log(line);
@@ -112,6 +125,7 @@ struct Server::Impl {
       client->overflow = overflow;
       client->since = std::chrono::steady_clock::now();
       client->session.set_stop_only(overflow);
+      client->session.set_client_table(this);
       epoll_event ev{};
       ev.events = EPOLLIN;
       ev.data.fd = fd;
@@ -549,7 +563,7 @@ std::string Server::start() {
 }
 
 void Server::run() {
-  Impl impl{*this, {}, false, {}};
+  Impl impl(*this);
   impl.run();
 }
 

@@ -96,6 +96,8 @@ const std::vector<Session::Command>& Session::commands() {
       {{"SYSTem:ERRor:ALL", true, 0, 0, "", S::Instrument}, &Session::error_all},
       {{"SYSTem:VERSion", true, 0, 0, "", S::Instrument}, &Session::version},
       {{"SYSTem:LOOP", true, 0, 0, "", S::Instrument}, &Session::loop},
+      {{"SYSTem:CLIents[:COUNt]", true, 0, 0, "", S::Instrument}, &Session::clients},
+      {{"SYSTem:CLIents:TABLe", true, 0, 0, "", S::Instrument}, &Session::client_table},
       {{"AXIS:COUNt", true, 0, 0, "", S::Instrument}, &Session::axis_count},
       {{"POSition:ALL", true, 0, 0, "", S::Instrument}, &Session::positions},
       {{"SWEEP", true, 0, 0, "", S::Instrument}, &Session::sweep_query},
@@ -522,6 +524,31 @@ CommandError Session::loop(const Args&, std::string& reply) {
     if (k) reply += ";";
     reply += std::to_string(s.bins[k]);
   }
+  return {};
+}
+
+CommandError Session::read_client_table(ClientTableStats& stats) const {
+  if (!client_table_)
+    return make_error(ec::kExecutionError, "no client table: this session is not on the server");
+  stats = client_table_->client_table();
+  return {};
+}
+
+CommandError Session::clients(const Args&, std::string& reply) {
+  ClientTableStats t;
+  if (const CommandError e = read_client_table(t); !e.ok()) return e;
+  reply = std::to_string(t.connected);
+  return {};
+}
+
+CommandError Session::client_table(const Args&, std::string& reply) {
+  ClientTableStats t;
+  if (const CommandError e = read_client_table(t); !e.ok()) return e;
+  reply = "connected=" + std::to_string(t.connected) + " slots=" + std::to_string(t.slots) +
+          " max_clients=" + std::to_string(t.max_clients) +
+          " stop_only=" + std::to_string(t.stop_only) +
+          " overflow_slots=" + std::to_string(t.overflow_slots) +
+          " draining=" + std::to_string(t.draining);
   return {};
 }
 

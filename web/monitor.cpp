@@ -122,6 +122,19 @@ void Monitor::poll_once(client::Client& c, double& next_loop) {
       }
     }
   }
+  // SYSTem:CLIents:TABLe? is this repo's extension: a daemon without it answers -113 once per
+  // connection, and is not asked again until idm-web reconnects.
+  if (old.connected && !old.clients && old.clients_error.rfind("-113,", 0) == 0) {
+    next.clients_error = old.clients_error;
+  } else {
+    try {
+      next.clients = client::parse_client_table(c.query("SYST:CLI:TABL?"));
+    } catch (const client::DaemonError& e) {
+      next.clients_error = e.what();
+    } catch (const client::ReplyError& e) {
+      next.clients_error = e.what();
+    }
+  }
   try {
     next.sweep = client::parse_sweep(c.query("SWEEP?"));
   } catch (const client::DaemonError&) {
@@ -307,6 +320,17 @@ std::string state_json(const Snapshot& s, bool control) {
   } else {
     o += "null";
   }
+  o += ",\"clients\":";
+  if (s.clients) {
+    o += "{\"connected\":" + std::to_string(s.clients->connected) +
+         ",\"slots\":" + std::to_string(s.clients->slots) +
+         ",\"max_clients\":" + std::to_string(s.clients->max_clients) +
+         ",\"stop_only\":" + std::to_string(s.clients->stop_only) +
+         ",\"overflow_slots\":" + std::to_string(s.clients->overflow_slots) +
+         ",\"draining\":" + std::to_string(s.clients->draining) + "}";
+  } else {
+    o += "null,\"clients_error\":" + json_string(s.clients_error);
+  }
   return o + "}";
 }
 
@@ -460,6 +484,16 @@ std::string metrics_text(const Snapshot& s, std::uint64_t http_connections,
     o += "idm_loop_latency_seconds_bucket{le=\"+Inf\"} " + std::to_string(cumulative) + "\n";
     o += "idm_loop_latency_seconds_sum " + prom_number(l.avg_s * static_cast<double>(cumulative)) + "\n";
     o += "idm_loop_latency_seconds_count " + std::to_string(cumulative) + "\n";
+  }
+  if (s.connected && s.clients) {
+    family(o, "idm_clients_connected", "gauge",
+           "Connections open to idmd's command socket (idm-web's own and stop-only ones included).");
+    o += "idm_clients_connected " + std::to_string(s.clients->connected) + "\n";
+    family(o, "idm_clients_stop_only", "gauge",
+           "Of those, in a stop-only slot (they came while idmd's client table was full).");
+    o += "idm_clients_stop_only " + std::to_string(s.clients->stop_only) + "\n";
+    family(o, "idm_clients_max", "gauge", "idmd's client table size (server.max_clients).");
+    o += "idm_clients_max " + std::to_string(s.clients->max_clients) + "\n";
   }
   family(o, "idm_web_clients_connected", "gauge", "HTTP connections open to idm-web.");
   o += "idm_web_clients_connected " + std::to_string(http_connections) + "\n";

@@ -44,6 +44,10 @@ struct Snapshot {
   std::optional<client::SweepInfo> sweep;
   std::optional<client::LoopStats> loop;
   std::string loop_error;
+  // idmd's client table (SYSTem:CLIents:TABLe?): every connection to its socket, idm-web's own
+  // included; empty with clients_error when idmd does not answer it.
+  std::optional<client::ClientTable> clients;
+  std::string clients_error;
 };
 
 struct RegionMap {

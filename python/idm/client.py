@@ -103,6 +103,10 @@ class _Api:
         """``SYSTem:LOOP?``: the real-time loop's period and latency, parsed."""
         return self._run(_core.p_loop_stats())
 
+    def clients(self):
+        """``SYSTem:CLIents?``: connections open to the daemon now, this one included."""
+        return self._run(_core.p_int("SYSTem:CLIents?"))
+
     def query(self, line: str, timeout: Optional[float] = None):
         """Send one query line, return its reply; a queued error is raised."""
         if not _core.is_query(line):

@@ -111,6 +111,24 @@ TEST(Replies, LoopSweepRegionAndLists) {
                                                                   "position valid"}));
 }
 
+TEST(Replies, ClientTable) {
+  const ClientTable t =
+      parse_client_table("connected=5 slots=3 max_clients=16 stop_only=1 overflow_slots=4 draining=1");
+  EXPECT_EQ(t.connected, 5u);
+  EXPECT_EQ(t.slots, 3u);
+  EXPECT_EQ(t.max_clients, 16u);
+  EXPECT_EQ(t.stop_only, 1u);
+  EXPECT_EQ(t.overflow_slots, 4u);
+  EXPECT_EQ(t.draining, 1u);
+  // Parts that do not add up, a missing field, a negative count.
+  EXPECT_THROW(parse_client_table("connected=5 slots=3 max_clients=16 stop_only=0 overflow_slots=4 draining=1"),
+               ReplyError);
+  EXPECT_THROW(parse_client_table("connected=1 slots=1 max_clients=16 stop_only=0 overflow_slots=4"),
+               ReplyError);
+  EXPECT_THROW(parse_client_table("connected=1 slots=-1 max_clients=16 stop_only=2 overflow_slots=4 draining=0"),
+               ReplyError);
+}
+
 TEST(Address, HostPortForms) {
   EXPECT_EQ(parse_host_port("10.0.0.2:5026").text(), "10.0.0.2:5026");
   EXPECT_EQ(parse_host_port("lab-pc").port, 5025);

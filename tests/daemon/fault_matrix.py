@@ -251,6 +251,37 @@ def case_client_table_full():
         check(mover.status()["state"] in ("IDLE",), "at rest after STOP")
 
 
+def case_client_count():
+    """SYST:CLI? counts the connections open now (the asking one included), over TCP and the
+    Unix socket, a stop-only one too; it goes back down as they close."""
+    n = 8  # besides the asker: the table (max_clients 9) is then full
+    cfg = config([("  max_clients: 16", "  max_clients: %d" % (n + 1))])
+    with Daemon(cfg) as d:
+        asker = Client(d)
+        check(asker.ask("SYST:CLI?") == "1", "alone: SYST:CLI? 1")
+        others = []
+        for k in range(n):
+            others.append(Client(d, unix=k % 2 == 1))
+            check(others[-1].ask("*IDN?").startswith("idm,idmd"), "client %d answered" % (k + 1))
+            check(asker.ask("SYST:CLI?") == str(k + 2), "%d open: SYST:CLI? %d" % (k + 2, k + 2))
+        extra = Client(d)  # past the table: a stop-only slot (for 2 s), counted too
+        check(extra.ask("*IDN?").startswith("idm,idmd"), "the stop-only client answered")
+        table = dict(kv.split("=", 1) for kv in asker.ask("SYST:CLI:TABL?").split())
+        check(table == {"connected": str(n + 2), "slots": str(n + 1), "max_clients": str(n + 1),
+                        "stop_only": "1", "overflow_slots": "4", "draining": "0"},
+              "SYST:CLI:TABL? %r" % table)
+        extra.close()
+        for o in [None] + others:
+            if o is not None:
+                o.close()
+            want = str(1 + sum(1 for x in others if x.s.fileno() >= 0))
+            end = time.time() + 5
+            while asker.ask("SYST:CLI?") != want and time.time() < end:
+                time.sleep(0.01)
+            check(asker.ask("SYST:CLI?") == want, "one closed: SYST:CLI? back to %s" % want)
+        check(asker.error() == '0,"No error"', "no error queued")
+
+
 def wait_state(c, want, timeout=10, axis=""):
     end = time.time() + timeout
     st = {}
@@ -582,6 +613,7 @@ CASES = {
     "reset_keeps_limits": case_reset_keeps_limits,
     "sweep_confined": case_sweep_confined,
     "client_table_full": case_client_table_full,
+    "client_count": case_client_count,
     "beam_loss": case_beam_loss,
     "device_disconnect_and_return": case_device_disconnect_and_return,
     "device_power_cycle_mid_move": case_device_power_cycle_mid_move,

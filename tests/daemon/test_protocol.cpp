@@ -338,6 +338,25 @@ INSTANTIATE_TEST_SUITE_P(
             ""},
         CommandCase{{"SWEEP /tmp/s,250,0.3,2,40"}, "sweep(/tmp/s,250,0.3,2,40)", ""}));
 
+TEST(ProtocolSession, SystClientsReadsTheServersTable) {
+  struct Table : ClientTable {
+    ClientTableStats client_table() const override { return {5, 3, 16, 1, 4, 1}; }
+  } table;
+  Harness h;
+  EXPECT_EQ(h.line("SYST:CLI?"), "\n");  // outside a server there is no table: -200
+  EXPECT_EQ(h.next_error(), ec::kExecutionError);
+  h.session.set_client_table(&table);
+  EXPECT_EQ(h.line("SYST:CLI?"), "5\n");
+  EXPECT_EQ(h.line("system:clients:count?"), "5\n");
+  EXPECT_EQ(h.line("SYSTem:CLIents:TABLe?"),
+            "connected=5 slots=3 max_clients=16 stop_only=1 overflow_slots=4 draining=1\n");
+  EXPECT_EQ(h.line("AXIS1:SYST:CLI?"), "\n");  // an instrument query: no axis prefix
+  EXPECT_EQ(h.next_error(), ec::kUndefinedHeader);
+  EXPECT_EQ(h.line("SYST:CLI? 1"), "\n");
+  EXPECT_EQ(h.next_error(), ec::kParameterNotAllowed);
+  EXPECT_EQ(h.next_error_text(), "0,\"No error\"\n");
+}
+
 TEST(ProtocolSession, CommandTableListsEveryHeaderOnce) {
   std::vector<std::string> seen;
   for (const CommandInfo& c : command_table()) {

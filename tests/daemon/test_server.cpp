@@ -287,6 +287,38 @@ TEST_F(ServerTest, ClientsPastTheLimitGetAStopOnlySlot) {
   EXPECT_EQ(fourth.ask("*OPC?"), "1");
 }
 
+TEST_F(ServerTest, SystClientsCountsTheTableAsItIsNow) {
+  ServerConfig c = config();
+  c.max_clients = 2;
+  c.overflow_slots = 2;
+  start(c);
+  fake_.set_polls_until_done(1 << 30);  // a motion that does not end by itself
+  LineClient a = tcp();
+  EXPECT_EQ(a.ask("SYST:CLI?"), "1");  // the asking client counts
+  EXPECT_EQ(a.ask("SYSTEM:CLIENTS:COUNT?"), "1");
+  EXPECT_EQ(a.ask("SYST:CLI:TABL?"),
+            "connected=1 slots=1 max_clients=2 stop_only=0 overflow_slots=2 draining=0");
+  {
+    LineClient waiter = unix_client();
+    ASSERT_TRUE(waiter.send("MOVE:ABS 2e-6\n*OPC?\n"));
+    ASSERT_TRUE(eventually([&] { return fake_.motion_calls() == 1; }));
+    shutdown(waiter.fd(), SHUT_WR);  // half-closed, owed its *OPC? reply: draining, no slot
+    EXPECT_TRUE(eventually([&] { return a.ask("SYST:CLI:TABL?").find(" draining=1") != std::string::npos; }));
+    LineClient b = tcp();
+    EXPECT_EQ(b.ask("*IDN?"), "idm,idmd,0,test");
+    LineClient extra = tcp();  // the table is full (a, b): a stop-only slot
+    EXPECT_EQ(extra.ask("*IDN?"), "idm,idmd,0,test");
+    EXPECT_EQ(a.ask("SYST:CLI:TABL?"),
+              "connected=4 slots=2 max_clients=2 stop_only=1 overflow_slots=2 draining=1");
+    EXPECT_EQ(a.ask("SYST:CLI?"), "4");
+    EXPECT_EQ(extra.ask("SYST:CLI?"), "");  // a stop-only client may not ask
+    ASSERT_TRUE(b.send("STOP\n"));
+    EXPECT_EQ(waiter.line(), "1");
+  }  // waiter, b and extra close
+  EXPECT_TRUE(eventually([&] { return a.ask("SYST:CLI?") == "1"; }));
+  EXPECT_EQ(server_->clients(), 1);
+}
+
 TEST_F(ServerTest, StopClosesClientsAndRemovesTheSocketFile) {
   start();
   LineClient t = tcp();

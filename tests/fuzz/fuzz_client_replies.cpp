@@ -11,6 +11,7 @@
 //  * SYSTem:LOOP?: a positive, finite bin width, at most 1024 bins;
 //  * SYSTem:ERRor?: the code fits the reply, and code 0 is only "0,...";
 //  * REGion?: one of the three region names;
+//  * SYSTem:CLIents:TABLe?: slots + stop_only + draining == connected;
 //  * an address has a non-empty host of host-name characters and a port in 1..65535.
 #include <cmath>
 #include <cstddef>
@@ -67,9 +68,12 @@ void check(std::uint8_t which, std::string_view text) {
         fail("an unknown region", text);
       break;
     }
-    case 6:
+    case 6: {
       parse_key_values(text);
+      const ClientTable t = parse_client_table(text);
+      if (t.slots + t.stop_only + t.draining != t.connected) fail("a client table that does not add up", text);
       break;
+    }
     case 7:
       parse_reply_number(text);
       parse_reply_count(text);

@@ -528,11 +528,15 @@ def test_reference_follows_the_daemon(idmd, make_idmd):
         idm.Client("127.0.0.1", idmd.port).axis(1).reference("sideways")
 
 
-def test_instrument_queries(client):
+def test_instrument_queries(idmd, client):
     assert client.self_test() == 0
     assert client.version() == "1999.0"
     loop = client.loop_stats()
     assert loop.period == pytest.approx(1e-4) and loop.wakeups > 0 and len(loop.histogram) == 32
+    with idmd.unix_client() as other:
+        both = other.clients()
+        assert both >= 2 and client.clients() == both  # each connection counts
+    wait_for("the other client's close seen", lambda: client.clients() == both - 1, 5)
     client.clear()
     assert client.query("SYST:ERR:COUN?") == "0"
     with pytest.raises(ValueError):

@@ -1,45 +1,34 @@
-"""Fixtures of the status page tests: a real idmd on the simulated stage (the Idmd helper of
-tests/python/conftest.py) and idm-web as a separate process, on a free port.
+"""Fixtures of the status page tests: a real idmd on the simulated stage (tests/pyfixtures'
+idmd_process) and idm-web as a separate process, on a free port.
 
 The simulated stage is slowed (a 1.5 um stroke: about 0.8 mm/s) so that a long move lasts
 seconds and a STOP lands in the middle of it."""
-import importlib.util
 import json
 import os
 import re
-import select
-import shutil
-import signal
-import subprocess
-import tempfile
+import sys
 import time
 import urllib.error
 import urllib.request
 
 import pytest
 
-_spec = importlib.util.spec_from_file_location(
-    "idm_daemon_fixtures", os.path.join(os.path.dirname(__file__), "..", "python", "conftest.py"))
-fixtures = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(fixtures)
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "pyfixtures"))
+
+import idmd_process as fixtures  # noqa: E402
 
 BUILD = fixtures.BUILD
 IDM_WEB = os.path.join(BUILD, "web", "idm-web")
 SLOW = [("stroke_m: 20.35e-6", "stroke_m: 1.5e-6")]
 
 
-class Web:
+class Web(fixtures.ChildProcess):
     """idm-web ARGS --listen 127.0.0.1:0; `url` is where it listens."""
 
     def __init__(self, tmp, args, name="web"):
-        if not os.path.exists(IDM_WEB):
-            pytest.fail("idm-web is not built: %s" % IDM_WEB)
-        self.log_path = os.path.join(tmp, "idm-web-%s.log" % name)
-        self._log = open(self.log_path, "w")
-        self.proc = subprocess.Popen([IDM_WEB] + list(args) + ["--listen", "127.0.0.1:0"],
-                                     stdout=subprocess.PIPE, stderr=self._log, text=True)
-        ready, _, _ = select.select([self.proc.stdout], [], [], 30)
-        line = self.proc.stdout.readline() if ready else ""
+        fixtures.require_built(IDM_WEB, "idm-web")
+        super().__init__(os.path.join(tmp, "idm-web-%s.log" % name))
+        line = self.start([IDM_WEB] + list(args) + ["--listen", "127.0.0.1:0"], 30)
         m = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
         if not m:
             self.stop()
@@ -67,27 +56,6 @@ class Web:
         assert status == 200
         assert headers["Content-Type"].startswith("text/plain; version=0.0.4")
         return body.decode()
-
-    def log(self):
-        if not self._log.closed:
-            self._log.flush()
-        with open(self.log_path) as f:
-            return f.read()
-
-    def alive(self):
-        return self.proc.poll() is None
-
-    def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
-        self.proc.stdout.close()
-        self._log.close()
-        return self.proc.returncode
 
 
 def wait_for(what, predicate, timeout=30, period=0.05):
@@ -133,18 +101,14 @@ def mean_position(daemon, n=8):
 def lab():
     """A slowed idmd (one axis x), idm-web read-only on its TCP port and idm-web with --control on
     its Unix socket."""
-    d = tempfile.mkdtemp(prefix="idm-web-")
-    daemon = fixtures.Idmd(d, edits=SLOW)
-    readonly = Web(d, ["--idmd", "127.0.0.1:%d" % daemon.port], "readonly")
-    control = Web(d, ["--unix", daemon.unix, "--control"], "control")
-    yield daemon, readonly, control
-    alive = readonly.alive() and control.alive()
-    rc = [readonly.stop(), control.stop()]
-    drc = daemon.stop()
-    shutil.rmtree(d, ignore_errors=True)
+    with fixtures.idmd_in_temp_dir("idm-web-", edits=SLOW) as daemon:
+        readonly = Web(daemon.tmp, ["--idmd", "127.0.0.1:%d" % daemon.port], "readonly")
+        control = Web(daemon.tmp, ["--unix", daemon.unix, "--control"], "control")
+        yield daemon, readonly, control
+        alive = readonly.alive() and control.alive()
+        rc = [readonly.stop(), control.stop()]
     assert alive, "idm-web died during the tests"
     assert rc == [0, 0], "idm-web exited %r" % rc
-    assert drc == 0, "idmd exited %r" % drc
 
 
 @pytest.fixture

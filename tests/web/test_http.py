@@ -10,6 +10,7 @@ import socket
 import tempfile
 import shutil
 import threading
+import time
 
 import pytest
 
@@ -105,7 +106,8 @@ def test_metrics_are_well_formed(lab):
     for family, kind in (("idm_position_meters", "gauge"), ("idm_moves_total", "counter"),
                          ("idm_faults_total", "counter"), ("idm_axis_state", "gauge"),
                          ("idm_loop_latency_seconds", "histogram"),
-                         ("idm_web_clients_connected", "gauge")):
+                         ("idm_web_clients_connected", "gauge"),
+                         ("idm_clients_connected", "gauge"), ("idm_clients_max", "gauge")):
         assert types[family] == kind, family
     assert samples[("idm_axis_state", (("axis", "x"), ("state", "IDLE")))] == 1
     assert samples[("idm_axis_state", (("axis", "x"), ("state", "FAULT")))] == 0
@@ -121,6 +123,36 @@ def test_metrics_are_well_formed(lab):
     assert samples[("idm_loop_period_seconds", ())] == pytest.approx(float(loop["period"]))
     # This request's own connection is open while it is answered.
     assert samples[("idm_web_clients_connected", ())] >= 1
+
+
+def test_idmd_s_clients_are_counted_in_metrics(lab):
+    """idm_clients_connected is idmd's own count (SYST:CLI:TABL?), not idm-web's: it follows
+    plain clients of idmd that idm-web knows nothing of."""
+    daemon, web, _ = lab
+
+    def gauges():
+        s = parse_metrics(web.metrics())[0]
+        return (s.get(("idm_clients_connected", ())), s.get(("idm_clients_stop_only", ())),
+                s.get(("idm_clients_max", ())))
+
+    def settled():
+        """The gauges once two reads 0.3 s apart agree (earlier tests' connections gone)."""
+        first = gauges()
+        time.sleep(0.3)
+        return first if first == gauges() and first[0] is not None else None
+    base, stop_only, table = wait_for("idm_clients_connected settled", settled, 10)
+    assert base >= 2 and stop_only == 0 and table == 16  # two idm-webs poll; config's max_clients
+    extra = [daemon.raw() for _ in range(5)]
+    try:
+        assert all(r.ask("*IDN?").startswith("idm,idmd") for r in extra)  # accepted by now
+        wait_for("5 more clients in /metrics", lambda: gauges()[0] == base + 5, 10)
+        assert int(extra[0].ask("SYST:CLI?")) == base + 5
+        table = web.json("/api/state")["clients"]
+        assert table["connected"] == base + 5 and table["max_clients"] == 16, table
+    finally:
+        for r in extra:
+            r.close()
+    wait_for("the count back down in /metrics", lambda: gauges()[0] == base, 10)
 
 
 def test_the_region_map_is_the_daemon_s(lab):
