@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <system_error>
 #include <vector>
@@ -345,59 +346,53 @@ std::string Calibration::serialize(const CalibrationState& s) {
   return body + line;
 }
 
-bool Calibration::parse(const std::string& text, const std::string& source, CalibrationState& out,
-                        std::string& error) {
-  std::vector<std::string> lines;
-  {
-    std::istringstream in(text);
-    std::string l;
-    while (std::getline(in, l)) lines.push_back(l);
-  }
-  auto bad = [&](std::size_t line, const std::string& what) {
-    error = source + ":" + std::to_string(line) + ": " + what;
-    return false;
-  };
+namespace {
+
+// A calibration file's error: its 1-based line and what is wrong there.
+struct FileError {
+  std::size_t line = 0;
+  std::string what;
+};
+
+constexpr std::size_t kEstimateLines =
+    static_cast<std::size_t>(CalibrationState::kRegions) * CalibrationState::kDirections;
+
+// The file's shape: the magic line, the stage line, the estimates, (version 2) 'rungs NEG POS' and
+// that many rung lines, 'total_updates N', the checksum. Reads the rung counts; checks the line
+// count and the checksum over every line before the last.
+std::optional<FileError> check_layout(const std::vector<std::string>& lines, int (&rung_counts)[2]) {
   if (lines.empty() || (lines[0] != kMagic && lines[0] != kMagicV1))
-    return bad(1, std::string("not a calibration file (expected first line '") + kMagic + "')");
+    return FileError{1, std::string("not a calibration file (expected first line '") + kMagic + "')"};
   const bool v1 = lines[0] == kMagicV1;
-  const std::size_t estimate_lines = CalibrationState::kRegions * CalibrationState::kDirections;
-  // Version 2: a 'rungs NEG POS' line after the estimates, then that many rung lines.
-  int rung_counts[2] = {0, 0};
-  std::size_t expected_lines = 2 + estimate_lines + 2;
+  std::size_t expected_lines = 2 + kEstimateLines + 2;
   if (!v1) {
-    const std::size_t rungs_line = 2 + estimate_lines + 1;  // 1-based
+    const std::size_t rungs_line = 2 + kEstimateLines + 1;  // 1-based
     if (lines.size() < rungs_line + 2)
-      return bad(lines.size(), "truncated: " + std::to_string(lines.size()) + " lines, expected at least " +
-                                   std::to_string(rungs_line + 2));
+      return FileError{lines.size(), "truncated: " + std::to_string(lines.size()) +
+                                         " lines, expected at least " + std::to_string(rungs_line + 2)};
     char tail = 0;
     if (std::sscanf(lines[rungs_line - 1].c_str(), "rungs %d %d%c", &rung_counts[0], &rung_counts[1], &tail) != 2 ||
         rung_counts[0] < 0 || rung_counts[1] < 0 || rung_counts[0] > CalibrationState::kMaxRungs ||
         rung_counts[1] > CalibrationState::kMaxRungs)
-      return bad(rungs_line, "expected 'rungs NEGATIVE POSITIVE' (each 0 .. " +
-                                 std::to_string(CalibrationState::kMaxRungs) + ")");
+      return FileError{rungs_line, "expected 'rungs NEGATIVE POSITIVE' (each 0 .. " +
+                                       std::to_string(CalibrationState::kMaxRungs) + ")"};
     expected_lines += 1 + static_cast<std::size_t>(rung_counts[0] + rung_counts[1]);
   }
   if (lines.size() != expected_lines)
-    return bad(lines.size(), "truncated or extended: " + std::to_string(lines.size()) +
-                                 " lines, expected " + std::to_string(expected_lines));
-  // Checksum over every line before the last.
+    return FileError{lines.size(), "truncated or extended: " + std::to_string(lines.size()) +
+                                       " lines, expected " + std::to_string(expected_lines)};
   std::string body;
   for (std::size_t i = 0; i + 1 < lines.size(); ++i) body += lines[i] + "\n";
-  {
-    unsigned long long sum = 0;
-    char tail = 0;
-    if (std::sscanf(lines.back().c_str(), "checksum %llx%c", &sum, &tail) != 1)
-      return bad(lines.size(), "expected 'checksum HEX'");
-    if (sum != fnv1a(body)) return bad(lines.size(), "checksum mismatch (the file is corrupt)");
-  }
-  CalibrationState s;
-  {
-    char tail = 0;
-    if (std::sscanf(lines[1].c_str(), "stage %lf %lf %lf %lf %lf %lf%c", &s.slider_mass_kg,
-                    &s.counter_mass_kg, &s.friction_coefficient, &s.gravity_m_s2, &s.stroke_m,
-                    &s.step_correction, &tail) != 6)
-      return bad(2, "expected 'stage' and six numbers");
-  }
+  unsigned long long sum = 0;
+  char tail = 0;
+  if (std::sscanf(lines.back().c_str(), "checksum %llx%c", &sum, &tail) != 1)
+    return FileError{lines.size(), "expected 'checksum HEX'"};
+  if (sum != fnv1a(body)) return FileError{lines.size(), "checksum mismatch (the file is corrupt)"};
+  return std::nullopt;
+}
+
+// The estimate lines (3 ..), one per region and direction in that order.
+std::optional<FileError> read_estimates(const std::vector<std::string>& lines, CalibrationState& s) {
   for (int r = 0; r < CalibrationState::kRegions; ++r) {
     for (int d = 0; d < CalibrationState::kDirections; ++d) {
       const std::size_t ln = 3 + static_cast<std::size_t>(r * CalibrationState::kDirections + d);
@@ -407,17 +402,23 @@ bool Calibration::parse(const std::string& text, const std::string& source, Cali
       if (std::sscanf(lines[ln - 1].c_str(), "estimate %31s %31s %llu %lf %lf %lf %lf %lf%c", region,
                       direction, &updates, &e.alpha, &e.alpha_mu, &e.p_aa, &e.p_am, &e.p_mm,
                       &tail) != 8)
-        return bad(ln, "expected 'estimate REGION DIRECTION UPDATES ALPHA ALPHA_MU P_AA P_AM P_MM'");
+        return FileError{ln, "expected 'estimate REGION DIRECTION UPDATES ALPHA ALPHA_MU P_AA P_AM P_MM'"};
       if (std::string(region) != region_key(r) || std::string(direction) != direction_name(d))
-        return bad(ln, std::string("expected the estimate for ") + region_key(r) + " " +
-                           direction_name(d) + ", found " + region + " " + direction);
+        return FileError{ln, std::string("expected the estimate for ") + region_key(r) + " " +
+                                 direction_name(d) + ", found " + region + " " + direction};
       e.updates = updates;
       if (!estimate_ok(e))
-        return bad(ln, "alpha and alpha_mu must be finite and > 0, the covariance positive "
-                       "semi-definite");
+        return FileError{ln, "alpha and alpha_mu must be finite and > 0, the covariance positive "
+                             "semi-definite"};
     }
   }
-  std::size_t ln = 2 + estimate_lines + 2;  // the first rung line (1-based)
+  return std::nullopt;
+}
+
+// The rung lines after 'rungs NEG POS': the negative rungs, then the positive ones.
+std::optional<FileError> read_rungs(const std::vector<std::string>& lines, const int (&rung_counts)[2],
+                                    CalibrationState& s) {
+  std::size_t ln = 2 + kEstimateLines + 2;  // the first rung line (1-based)
   for (int d = 0; d < CalibrationState::kDirections; ++d) {
     s.rung_count[d] = rung_counts[d];
     for (int i = 0; i < rung_counts[d]; ++i, ++ln) {
@@ -427,19 +428,47 @@ bool Calibration::parse(const std::string& text, const std::string& source, Cali
       if (std::sscanf(lines[ln - 1].c_str(), "rung %31s %lf %lf %lf %llu %lf %lf %lf %lf %lf%c", direction,
                       &e.freq_hz, &e.duty, &e.stroke_m, &updates, &e.offset_m, &e.step_m, &e.p_oo,
                       &e.p_os, &e.p_ss, &tail) != 10)
-        return bad(ln, "expected 'rung DIRECTION FREQ DUTY STROKE UPDATES OFFSET STEP P_OO P_OS P_SS'");
+        return FileError{ln, "expected 'rung DIRECTION FREQ DUTY STROKE UPDATES OFFSET STEP P_OO P_OS P_SS'"};
       if (std::string(direction) != direction_name(d))
-        return bad(ln, std::string("expected a rung moving ") + direction_name(d) + ", found " + direction);
+        return FileError{ln, std::string("expected a rung moving ") + direction_name(d) + ", found " + direction};
       e.updates = updates;
-      if (!rung_ok(e)) return bad(ln, "a rung must be a valid cell with finite values and a covariance");
+      if (!rung_ok(e)) return FileError{ln, "a rung must be a valid cell with finite values and a covariance"};
     }
   }
-  {
-    unsigned long long total = 0;
-    char tail = 0;
-    if (std::sscanf(lines[expected_lines - 2].c_str(), "total_updates %llu%c", &total, &tail) != 1)
-      return bad(expected_lines - 1, "expected 'total_updates N'");
-    s.total_updates = total;
+  return std::nullopt;
+}
+
+// The stage line (2) and 'total_updates N' (the line before the checksum).
+std::optional<FileError> read_stage_and_total(const std::vector<std::string>& lines, CalibrationState& s) {
+  char tail = 0;
+  if (std::sscanf(lines[1].c_str(), "stage %lf %lf %lf %lf %lf %lf%c", &s.slider_mass_kg,
+                  &s.counter_mass_kg, &s.friction_coefficient, &s.gravity_m_s2, &s.stroke_m,
+                  &s.step_correction, &tail) != 6)
+    return FileError{2, "expected 'stage' and six numbers"};
+  unsigned long long total = 0;
+  const std::size_t total_line = lines.size() - 1;  // 1-based
+  if (std::sscanf(lines[total_line - 1].c_str(), "total_updates %llu%c", &total, &tail) != 1)
+    return FileError{total_line, "expected 'total_updates N'"};
+  s.total_updates = total;
+  return std::nullopt;
+}
+
+}  // namespace
+
+bool Calibration::parse(const std::string& text, const std::string& source, CalibrationState& out,
+                        std::string& error) {
+  std::vector<std::string> lines;
+  std::istringstream in(text);
+  for (std::string l; std::getline(in, l);) lines.push_back(l);
+  int rung_counts[2] = {0, 0};
+  CalibrationState s;
+  std::optional<FileError> e = check_layout(lines, rung_counts);
+  if (!e) e = read_stage_and_total(lines, s);
+  if (!e) e = read_estimates(lines, s);
+  if (!e) e = read_rungs(lines, rung_counts, s);
+  if (e) {
+    error = source + ":" + std::to_string(e->line) + ": " + e->what;
+    return false;
   }
   out = s;
   return true;

@@ -803,7 +803,7 @@ bool Positioner::end_of_travel_seen(double moved_m) {
 }
 
 void Positioner::end_of_travel(double now_s, int sign) {
-  status_.eot = static_cast<std::int8_t>(sign);
+  status_.eot = sign;
   status_.eot_position_m = sign < 0 ? std::min(chunk_lo_m_, status_.position_m) : std::max(chunk_hi_m_, status_.position_m);
   if (referencing_) {
     // At the stop: this is where the reference lies.

@@ -154,7 +154,7 @@ struct MotionStatus {
   MotionKind kind = MotionKind::None;  // the current/last motion
   MoveResult result = MoveResult::None;  // why the last motion ended (None while one runs)
   double result_distance_m = 0.0;    // target - position when it ended
-  std::int8_t eot = 0;               // -1 / +1: stopped at the end of travel that way; 0: not
+  int eot = 0;                       // -1 / +1: stopped at the end of travel that way; 0: not
   double eot_position_m = 0.0;       // where it met it (motion beyond is refused)
   std::uint8_t moved_dirs = 0;       // bit 0 negative, bit 1 positive: the slider has stepped that way
   bool holding = false;              // keeping the last move's target (HOLD)
@@ -317,6 +317,10 @@ class Positioner {
   bool rung_live(Rung& r);              // revives a rung whose dead time is over
   void kill_rung(Rung& r);
   bool judge_and_learn(double moved_m);  // false: a fault was entered
+  // judge_and_learn's two outcomes: a rung that did not move (false: a stall fault or the end of
+  // travel was entered); a rung that moved updates its scatter and its estimate.
+  bool rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign, double along);
+  void learn_rung(Rung& r, int sign, double along, double predicted, double moved_m);
 
   void enter_fault(MotionFault fault);
   void on_reading(const model::AxisEvent& e);

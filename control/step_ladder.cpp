@@ -369,42 +369,7 @@ bool Positioner::judge_and_learn(double moved_m) {
     r.pending_pred_m = r.pending_moved_m = 0;
     r.pending_cycles = 0;
   }
-  if (failed) {
-    // A rung that does not move (or moves back) is left out; it is a stall only when it had
-    // moved before and is not of the final class, or is one of the coarse rungs (within half of
-    // the largest live step): a fine rung near cut-off that does not move is the map being
-    // wrong, or a stretch of the guide with more friction (where it moved before), not the
-    // slider stuck.
-    double largest = 0;
-    for (const Rung& x : ladder)
-      if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
-    const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
-    const bool counts = (r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
-    kill_rung(r);
-    r.killed_in_streak = true;
-    if (counts) {
-      streak_cycles_ += chunk_.cycles;
-      streak_along_m_ += along;
-    }
-    if (counts && ++stall_count_ >= config_.stall_bursts) {
-      // The slider is stuck: the rungs are not to blame.
-      for (std::vector<Rung>& l : ladder_)
-        for (Rung& x : l)
-          if (x.killed_in_streak) {
-            x.dead = false;
-            x.killed_in_streak = false;
-          }
-      // Driven and not moving: at an end stop when the mean step over the run collapsed.
-      if (config_.eot_step_m > 0 && streak_cycles_ > 0 && (status_.moved_dirs & (1u << direction_index(sign))) &&
-          streak_along_m_ / static_cast<double>(streak_cycles_) < config_.eot_step_m) {
-        end_of_travel(now_s_, sign);
-        return false;
-      }
-      enter_fault(MotionFault::Stall);
-      return false;
-    }
-    return true;
-  }
+  if (failed) return rung_failed(r, ladder, sign, along);
   if (judged) {
     stall_count_ = 0;
     streak_cycles_ = 0;
@@ -413,6 +378,48 @@ bool Positioner::judge_and_learn(double moved_m) {
     for (std::vector<Rung>& l : ladder_)
       for (Rung& x : l) x.killed_in_streak = false;
   }
+  learn_rung(r, sign, along, predicted, moved_m);
+  return true;
+}
+
+bool Positioner::rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign, double along) {
+  // A rung that does not move (or moves back) is left out; it is a stall only when it had
+  // moved before and is not of the final class, or is one of the coarse rungs (within half of
+  // the largest live step): a fine rung near cut-off that does not move is the map being
+  // wrong, or a stretch of the guide with more friction (where it moved before), not the
+  // slider stuck.
+  double largest = 0;
+  for (const Rung& x : ladder)
+    if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
+  const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
+  const bool counts = (r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
+  kill_rung(r);
+  r.killed_in_streak = true;
+  if (counts) {
+    streak_cycles_ += chunk_.cycles;
+    streak_along_m_ += along;
+  }
+  if (counts && ++stall_count_ >= config_.stall_bursts) {
+    // The slider is stuck: the rungs are not to blame.
+    for (std::vector<Rung>& l : ladder_)
+      for (Rung& x : l)
+        if (x.killed_in_streak) {
+          x.dead = false;
+          x.killed_in_streak = false;
+        }
+    // Driven and not moving: at an end stop when the mean step over the run collapsed.
+    if (config_.eot_step_m > 0 && streak_cycles_ > 0 && (status_.moved_dirs & (1u << direction_index(sign))) &&
+        streak_along_m_ / static_cast<double>(streak_cycles_) < config_.eot_step_m) {
+      end_of_travel(now_s_, sign);
+      return false;
+    }
+    enter_fault(MotionFault::Stall);
+    return false;
+  }
+  return true;
+}
+
+void Positioner::learn_rung(Rung& r, int sign, double along, double predicted, double moved_m) {
   if (along > -count_m_ && predicted >= 2.0 * count_m_) {
     // Scored against the estimate the chunk was planned with, before it learns from it.
     const double rel = (along - predicted) / predicted;
@@ -428,7 +435,6 @@ bool Positioner::judge_and_learn(double moved_m) {
   if (!(r.est.step_m >= config_.min_step_counts * count_m_)) kill_rung(r);
   if (calibration_ != nullptr && chunk_.cell != nullptr)
     calibration_->update(*chunk_.cell, chunk_.cycles, moved_m, count_m_);
-  return true;
 }
 
 }  // namespace idm::control

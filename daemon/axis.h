@@ -88,6 +88,7 @@ class Axis {
  public:
   // `link_index`: the axis's channel among the link's (config.channel is the device's own).
   Axis(const AxisConfig& config, drivers::DeviceLink& link, std::size_t link_index);
+  ~Axis() = default;
   Axis(const Axis&) = delete;
   Axis& operator=(const Axis&) = delete;
 

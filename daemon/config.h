@@ -138,6 +138,9 @@ struct AxisConfig {
   YAML::Node document;
 };
 
+// The implicit move assignment may throw only through YAML::Node, which throws on an invalid node;
+// a parsed document holds none.
+// NOLINTNEXTLINE(bugprone-exception-escape)
 struct DaemonConfig {
   std::string file;
   std::vector<DeviceConfig> devices;

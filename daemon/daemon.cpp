@@ -154,7 +154,7 @@ std::string Daemon::start() {
   if (loop_hook_) loop_->set_thread_hook(loop_hook_);
   for (auto& l : links_) l->start_thread();
   started_ = true;
-  const std::string warning = loop_->start();
+  std::string warning = loop_->start();
   try {
     wait_until_ready();
   } catch (...) {

@@ -29,6 +29,8 @@ class Housekeeping {
                MotionSupervisor& supervisor, SweepRunner& sweeps, std::mutex& control_mutex,
                std::function<std::string()> reload);
   ~Housekeeping();  // quit()
+  Housekeeping(const Housekeeping&) = delete;
+  Housekeeping& operator=(const Housekeeping&) = delete;
 
   void start();
   // Ends the thread; then saves every calibration one last time (the caller's thread).

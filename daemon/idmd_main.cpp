@@ -17,6 +17,7 @@
 #include <cstring>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "daemon/config.h"
@@ -117,37 +118,45 @@ bool parse_int(const std::string& text, long lo, long hi, int& out) {
   return true;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+// The command line: a config to run or one to check, and the listeners' overrides.
+struct Options {
   std::string config_path = kDefaultConfig;
   std::string check_path;
   bool have_port = false, have_unix = false;
   int port = 0;
   std::string unix_path;
+};
+
+// Reads argv into `o`; returns an exit code when idmd is done (--version, --help, a bad argument).
+std::optional<int> parse_arguments(int argc, char** argv, Options& o) {
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
-    auto value = [&](const char* name) -> std::string {
+    auto value = [&](const char* name) -> std::optional<std::string> {
       if (i + 1 >= argc) {
         std::fprintf(stderr, "idmd: %s needs a value\n", name);
         usage(stderr);
-        std::exit(exit_code::kBadConfig);
+        return std::nullopt;
       }
-      return argv[++i];
+      return std::string(argv[++i]);
     };
+    std::optional<std::string> v;
     if (a == "--config" || a == "-c") {
-      config_path = value("--config");
+      if (!(v = value("--config"))) return exit_code::kBadConfig;
+      o.config_path = *v;
     } else if (a == "--check-config") {
-      check_path = value("--check-config");
+      if (!(v = value("--check-config"))) return exit_code::kBadConfig;
+      o.check_path = *v;
     } else if (a == "--port") {
-      if (!parse_int(value("--port"), 0, 65535, port)) {
-        std::fprintf(stderr, "idmd: --port: '%s' is not a port, allowed 0..65535\n", argv[i]);
+      if (!(v = value("--port"))) return exit_code::kBadConfig;
+      if (!parse_int(*v, 0, 65535, o.port)) {
+        std::fprintf(stderr, "idmd: --port: '%s' is not a port, allowed 0..65535\n", v->c_str());
         return exit_code::kBadConfig;
       }
-      have_port = true;
+      o.have_port = true;
     } else if (a == "--unix") {
-      unix_path = value("--unix");
-      have_unix = true;
+      if (!(v = value("--unix"))) return exit_code::kBadConfig;
+      o.unix_path = *v;
+      o.have_unix = true;
     } else if (a == "--version") {
       std::printf("idmd %s\n", IDM_VERSION);
       return exit_code::kOk;
@@ -163,31 +172,23 @@ int main(int argc, char** argv) {
       return exit_code::kBadConfig;
     }
   }
+  return std::nullopt;
+}
 
-  if (!check_path.empty()) {
-    try {
-      const DaemonConfig c = load_daemon_config(check_path);
-      std::printf("%s: ok (%s)\n", check_path.c_str(), describe(c).c_str());
-      return exit_code::kOk;
-    } catch (const std::exception& e) {
-      std::fprintf(stderr, "idmd: %s\n", e.what());
-      return exit_code::kBadConfig;
-    }
-  }
-
-  DaemonConfig config;
+int check_config(const std::string& path) {
   try {
-    config = load_daemon_config(config_path);
+    const DaemonConfig c = load_daemon_config(path);
+    std::printf("%s: ok (%s)\n", path.c_str(), describe(c).c_str());
+    return exit_code::kOk;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "idmd: %s\n", e.what());
     return exit_code::kBadConfig;
   }
-  if (have_port) config.server.tcp_port = port;
-  if (have_unix) config.server.unix_socket = unix_path;
-  setup_logging(config.logging);
-  Notifier notifier;
+}
 
-  // Signals are read from a signalfd by this thread; every thread started below inherits the mask.
+// SIGTERM, SIGINT and SIGHUP, read from a signalfd by the main thread; every thread started later
+// inherits the mask. -1 when there is none.
+int signal_fd() {
   sigset_t signals;
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);
@@ -195,12 +196,65 @@ int main(int argc, char** argv) {
   sigaddset(&signals, SIGHUP);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   const int sfd = signalfd(-1, &signals, SFD_CLOEXEC);
-  if (sfd < 0) {
-    spdlog::error("signalfd: {}", std::strerror(errno));
-    return exit_code::kRuntimeError;
-  }
+  if (sfd < 0) spdlog::error("signalfd: {}", std::strerror(errno));
   signal(SIGPIPE, SIG_IGN);
+  return sfd;
+}
 
+// Serves until SIGTERM or SIGINT (SIGHUP reloads the control settings) or the loop ends; returns
+// the exit code.
+int serve_until_signal(int sfd, Daemon& daemon, Notifier& notifier, const std::string& config_path,
+                       const std::string& where) {
+  for (;;) {
+    pollfd pfd{sfd, POLLIN, 0};
+    const int r = poll(&pfd, 1, 100);
+    if (r < 0 && errno != EINTR) {
+      spdlog::error("poll: {}", std::strerror(errno));
+      return exit_code::kRuntimeError;
+    }
+    log_notes(daemon);
+    if (!daemon.loop_running()) {
+      spdlog::error("the real-time loop has ended");
+      return exit_code::kRuntimeError;
+    }
+    if (r <= 0 || !(pfd.revents & POLLIN)) continue;
+    signalfd_siginfo si{};
+    if (read(sfd, &si, sizeof si) != static_cast<ssize_t>(sizeof si)) continue;
+    if (si.ssi_signo != SIGHUP) {
+      spdlog::info("{}: stopping motion and shutting down", si.ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT");
+      return exit_code::kOk;
+    }
+    spdlog::info("SIGHUP: reloading the control settings from {}", config_path);
+    notifier.send_reloading();
+    std::string error;
+    if (daemon.reload_control(error)) spdlog::info("control settings reloaded");
+    else spdlog::error("reload failed, the old settings stay: {}", error);
+    notifier.ready("Ready: control settings reloaded, listening on " + where);
+  }
+}
+
+// "tcp 127.0.0.1:5025, unix /run/idmd/idmd.sock"
+std::string listeners_text(const Server& server, const ServerConfig& sc) {
+  std::string where;
+  if (server.tcp_port() >= 0) where = "tcp " + sc.tcp_host + ":" + std::to_string(server.tcp_port());
+  if (!sc.unix_path.empty()) where += (where.empty() ? "" : ", ") + std::string("unix ") + sc.unix_path;
+  return where;
+}
+
+void log_stopped(Daemon& daemon) {
+  std::string outputs;
+  for (int a = 0; a < daemon.axis_count(); ++a) {
+    const double xi = daemon.sim_output_m(a);
+    if (!std::isnan(xi))
+      outputs += (outputs.empty() ? " (commanded elongation " : ", ") + daemon.axis_name(a) + " " +
+                 idm::model::format_number(xi) + " m";
+  }
+  spdlog::info("stopped: every output at zero{}, devices shut down", outputs.empty() ? "" : outputs + ")");
+}
+
+// Opens the devices, listens, serves until a signal, shuts down; returns the exit code.
+int run(const DaemonConfig& config, const std::string& config_path, int sfd) {
+  Notifier notifier;
   spdlog::info("idmd {} starting: {} ({})", IDM_VERSION, config_path, describe(config));
   notifier.status("Opening the devices: " + axes_text(config));
   Daemon daemon(config);
@@ -231,9 +285,7 @@ int main(int argc, char** argv) {
     daemon.shutdown();
     return exit_code::kListenFailed;
   }
-  std::string where;
-  if (server.tcp_port() >= 0) where = "tcp " + sc.tcp_host + ":" + std::to_string(server.tcp_port());
-  if (!sc.unix_path.empty()) where += (where.empty() ? "" : ", ") + std::string("unix ") + sc.unix_path;
+  const std::string where = listeners_text(server, sc);
   // One line on stdout that scripts and tests read for the port.
   std::printf("idmd: listening on %s\n", where.c_str());
   std::fflush(stdout);
@@ -242,50 +294,35 @@ int main(int argc, char** argv) {
   if (const double wd = notifier.start_watchdog([&daemon] { return daemon.loop_ticks(); }); wd > 0)
     spdlog::info("watchdog: every {} s while the real-time loop advances", idm::model::format_number(wd / 4));
 
-  int exit_status = exit_code::kOk;
-  for (bool running = true; running;) {
-    pollfd pfd{sfd, POLLIN, 0};
-    const int r = poll(&pfd, 1, 100);
-    if (r < 0 && errno != EINTR) {
-      spdlog::error("poll: {}", std::strerror(errno));
-      exit_status = exit_code::kRuntimeError;
-      break;
-    }
-    log_notes(daemon);
-    if (!daemon.loop_running()) {
-      spdlog::error("the real-time loop has ended");
-      exit_status = exit_code::kRuntimeError;
-      break;
-    }
-    if (r <= 0 || !(pfd.revents & POLLIN)) continue;
-    signalfd_siginfo si{};
-    if (read(sfd, &si, sizeof si) != static_cast<ssize_t>(sizeof si)) continue;
-    if (si.ssi_signo == SIGHUP) {
-      spdlog::info("SIGHUP: reloading the control settings from {}", config_path);
-      notifier.send_reloading();
-      std::string error;
-      if (daemon.reload_control(error)) spdlog::info("control settings reloaded");
-      else spdlog::error("reload failed, the old settings stay: {}", error);
-      notifier.ready("Ready: control settings reloaded, listening on " + where);
-    } else {
-      spdlog::info("{}: stopping motion and shutting down", si.ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT");
-      running = false;
-    }
-  }
-
+  const int exit_status = serve_until_signal(sfd, daemon, notifier, config_path, where);
   notifier.stopping("Stopping: bringing the actuator to rest");
   notifier.stop_watchdog();
   server.stop();
   daemon.shutdown();
   log_notes(daemon);
-  std::string outputs;
-  for (int a = 0; a < daemon.axis_count(); ++a) {
-    const double xi = daemon.sim_output_m(a);
-    if (!std::isnan(xi))
-      outputs += (outputs.empty() ? " (commanded elongation " : ", ") + daemon.axis_name(a) + " " +
-                 idm::model::format_number(xi) + " m";
+  log_stopped(daemon);
+  return exit_status;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  if (const std::optional<int> done = parse_arguments(argc, argv, o)) return *done;
+  if (!o.check_path.empty()) return check_config(o.check_path);
+  DaemonConfig config;
+  try {
+    config = load_daemon_config(o.config_path);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "idmd: %s\n", e.what());
+    return exit_code::kBadConfig;
   }
-  spdlog::info("stopped: every output at zero{}, devices shut down", outputs.empty() ? "" : outputs + ")");
+  if (o.have_port) config.server.tcp_port = o.port;
+  if (o.have_unix) config.server.unix_socket = o.unix_path;
+  setup_logging(config.logging);
+  const int sfd = signal_fd();
+  if (sfd < 0) return exit_code::kRuntimeError;
+  const int exit_status = run(config, o.config_path, sfd);
   close(sfd);
   return exit_status;
 }

@@ -153,8 +153,10 @@ bool looks_like_query(std::string_view line) {
   return end > i && end <= kMaxLineBytes && line[end - 1] == '?';
 }
 
-CommandError parse_line(std::string_view line, ParsedLine& out) {
-  out = ParsedLine{};
+namespace {
+
+// -101 at the first control character or byte outside printable ASCII (a tab is allowed).
+CommandError check_characters(std::string_view line) {
   for (std::size_t i = 0; i < line.size(); ++i) {
     const auto b = static_cast<unsigned char>(line[i]);
     if ((b < 0x20 && b != '\t') || b >= 0x7f) {
@@ -163,43 +165,36 @@ CommandError parse_line(std::string_view line, ParsedLine& out) {
       return make_error(ec::kInvalidCharacter, detail);
     }
   }
-  line = trim(line);
-  if (line.empty()) return {};
-  std::size_t end = 0;
-  while (end < line.size() && !is_blank(line[end])) ++end;
-  std::string_view header = line.substr(0, end);
-  const std::string_view shown = header;
-  if (!header.empty() && header.back() == '?') {
-    out.query = true;
-    header.remove_suffix(1);
-  }
-  // [:]*NAME  or  [:]KEY{:KEY}, KEY = letter {letter | digit | _}
-  if (!header.empty() && header.front() == ':') header.remove_prefix(1);
-  bool ok = !header.empty();
-  if (ok && header.front() == '*') {
-    ok = header.size() > 1;
-    for (char c : header.substr(1)) ok = ok && is_alpha(c);
-  } else if (ok) {
-    bool at_start = true;
-    for (char c : header) {
-      if (c == ':') {
-        ok = ok && !at_start;
-        at_start = true;
-      } else if (at_start) {
-        ok = ok && is_alpha(c);
-        at_start = false;
-      } else {
-        ok = ok && (is_alpha(c) || is_digit(c) || c == '_');
-      }
-    }
-    ok = ok && !at_start;
-  }
-  if (!ok) return make_error(ec::kSyntaxError, "malformed header " + echo(shown));
-  out.header = std::string(header);
+  return {};
+}
 
-  const std::string_view rest = trim(line.substr(end));
-  if (rest.empty()) return {};
-  // Arguments: split on commas outside "..." strings.
+// A header without its '?' and leading ':': *NAME, or KEY{:KEY} with KEY = letter {letter |
+// digit | _}.
+bool header_well_formed(std::string_view header) {
+  if (header.empty()) return false;
+  if (header.front() == '*') {
+    bool ok = header.size() > 1;
+    for (char c : header.substr(1)) ok = ok && is_alpha(c);
+    return ok;
+  }
+  bool ok = true, at_start = true;
+  for (char c : header) {
+    if (c == ':') {
+      ok = ok && !at_start;
+      at_start = true;
+    } else if (at_start) {
+      ok = ok && is_alpha(c);
+      at_start = false;
+    } else {
+      ok = ok && (is_alpha(c) || is_digit(c) || c == '_');
+    }
+  }
+  return ok && !at_start;
+}
+
+// The arguments after the header: split on commas outside "..." strings ("" inside one is a
+// quote); a quoted argument is marked as such.
+CommandError split_arguments(std::string_view rest, ParsedLine& out) {
   std::string current;
   bool in_string = false, was_string = false, text_after_string = false;
   auto finish = [&]() -> CommandError {
@@ -219,15 +214,13 @@ CommandError parse_line(std::string_view line, ParsedLine& out) {
   for (std::size_t i = 0; i < rest.size(); ++i) {
     const char c = rest[i];
     if (in_string) {
-      if (c == '"') {
-        if (i + 1 < rest.size() && rest[i + 1] == '"') {
-          current += '"';
-          ++i;
-        } else {
-          in_string = false;
-        }
-      } else {
+      if (c != '"') {
         current += c;
+      } else if (i + 1 < rest.size() && rest[i + 1] == '"') {
+        current += '"';
+        ++i;
+      } else {
+        in_string = false;
       }
     } else if (c == ',') {
       if (CommandError e = finish(); !e.ok()) return e;
@@ -242,6 +235,29 @@ CommandError parse_line(std::string_view line, ParsedLine& out) {
   }
   if (in_string) return make_error(ec::kSyntaxError, "unterminated string");
   return finish();
+}
+
+}  // namespace
+
+CommandError parse_line(std::string_view line, ParsedLine& out) {
+  out = ParsedLine{};
+  if (CommandError e = check_characters(line); !e.ok()) return e;
+  line = trim(line);
+  if (line.empty()) return {};
+  std::size_t end = 0;
+  while (end < line.size() && !is_blank(line[end])) ++end;
+  std::string_view header = line.substr(0, end);
+  const std::string_view shown = header;
+  if (!header.empty() && header.back() == '?') {
+    out.query = true;
+    header.remove_suffix(1);
+  }
+  if (!header.empty() && header.front() == ':') header.remove_prefix(1);
+  if (!header_well_formed(header)) return make_error(ec::kSyntaxError, "malformed header " + echo(shown));
+  out.header = std::string(header);
+  const std::string_view rest = trim(line.substr(end));
+  if (rest.empty()) return {};
+  return split_arguments(rest, out);
 }
 
 bool keyword_matches(std::string_view pattern, std::string_view word) {

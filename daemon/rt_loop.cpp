@@ -7,6 +7,7 @@
 #include <time.h>
 
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 
 namespace idm::daemon {
@@ -110,7 +111,7 @@ void RtLoop::run() {
   setup_warning_ = setup_realtime();
   setup_done_.store(1, std::memory_order_release);
 
-  const std::int64_t period_ns = static_cast<std::int64_t>(config_.period_s * 1e9 + 0.5);
+  const std::int64_t period_ns = static_cast<std::int64_t>(std::llround(config_.period_s * 1e9));
   const double bin_ns = config_.histogram_bin_s * 1e9;
   constexpr std::size_t kBins = sizeof(local_.bins) / sizeof(local_.bins[0]);
   const std::uint64_t publish_every =

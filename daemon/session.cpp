@@ -190,15 +190,13 @@ void Session::process(std::string& replies) {
     const std::size_t newline = input_.find('\n', pos);
     if (newline == std::string::npos) {
       const std::size_t pending = input_.size() - pos;
-      if (discarding_) {
-        pos = input_.size();
-      } else if (pending > kMaxLineBytes + 1) {  // + 1: a CR may still come before the LF
+      // + 1: a CR may still come before the LF
+      if (!discarding_ && pending > kMaxLineBytes + 1) {
         line_too_long(std::string_view(input_).substr(pos), replies);
         discarding_ = true;
-        pos = input_.size();
-      } else if (end_of_input_) {
-        pos = input_.size();  // an unterminated last line never runs
       }
+      // A line being discarded is dropped as it comes; an unterminated last line never runs.
+      if (discarding_ || end_of_input_) pos = input_.size();
       break;
     }
     std::string_view line = std::string_view(input_).substr(pos, newline - pos);
@@ -536,14 +534,14 @@ CommandError Session::read_client_table(ClientTableStats& stats) const {
 
 CommandError Session::clients(const Args&, std::string& reply) {
   ClientTableStats t;
-  if (const CommandError e = read_client_table(t); !e.ok()) return e;
+  if (CommandError e = read_client_table(t); !e.ok()) return e;
   reply = std::to_string(t.connected);
   return {};
 }
 
 CommandError Session::client_table(const Args&, std::string& reply) {
   ClientTableStats t;
-  if (const CommandError e = read_client_table(t); !e.ok()) return e;
+  if (CommandError e = read_client_table(t); !e.ok()) return e;
   reply = "connected=" + std::to_string(t.connected) + " slots=" + std::to_string(t.slots) +
           " max_clients=" + std::to_string(t.max_clients) +
           " stop_only=" + std::to_string(t.stop_only) +

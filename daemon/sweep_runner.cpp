@@ -157,60 +157,56 @@ void SweepRunner::run(SweepJob& job) {
   report_ = line.str();
 }
 
-bool SweepRunner::run_trial(SweepJob& job, const TrialRequest& req, std::string& first_error) {
-  Axis& axis = *axes_[static_cast<std::size_t>(job.axis)];
-  auto failed = [&](const std::string& why) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    ++status_.failed;
-    if (first_error.empty()) first_error = "trial " + std::to_string(req.index) + ": " + why;
-  };
+SweepRunner::TrialStart SweepRunner::await_start(const TrialRequest& req, std::uint32_t& seq,
+                                                 std::string& why) {
   while (!supervisor_.send_trial(req)) {
-    if (supervisor_.stopping()) return false;
+    if (supervisor_.stopping()) return TrialStart::Interrupted;
     nap();
   }
   // The loop starts it (a Started notice) or says why not.
-  const double deadline_start = drivers::monotonic_s() + 60.0;
+  const double deadline_s = drivers::monotonic_s() + 60.0;
   TrialNotice notice;
-  std::uint32_t seq = 0;
   for (;;) {
     if (supervisor_.next_notice(notice)) {
       if (notice.seq != req.seq) continue;  // a late notice of an earlier trial (or sweep)
       if (notice.kind == TrialNotice::Kind::Started) {
         seq = notice.seq;
-        break;
+        return TrialStart::Started;
       }
-      if (notice.why == TrialFailure::Stopped) return false;  // interrupted, not failed
-      failed(trial_failure_text(notice.why));
-      return true;
+      if (notice.why == TrialFailure::Stopped) return TrialStart::Interrupted;
+      why = trial_failure_text(notice.why);
+      return TrialStart::Refused;
     }
-    if (drivers::monotonic_s() > deadline_start) {
-      failed("the loop did not start it within 60 s");
-      return false;
+    if (drivers::monotonic_s() > deadline_s) {
+      why = "the loop did not start it within 60 s";
+      return TrialStart::TimedOut;
     }
     nap();
   }
-  // Its samples, until the link's end mark.
+}
+
+bool SweepRunner::capture_trial(SweepJob& job, const TrialRequest& req, std::uint32_t seq,
+                                CapturedTrial& out, std::string& why) {
+  Axis& axis = *axes_[static_cast<std::size_t>(job.axis)];
   const model::TriangleWave wave = req.segment.wave();
   const double t0 = req.segment.start_offset_s();
-  recording::TrialSeries series;
-  recording::TrialInfo info;
-  info.freq_hz = req.segment.freq_hz;
-  info.duty = req.segment.duty;
-  info.stroke_m = req.segment.stroke_m;
-  info.cycles = static_cast<int>(req.segment.cycles);
-  info.sample_rate_hz = job.stream_rate_hz;
-  info.guide_pos_m = kNaN;
-  bool valid = true, complete = false;
-  const double duration = (static_cast<double>(req.segment.cycles) + job.settle_cycles) / req.segment.freq_hz +
-                          job.rest_s;
-  const double deadline = drivers::monotonic_s() + duration + 30.0;
+  out.info.freq_hz = req.segment.freq_hz;
+  out.info.duty = req.segment.duty;
+  out.info.stroke_m = req.segment.stroke_m;
+  out.info.cycles = static_cast<int>(req.segment.cycles);
+  out.info.sample_rate_hz = job.stream_rate_hz;
+  out.info.guide_pos_m = kNaN;
+  const double duration_s = (static_cast<double>(req.segment.cycles) + job.settle_cycles) / req.segment.freq_hz +
+                            job.rest_s;
+  const double deadline_s = drivers::monotonic_s() + duration_s + 30.0;
   drivers::CaptureRecord rec;
+  TrialNotice notice;
   for (;;) {
     if (!axis.port().capture.pop(rec)) {
       while (supervisor_.next_notice(notice)) {  // a failure while it played (the end mark follows)
       }
-      if (drivers::monotonic_s() > deadline) {
-        failed("no end of the trial's samples within " + std::to_string(static_cast<int>(duration + 30)) + " s");
+      if (drivers::monotonic_s() > deadline_s) {
+        why = "no end of the trial's samples within " + std::to_string(static_cast<int>(duration_s + 30)) + " s";
         return false;
       }
       nap();
@@ -218,25 +214,52 @@ bool SweepRunner::run_trial(SweepJob& job, const TrialRequest& req, std::string&
     }
     if (rec.seq != seq) continue;  // left over from an earlier trial
     if (rec.end) {
-      complete = rec.complete;
-      break;
+      out.complete = rec.complete;
+      return true;
     }
-    if (rec.status != 0) valid = false;
+    if (rec.status != 0) out.valid = false;
     const double t = rec.t_s - t0;
-    if (!series.t_s.empty() && !(t > series.t_s.back())) continue;
-    if (std::isnan(info.guide_pos_m) && rec.status == 0) info.guide_pos_m = rec.position_m;
-    series.t_s.push_back(t);
-    series.xi_cmd_m.push_back(wave.xi_m(t));
-    series.x_m.push_back(rec.position_m);
+    if (!out.series.t_s.empty() && !(t > out.series.t_s.back())) continue;
+    if (std::isnan(out.info.guide_pos_m) && rec.status == 0) out.info.guide_pos_m = rec.position_m;
+    out.series.t_s.push_back(t);
+    out.series.xi_cmd_m.push_back(wave.xi_m(t));
+    out.series.x_m.push_back(rec.position_m);
   }
-  if (!complete || !valid || series.size() < 2 || std::isnan(info.guide_pos_m)) {
+}
+
+bool SweepRunner::run_trial(SweepJob& job, const TrialRequest& req, std::string& first_error) {
+  auto failed = [&](const std::string& why) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++status_.failed;
+    if (first_error.empty()) first_error = "trial " + std::to_string(req.index) + ": " + why;
+  };
+  std::uint32_t seq = 0;
+  std::string why;
+  switch (await_start(req, seq, why)) {
+    case TrialStart::Started:
+      break;
+    case TrialStart::Interrupted:
+      return false;  // interrupted, not failed
+    case TrialStart::Refused:
+      failed(why);
+      return true;
+    case TrialStart::TimedOut:
+      failed(why);
+      return false;
+  }
+  CapturedTrial trial;
+  if (!capture_trial(job, req, seq, trial, why)) {
+    failed(why);
+    return false;
+  }
+  if (!trial.complete || !trial.valid || trial.series.size() < 2 || std::isnan(trial.info.guide_pos_m)) {
     const bool stopped = abort_.load(std::memory_order_acquire) || supervisor_.stopping();
     if (stopped) return false;  // interrupted, not failed
-    failed(!valid ? "invalid interferometer samples" : "the trial did not play in full");
+    failed(!trial.valid ? "invalid interferometer samples" : "the trial did not play in full");
     return true;
   }
   try {
-    job.writer->add_trial(info, series);
+    job.writer->add_trial(trial.info, trial.series);
     std::lock_guard<std::mutex> lock(mutex_);
     ++status_.written;
   } catch (const std::exception& e) {

@@ -44,6 +44,8 @@ class SweepRunner {
  public:
   SweepRunner(MotionSupervisor& supervisor, std::vector<Axis*> axes);
   ~SweepRunner();  // quit()
+  SweepRunner(const SweepRunner&) = delete;
+  SweepRunner& operator=(const SweepRunner&) = delete;
 
   // Starts the job on the runner's thread; false when one is running.
   bool submit(std::unique_ptr<SweepJob> job);
@@ -64,6 +66,18 @@ class SweepRunner {
   void run(SweepJob& job);
   // One trial: false when the sweep must end (stopped).
   bool run_trial(SweepJob& job, const TrialRequest& request, std::string& first_error);
+  // run_trial's steps: the loop starts the trial (or refuses it, or the sweep is stopped), then
+  // its samples are taken from the capture queue until the end mark (false: none came in time).
+  enum class TrialStart : std::uint8_t { Started, Refused, Interrupted, TimedOut };
+  TrialStart await_start(const TrialRequest& request, std::uint32_t& seq, std::string& why);
+  struct CapturedTrial {
+    recording::TrialSeries series;
+    recording::TrialInfo info;
+    bool valid = true;      // every sample's status was clean
+    bool complete = false;  // the burst played in full
+  };
+  bool capture_trial(SweepJob& job, const TrialRequest& request, std::uint32_t seq,
+                     CapturedTrial& out, std::string& why);
 
   MotionSupervisor& supervisor_;
   std::vector<Axis*> axes_;

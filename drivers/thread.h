@@ -17,11 +17,11 @@ namespace idm::drivers {
 
 // Stack sizes of idmd's threads: each is far above what the thread uses (no recursion, no large
 // locals beyond the buffers noted), and small enough that locking them costs little.
-inline constexpr std::size_t kLoopStackBytes = 512 * 1024;      // loop + 64 KiB prefault
-inline constexpr std::size_t kServerStackBytes = 512 * 1024;    // 16 KiB read buffer, logging
-inline constexpr std::size_t kRecorderStackBytes = 1024 * 1024; // dataset writing (I/O, formatting)
-inline constexpr std::size_t kSmallStackBytes = 256 * 1024;     // watchdog, housekeeping
-inline constexpr std::size_t kIoStackBytes = 1024 * 1024;       // a device's I/O thread (libmodbus,
+inline constexpr std::size_t kLoopStackBytes = std::size_t{512} * 1024;      // loop + 64 KiB prefault
+inline constexpr std::size_t kServerStackBytes = std::size_t{512} * 1024;    // 16 KiB read buffer, logging
+inline constexpr std::size_t kRecorderStackBytes = std::size_t{1024} * 1024; // dataset writing (I/O, formatting)
+inline constexpr std::size_t kSmallStackBytes = std::size_t{256} * 1024;     // watchdog, housekeeping
+inline constexpr std::size_t kIoStackBytes = std::size_t{1024} * 1024;       // a device's I/O thread (libmodbus,
                                                                 // libusb, error messages)
 
 class StackThread {
@@ -37,7 +37,7 @@ class StackThread {
     const int e = pthread_create(&id_, &attr, &StackThread::entry, owned.get());
     pthread_attr_destroy(&attr);
     if (e != 0) throw std::system_error(e, std::generic_category(), "pthread_create");
-    owned.release();  // the thread owns it now
+    static_cast<void>(owned.release());  // the thread owns it now
     joinable_ = true;
   }
   StackThread(StackThread&& other) noexcept
