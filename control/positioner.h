@@ -264,6 +264,8 @@ class Positioner {
   double finest_live_step_m(int direction) const;
 
  private:
+  // Index of a direction in the per-direction arrays: [0] negative, [1] positive.
+  static int direction_index(int sign) { return sign > 0 ? 1 : 0; }
   enum class Phase : std::uint8_t { Idle, Pending, Playing, Settling, Fault, Dwell };
   // Fresh readings: the average of latch_words valid readings taken at or after fresh_after_s_.
   struct Fresh {

@@ -8,16 +8,10 @@
 
 namespace idm::control {
 
-namespace {
-int direction_index(int sign) { return sign > 0 ? 1 : 0; }
-}  // namespace
-
 // ---- the step ladder ----
 
 void Positioner::build_ladder() {
   rung_cfg_ = calibration_ != nullptr ? calibration_->config() : CalibrationConfig{};
-  // Frequency bands: one rung per (stroke, band), so that a rung that does not move on the real
-  // stage (stiction near cut-off, the actuator's resonance) has neighbours to fall back on.
   // Frequency bands x bands of the fast phase's share min(duty, 1 - duty): one rung per (stroke,
   // band, share band), so that a rung that does not move on the real stage (stiction near
   // cut-off, the amplifier rounding a short fast phase, the actuator's resonance) has neighbours.

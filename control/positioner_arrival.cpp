@@ -1,0 +1,167 @@
+// How the positioner's motions end (control/README.md, "Positioner"): the result, arriving in
+// the window, the dwell, the hold after a move, and the end of travel. Part of class Positioner.
+#include <algorithm>
+#include <cmath>
+
+#include "control/calibration.h"
+#include "control/positioner.h"
+#include "model/impulse_model.h"
+
+namespace idm::control {
+
+// ---- ending ----
+
+void Positioner::finish(double now_s, MoveResult result) {
+  phase_ = Phase::Idle;
+  status_.state = MotionState::Idle;
+  stop_requested_ = false;
+  if (hold_correcting_) {
+    hold_correcting_ = false;
+    if (result == MoveResult::Ok) {  // back in the window: holding on
+      hold_armed_ = true;
+      status_.in_window = true;
+      return;
+    }
+    status_.holding = false;
+  }
+  status_.last_move_time_s = now_s - move_start_s_;
+  status_.result = result;
+  status_.result_distance_m = status_.target_m - status_.position_m;
+  status_.in_window = status_.kind == MotionKind::Move && result == MoveResult::Ok;
+  referencing_ = false;
+  if (status_.in_window && config_.hold_s != 0) {
+    hold_armed_ = true;
+    status_.holding = true;
+    hold_until_s_ = config_.hold_s < 0 ? std::numeric_limits<double>::infinity() : now_s + config_.hold_s;
+    hold_sum_m_ = 0;
+    hold_n_ = 0;
+    hold_correction_due_ = false;
+  }
+}
+
+void Positioner::arrived(double now_s) {
+  if (config_.dwell_s > 0 && !hold_correcting_) {
+    if (phase_ != Phase::Dwell) {
+      phase_ = Phase::Dwell;
+      status_.state = MotionState::Settling;
+      dwell_until_s_ = now_s + config_.dwell_s;
+    }
+    want_fresh(now_s);
+    return;
+  }
+  finish(now_s, MoveResult::Ok);
+}
+
+void Positioner::dwell_tick(double now_s) {
+  if (stop_requested_) {
+    finish(now_s, stop_result_);
+    return;
+  }
+  double p = 0;
+  const double worst = fresh_.worst_m;
+  if (!fresh_position(p)) return;
+  // Every reading of the dwell, not only their mean: a slider near the window's edge that the
+  // noise reads outside now and then is read outside by a client too.
+  if (worst > tolerance_m()) {
+    // It left the window during the dwell: correct again. Counted on its own (the mean may still
+    // say arrived, and then nothing is played before the next dwell): five times max_retries.
+    if (++dwell_failures_ > 5 * std::max(config_.max_retries, 1)) {
+      enter_fault(MotionFault::RetryLimit);
+      return;
+    }
+    last_try_done_ = false;
+    phase_ = Phase::Settling;
+    plan_next_chunk(now_s);
+    return;
+  }
+  if (now_s >= dwell_until_s_)
+    finish(now_s, MoveResult::Ok);
+  else
+    want_fresh(now_s);
+}
+
+void Positioner::hold_tick(double now_s) {
+  if (!hold_armed_) return;
+  if (now_s >= hold_until_s_) {
+    hold_armed_ = false;
+    status_.holding = false;
+    return;
+  }
+  if (!hold_correction_due_ || !status_.position_valid) return;
+  hold_correction_due_ = false;
+  // A correction back to the target: a move of its own, the hold carrying on after it.
+  load_rung_estimates();
+  const std::uint64_t moves = status_.moves;
+  start_motion(MotionKind::Move);
+  status_.moves = moves;
+  status_.holding = true;
+  hold_correcting_ = true;
+  status_.closed_loop = true;
+}
+
+bool Positioner::end_of_travel_seen(double moved_m) {
+  const double eot_step = config_.eot_step_m > 0 ? config_.eot_step_m : (referencing_ ? 0.25 * count_m_ : 0.0);
+  if (!(eot_step > 0) || chunk_.cycles == 0) return false;
+  const int sign = chunk_.direction != 0 ? chunk_.direction : (chunk_.predicted_m >= 0 ? 1 : -1);
+  // Only chunks that were expected to move well above the threshold say anything: open-loop
+  // chunks at their nominal step; closed-loop chunks of a rung not of the final class that has
+  // moved as predicted before (on a compliant stage whole groups of cells stand still on some
+  // stretches of the guide, and a fine rung near cut-off often does).
+  bool expected = false, proven = true;
+  if (chunk_.rung < 0) {
+    expected = std::fabs(open_loop_.predicted_m) >= 5.0 * eot_step;
+  } else {
+    const Rung& r = ladder_[direction_index(sign)][static_cast<std::size_t>(chunk_.rung)];
+    expected = r.est.step_m >= std::max(5.0 * eot_step, config_.final_step_counts * count_m_);
+    proven = r.proven;
+  }
+  if (!expected) return false;
+  // A collapse needs steps before it: a slider that has never moved this way is stuck (a stall
+  // fault), not at the end of its travel. A reference looks for the stop, wherever it starts.
+  const double expected_along = chunk_.rung < 0 ? std::fabs(open_loop_.predicted_m) * static_cast<double>(chunk_.cycles)
+                                                : std::max(chunk_.predicted_along_m, 0.0);
+  const std::uint8_t bit = static_cast<std::uint8_t>(1u << direction_index(sign));
+  const bool had_moved = (status_.moved_dirs & bit) != 0 || referencing_;
+  const double along = sign * moved_m;
+  if (along >= std::max(0.5 * expected_along, 3.0 * count_m_)) status_.moved_dirs |= bit;
+  if (!had_moved) return false;
+  // Thrown back farther than the chunk could step: at a hard stop the step's momentum goes into
+  // the stop and the return stroke's does not.
+  // (A compliant stage moves a cell the wrong way by a few steps at times: far beyond that only.)
+  if (-along > std::max(5.0 * expected_along, 1000.0 * count_m_)) return true;
+  // Closed loop: the run of non-moving chunks that makes a stall (judge_and_learn) decides; one
+  // rung standing still on a stretch of the guide is the ladder's business.
+  if (!proven || chunk_.rung >= 0) return false;
+  eot_chunks_[eot_next_] = EotChunk{chunk_.cycles, along};
+  eot_next_ = (eot_next_ + 1) % kEotChunks;
+  eot_count_ = std::min(eot_count_ + 1, kEotChunks);
+  std::uint64_t cycles = 0;
+  double sum = 0;
+  for (int k = 1; k <= eot_count_ && cycles < static_cast<std::uint64_t>(config_.eot_cycles); ++k) {
+    const EotChunk& c = eot_chunks_[(eot_next_ - k + kEotChunks) % kEotChunks];
+    cycles += c.cycles;
+    sum += c.along_m;
+  }
+  if (cycles < static_cast<std::uint64_t>(config_.eot_cycles)) return false;
+  return sum / static_cast<double>(cycles) < eot_step;
+}
+
+void Positioner::end_of_travel(double now_s, int sign) {
+  status_.eot = sign;
+  status_.eot_position_m = sign < 0 ? std::min(chunk_lo_m_, status_.position_m) : std::max(chunk_hi_m_, status_.position_m);
+  if (referencing_) {
+    // At the stop: this is where the reference lies.
+    const double shift = reference_position_m_ - status_.position_m;
+    offset_m_ += shift;
+    status_.eot_position_m += shift;
+    status_.offset_m = offset_m_;
+    status_.position_m = reference_position_m_;
+    status_.target_m = reference_position_m_;
+    ++status_.references;
+    finish(now_s, MoveResult::Ok);
+    return;
+  }
+  finish(now_s, MoveResult::EndOfTravel);
+}
+
+}  // namespace idm::control
