@@ -92,10 +92,15 @@ class Client:
     def positions(self):
         return [float(x) for x in self.ask("POS:ALL?").split(",")]
 
-    def mean_positions(self, n=8):
-        """Where the axes are at rest: the mean of n readings (each is quantized to one count,
-        with the sensor's noise)."""
-        rows = [self.positions() for _ in range(n)]
+    def mean_positions(self, n=32, spacing_s=0.003):
+        """Where the axes are at rest: the mean of n readings spread over n * spacing_s. Each is
+        quantized to one count with the sensor's noise, and a slider resting near the edge between
+        two counts reads as either; readings taken back to back repeat the same few words, so a
+        short burst of them can read the far count only (the three_at_once case, 1 run in 12)."""
+        rows = []
+        for _ in range(n):
+            rows.append(self.positions())
+            time.sleep(spacing_s)
         return [sum(r[k] for r in rows) / n for k in range(len(rows[0]))]
 
     def no_error(self):

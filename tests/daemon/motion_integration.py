@@ -33,8 +33,14 @@ def result(c):
     return word, float(dist)
 
 
-def mean_pos(c, n=8):
-    return sum(float(c.ask("POS?")) for _ in range(n)) / n
+def mean_pos(c, n=32, spacing_s=0.003):
+    """The mean of n readings spread over n * spacing_s: back-to-back readings repeat the same few
+    words, and a slider resting near the edge between two counts can read the far one only."""
+    total = 0.0
+    for _ in range(n):
+        total += float(c.ask("POS?"))
+        time.sleep(spacing_s)
+    return total / n
 
 
 def errors(c):

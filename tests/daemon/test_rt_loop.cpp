@@ -1,0 +1,130 @@
+// The lock-free structures between the loop and the other threads, and the real-time loop.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cstdint>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "daemon/rt_loop.h"
+#include "drivers/lockfree.h"
+#include "tests/daemon/daemon_test_util.h"
+
+namespace {
+
+using namespace idm::daemon;
+using namespace idm::daemon::test;
+
+// ---- lock-free structures --------------------------------------------------------------------
+
+TEST(SpscRing, FifoAndCapacity) {
+  SpscRing<int, 4> ring;
+  for (int i = 0; i < 4; ++i) EXPECT_TRUE(ring.push(i));
+  EXPECT_FALSE(ring.push(99));
+  int v = -1;
+  for (int i = 0; i < 4; ++i) {
+    ASSERT_TRUE(ring.pop(v));
+    EXPECT_EQ(v, i);
+  }
+  EXPECT_FALSE(ring.pop(v));
+}
+
+TEST(SpscRing, TwoThreadsLoseNothing) {
+  SpscRing<std::uint64_t, 64> ring;
+  constexpr std::uint64_t kN = 200000;
+  std::thread producer([&] {
+    for (std::uint64_t i = 1; i <= kN; ++i)
+      while (!ring.push(i)) std::this_thread::yield();
+  });
+  std::uint64_t expected = 1, v = 0;
+  while (expected <= kN) {
+    if (ring.pop(v)) {
+      ASSERT_EQ(v, expected);
+      ++expected;
+    } else {
+      std::this_thread::yield();
+    }
+  }
+  producer.join();
+}
+
+struct Pair {
+  std::uint64_t a, b;
+};
+
+TEST(Seqlock, ReadersNeverSeeATornValue) {
+  Seqlock<Pair> s;
+  s.store({0, ~std::uint64_t{0}});
+  std::atomic<bool> done{false};
+  std::thread writer([&] {
+    for (std::uint64_t i = 1; i <= 200000; ++i) s.store({i, ~i});
+    done = true;
+  });
+  long reads = 0;
+  while (!done || reads < 1000) {
+    const Pair p = s.load();
+    ASSERT_EQ(p.b, ~p.a);
+    ++reads;
+  }
+  writer.join();
+  EXPECT_EQ(s.load().a, 200000u);
+  EXPECT_GT(reads, 0);
+}
+
+// ---- the loop ------------------------------------------------------------------------------------
+
+struct CountingBody : LoopBody {
+  std::atomic<std::uint64_t> n{0};
+  double last = 0;
+  bool monotonic = true;
+  void tick(double now_s) override {
+    if (now_s < last) monotonic = false;
+    last = now_s;
+    n.fetch_add(1);
+  }
+};
+
+TEST(RtLoop, TicksKeepsStatisticsAndStops) {
+  RealtimeConfig rc;
+  rc.period_s = 1e-3;
+  rc.sched_fifo = false;
+  rc.lock_memory = false;
+  CountingBody body;
+  RtLoop loop(rc, body);
+  EXPECT_EQ(loop.start(), "");
+  ASSERT_TRUE(wait_for([&] { return loop.stats().wakeups >= 20; }, 10));
+  loop.stop();
+  EXPECT_FALSE(loop.running());
+  const LoopStats s = loop.stats();
+  EXPECT_EQ(s.wakeups, body.n.load());
+  EXPECT_EQ(loop.ticks(), body.n.load());
+  EXPECT_TRUE(body.monotonic);
+  EXPECT_DOUBLE_EQ(s.period_s, 1e-3);
+  EXPECT_LE(s.latency_min_s, s.latency_avg_s);
+  EXPECT_LE(s.latency_avg_s, s.latency_max_s);
+  std::uint64_t in_bins = 0;
+  for (std::uint64_t b : s.bins) in_bins += b;
+  EXPECT_EQ(in_bins, s.wakeups);
+  const std::uint64_t after = body.n.load();
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(body.n.load(), after);  // stopped
+}
+
+TEST(RtLoop, RealtimeRefusalIsOneWarningThatSaysWhy) {
+  RealtimeConfig rc;
+  rc.period_s = 1e-3;
+  rc.sched_fifo = true;
+  rc.priority = 99;
+  rc.cpu = 100000 % 1024;  // not a CPU this machine has
+  rc.lock_memory = false;
+  CountingBody body;
+  RtLoop loop(rc, body);
+  const std::string warning = loop.start();
+  ASSERT_TRUE(wait_for([&] { return body.n.load() > 3; }, 10));  // carries on
+  loop.stop();
+  EXPECT_NE(warning.find("CPU affinity"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("running without it"), std::string::npos) << warning;
+}
+
+}  // namespace
