@@ -48,7 +48,7 @@ struct PositionerConfig {
   // Longest chunk played in one piece (whole cycles; at least one cycle).
   double max_chunk_s = 0.05;
   // Words latched and averaged for a position at rest.
-  int latch_words = 4;
+  int latch_words = 8;
   // Soft limits: a move whose target lies outside is refused before anything moves.
   double soft_lower_m = -std::numeric_limits<double>::infinity();
   double soft_upper_m = std::numeric_limits<double>::infinity();
@@ -319,6 +319,7 @@ class Positioner {
   bool rung_live(Rung& r);              // revives a rung whose dead time is over
   void kill_rung(Rung& r);
   bool judge_and_learn(double moved_m);  // false: a fault was entered
+  bool landed(double error_m) const;     // the fresh readings say the slider is in the window
   // judge_and_learn's two outcomes: a rung that did not move (false: a stall fault or the end of
   // travel was entered); a rung that moved updates its scatter and its estimate.
   bool rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign, double along);

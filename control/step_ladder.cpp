@@ -169,10 +169,19 @@ double Positioner::finest_live_step_m(int direction) const {
   return finest;
 }
 
+bool Positioner::landed(double error_m) const {
+  if (tolerance_m() > count_m_ * (1 + 1e-9)) return std::fabs(error_m) <= tolerance_m();
+  // A window of up to one count: every reading of the fresh set reads within it. Readings are
+  // whole counts; the slider reads within the window from anywhere in the half counts around the
+  // counts the window holds, and a set that never reads outside says it is not at their edge.
+  return std::fabs(error_m) <= landing_m() &&
+         (fresh_.count < config_.latch_words || fresh_.worst_m <= tolerance_m());
+}
+
 void Positioner::plan_next_chunk(double now_s) {
   const double error = status_.target_m - status_.position_m;
   const double tolerance = landing_m();
-  if (std::fabs(error) <= tolerance) {
+  if (landed(error)) {
     arrived(now_s);
     return;
   }
