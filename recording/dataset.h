@@ -105,6 +105,7 @@ class DatasetWriter {
   DatasetWriter& operator=(const DatasetWriter&) = delete;
   DatasetWriter(DatasetWriter&&) = default;
   DatasetWriter& operator=(DatasetWriter&&) = default;
+  ~DatasetWriter() = default;
 
   // Adds one trial. An empty info.id becomes trial_name(f, duty, stroke, next free index); an
   // empty info.file becomes "trials/<id>.csv" (the id must then be a plain file name).

@@ -73,6 +73,8 @@ double now_s();
 class Monitor {
  public:
   explicit Monitor(MonitorOptions options);
+  Monitor(const Monitor&) = delete;
+  Monitor& operator=(const Monitor&) = delete;
   ~Monitor();
   void start();
   void stop();
