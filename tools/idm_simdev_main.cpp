@@ -196,6 +196,30 @@ class SimModbusDevice {
   bool started_ = false, parameter_error_ = false, overrun_ = false;
 };
 
+// Answers one request of rc bytes (received on ctx) from the channel it addresses.
+void answer(modbus_t* ctx, const std::uint8_t* query, int rc, int header_length,
+            std::vector<std::unique_ptr<SimModbusDevice>>& devices, int unit_id) {
+  // The unit addressed (the MBAP header's last byte): one channel of the card.
+  const int unit = query[header_length - 1] - unit_id;
+  if (unit < 0 || static_cast<std::size_t>(unit) >= devices.size()) {
+    modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_GATEWAY_TARGET);
+    return;
+  }
+  SimModbusDevice& device = *devices[static_cast<std::size_t>(unit)];
+  if (device.sim().faults().timeouts) return;  // injected fault: no answer at all
+  device.refresh();
+  const int cmd = device.command_written(query, header_length);
+  if (cmd >= 0 && cmd != mb::command::kStart && cmd != mb::command::kStop) {
+    modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE);
+    return;
+  }
+  modbus_reply(ctx, query, rc, device.mapping());
+  if (cmd >= 0) {
+    device.execute(static_cast<std::uint16_t>(cmd));
+    device.refresh();
+  }
+}
+
 int serve(const std::string& host, int port, std::vector<std::unique_ptr<SimModbusDevice>>& devices,
           int unit_id, int stop_fd) {
   modbus_t* ctx = modbus_new_tcp(host.c_str(), port);
@@ -253,26 +277,7 @@ int serve(const std::string& host, int port, std::vector<std::unique_ptr<SimModb
         continue;
       }
       ++it;
-      if (rc == 0) continue;  // not for this unit
-      // The unit addressed (the MBAP header's last byte): one channel of the card.
-      const int unit = query[static_cast<std::size_t>(header_length) - 1] - unit_id;
-      if (unit < 0 || static_cast<std::size_t>(unit) >= devices.size()) {
-        modbus_reply_exception(ctx, query.data(), MODBUS_EXCEPTION_GATEWAY_TARGET);
-        continue;
-      }
-      SimModbusDevice& device = *devices[static_cast<std::size_t>(unit)];
-      if (device.sim().faults().timeouts) continue;  // injected fault: no answer at all
-      device.refresh();
-      const int cmd = device.command_written(query.data(), header_length);
-      if (cmd >= 0 && cmd != mb::command::kStart && cmd != mb::command::kStop) {
-        modbus_reply_exception(ctx, query.data(), MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE);
-        continue;
-      }
-      modbus_reply(ctx, query.data(), rc, device.mapping());
-      if (cmd >= 0) {
-        device.execute(static_cast<std::uint16_t>(cmd));
-        device.refresh();
-      }
+      if (rc > 0) answer(ctx, query.data(), rc, header_length, devices, unit_id);  // 0: not for us
     }
   }
   for (int fd : clients) close(fd);

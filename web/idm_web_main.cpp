@@ -50,7 +50,7 @@ const char* kUsage =
     "  --region-freq LIST, --region-duty LIST  the region map's grid (default 100:1000:50 Hz,\n"
     "                     0.05:0.95:0.05 without 0.5)\n";
 
-constexpr std::size_t kMaxGapReportBytes = 16 * 1024 * 1024;
+constexpr std::size_t kMaxGapReportBytes = std::size_t{16} * 1024 * 1024;
 constexpr int kMaxAxes = 64;
 
 // Counts the HTTP connections being served: every connection is one task of the pool.
