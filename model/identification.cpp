@@ -7,7 +7,9 @@
 namespace idm::model {
 
 WeightedRls::WeightedRls(int n, double forgetting, double p0)
-    : forgetting_(forgetting), w_(Eigen::VectorXd::Zero(n)), p_(Eigen::MatrixXd::Identity(n, n) * p0) {}
+    : forgetting_(forgetting),
+      w_(Eigen::VectorXd::Zero(n)),
+      p_(Eigen::MatrixXd::Identity(n, n) * p0) {}
 
 void WeightedRls::update(const Eigen::VectorXd& h, double y, double weight) {
   const Eigen::VectorXd ph = p_ * h;

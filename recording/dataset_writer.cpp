@@ -1,6 +1,4 @@
 // DatasetWriter: a dataset written crash-safe, trial by trial (dataset.h).
-#include "recording/dataset.h"
-
 #include <algorithm>
 #include <charconv>
 #include <cmath>
@@ -12,6 +10,7 @@
 #include <system_error>
 #include <utility>
 
+#include "recording/dataset.h"
 #include "recording/dataset_format.h"
 #include "recording/durable_file.h"
 
