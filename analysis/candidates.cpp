@@ -60,15 +60,9 @@ double clamp_to_library(const std::string& effect, const std::string& param, dou
   throw std::logic_error("no parameter " + effect + "." + param);
 }
 
-}  // namespace
-
-std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
-  const SweepScales sc = scales_of(sweep);
-  const model::StageParams& st = sweep.stage.stage;
-  const double m_red = st.reduced_mass_kg();
-  std::vector<CandidateSpec> lib;
-  // amplifier: a corner is rounded over ~1 / (2 pi fc); from half the highest frequency (the stage
-  // barely steps) to 30 times the shortest phase's rate (the rounding is then invisible).
+// amplifier: a corner is rounded over ~1 / (2 pi fc); from half the highest frequency (the stage
+// barely steps) to 30 times the shortest phase's rate (the rounding is then invisible).
+CandidateSpec amplifier_candidate(const SweepScales& sc) {
   CandidateSpec amp;
   amp.effect = "amplifier";
   amp.axes = {
@@ -76,10 +70,14 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
   amp.variants = {{{"order", 2}}, {{"order", 1}}};
   amp.params = [](const std::vector<double>& x) { return Params{{"cutoff_hz", x[0]}}; };
   amp.physics = "cutoff between half the highest frequency and 30 x the fastest phase's rate";
-  lib.push_back(amp);
-  // actuator_compliance: the actuator's resonance with the reduced mass and its damping ratio (the
-  // natural coordinates of eq 30: stiffness and damping trade off along a narrow valley); from half
-  // the highest frequency to 10 times the fastest phase's rate (the actuator is then rigid to it).
+  return amp;
+}
+
+// actuator_compliance: the actuator's resonance with the reduced mass and its damping ratio (the
+// natural coordinates of eq 30: stiffness and damping trade off along a narrow valley); from half
+// the highest frequency to 10 times the fastest phase's rate (the actuator is then rigid to it).
+CandidateSpec compliance_candidate(const SweepScales& sc, const model::StageParams& st) {
+  const double m_red = st.reduced_mass_kg();
   CandidateSpec comp;
   comp.effect = "actuator_compliance";
   comp.axes = {
@@ -101,25 +99,34 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
   comp.scan_ratio = 1.07;
   comp.scan_other = {0.05, 0.15, 0.45};
   comp.physics = "resonance with the reduced mass (K = m_red (2 pi f)^2) and damping ratio";
-  lib.push_back(comp);
+  return comp;
+}
+
+CandidateSpec hysteresis_candidate() {
   CandidateSpec hys;
   hys.effect = "hysteresis";
   hys.axes = {{"ratio", 0.005, 0.45, true}};
   hys.variants = {{}};
   hys.params = [](const std::vector<double>& x) { return Params{{"ratio", x[0]}}; };
   hys.physics = "loop width over stroke";
-  lib.push_back(hys);
+  return hys;
+}
+
+CandidateSpec creep_candidate() {
   CandidateSpec creep;
   creep.effect = "creep";
   creep.axes = {{"per_decade", 0.001, 0.1, true}};
   creep.variants = {{}};
   creep.params = [](const std::vector<double>& x) { return Params{{"per_decade", x[0]}}; };
   creep.physics = "relative drift per decade of time";
-  lib.push_back(creep);
-  // stribeck: what a slider loses to it is about (mu_s / mu_k - 1) v_s (the bump of friction at
-  // low speed times its width): the gap runs along a valley of that product. The coordinates are
-  // the product ("impulse") and where the Stribeck velocity sits among the velocities that give it
-  // within the ranges (0 to 1): the valley lies along the first.
+  return creep;
+}
+
+// stribeck: what a slider loses to it is about (mu_s / mu_k - 1) v_s (the bump of friction at
+// low speed times its width): the gap runs along a valley of that product. The coordinates are
+// the product ("impulse") and where the Stribeck velocity sits among the velocities that give it
+// within the ranges (0 to 1): the valley lies along the first.
+CandidateSpec stribeck_candidate(const SweepScales& sc) {
   CandidateSpec str;
   str.effect = "stribeck";
   const double v_lo = std::max(1e-6, sc.speed_m_s / 300), v_hi = std::min(1.0, 3 * sc.speed_m_s);
@@ -138,16 +145,22 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
   };
   str.physics =
       "(mu_s / mu_k - 1) times the Stribeck velocity, and that velocity's place in its range";
-  lib.push_back(str);
-  // friction_spread: only the spread; an offset of the mean friction is the baseline's mu.
+  return str;
+}
+
+// friction_spread: only the spread; an offset of the mean friction is the baseline's mu.
+CandidateSpec friction_spread_candidate() {
   CandidateSpec spread;
   spread.effect = "friction_spread";
   spread.axes = {{"relative_sd", 0.005, 0.4, true}};
   spread.variants = {{}};
   spread.params = [](const std::vector<double>& x) { return Params{{"relative_sd", x[0]}}; };
   spread.physics = "relative sd of mu from trial to trial (its mean is the baseline's mu)";
-  lib.push_back(spread);
-  // tilt: gravity along the guide against the friction it competes with, sin(angle) / mu.
+  return spread;
+}
+
+// tilt: gravity along the guide against the friction it competes with, sin(angle) / mu.
+CandidateSpec tilt_candidate(const model::StageParams& st) {
   CandidateSpec tilt;
   tilt.effect = "tilt";
   tilt.axes = {{"sin_over_mu", -0.6, 0.6, false}};
@@ -157,8 +170,11 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
     return Params{{"angle_deg", std::asin(std::clamp(x[0] * mu, -0.5, 0.5)) * 180 / M_PI}};
   };
   tilt.physics = "sin(angle) over the friction coefficient";
-  lib.push_back(tilt);
-  // quantization: a DAC's resolution and clock against the fastest phase.
+  return tilt;
+}
+
+// quantization: a DAC's resolution and clock against the fastest phase.
+CandidateSpec quantization_candidate(const SweepScales& sc) {
   CandidateSpec dac;
   dac.effect = "quantization";
   dac.variants = {{}};
@@ -168,8 +184,17 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
                           {"update_rate_hz", clamp_to_library("quantization", "update_rate_hz",
                                                               std::round(clock * sc.fast_hz))}});
   dac.physics = "bits and update clock (0.5, 2 and 10 x the fastest phase's rate)";
-  lib.push_back(dac);
-  return lib;
+  return dac;
+}
+
+}  // namespace
+
+std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
+  const SweepScales sc = scales_of(sweep);
+  const model::StageParams& st = sweep.stage.stage;
+  return {amplifier_candidate(sc), compliance_candidate(sc, st), hysteresis_candidate(),
+          creep_candidate(),       stribeck_candidate(sc),       friction_spread_candidate(),
+          tilt_candidate(st),      quantization_candidate(sc)};
 }
 
 const CandidateSpec& spec_of(const std::vector<CandidateSpec>& library, const std::string& effect) {

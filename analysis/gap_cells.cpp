@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 
@@ -16,42 +17,44 @@ SweepCells collect_cells(const Dataset& ds, int min_trials) {
   return out;
 }
 
-SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
-                         const std::vector<TrialSeries>& series, const std::string& name,
-                         int min_trials, bool skip_small) {
-  if (infos.size() != series.size())
-    throw std::invalid_argument("collect_cells: infos and trials differ in size");
-  if (infos.empty())
-    throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
-  SweepCells out;
-  out.stage = stage;
-  out.resolution_m = stage.interferometer.resolution_m;
-  // noise: the spread of the readings while the slider rests before each burst, and after it once
-  // the slider has settled (a period after the last cycle, the command at rest)
+namespace {
+
+// The spread of the readings of x_m over [from_s, to_s) of one trial; none with fewer than 4.
+std::optional<double> rest_sd_m(const TrialSeries& s, double from_s, double to_s) {
+  double sum = 0, sum2 = 0;
+  int n = 0;
+  for (std::size_t k = 0; k < s.size(); ++k)
+    if (s.t_s[k] >= from_s && s.t_s[k] < to_s) {
+      sum += s.x_m[k];
+      sum2 += s.x_m[k] * s.x_m[k];
+      ++n;
+    }
+  if (n < 4) return std::nullopt;
+  return std::sqrt(std::max(0.0, sum2 / n - (sum / n) * (sum / n)));
+}
+
+// The median spread of the readings while the slider rests before each burst, and after it once
+// the slider has settled (a period after the last cycle, the command at rest); none when no
+// trial has enough samples at rest.
+std::optional<double> median_rest_sd_m(const std::vector<TrialInfo>& infos,
+                                       const std::vector<TrialSeries>& series) {
   std::vector<double> rest_sd;
   auto add_rest = [&](const TrialSeries& s, double from_s, double to_s) {
-    double sum = 0, sum2 = 0;
-    int n = 0;
-    for (std::size_t k = 0; k < s.size(); ++k)
-      if (s.t_s[k] >= from_s && s.t_s[k] < to_s) {
-        sum += s.x_m[k];
-        sum2 += s.x_m[k] * s.x_m[k];
-        ++n;
-      }
-    if (n >= 4) rest_sd.push_back(std::sqrt(std::max(0.0, sum2 / n - (sum / n) * (sum / n))));
+    if (const std::optional<double> sd = rest_sd_m(s, from_s, to_s)) rest_sd.push_back(*sd);
   };
   for (std::size_t i = 0; i < infos.size(); ++i) {
     if (series[i].size() == 0) continue;
     add_rest(series[i], -1e300, 0.0);
     add_rest(series[i], (infos[i].cycles + 1) / infos[i].freq_hz, 1e300);
   }
-  const double quant_sd = out.resolution_m / std::sqrt(12.0);
-  out.reading_sd_m = std::max(quant_sd, rest_sd.empty() ? quant_sd : median(rest_sd));
-  const double noise_m =
-      std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
-  out.noise_m = noise_m;
-  out.name = name;
+  if (rest_sd.empty()) return std::nullopt;
+  return median(rest_sd);
+}
 
+// Appends one cell per distinct (f, duty, stroke) to out.cells in the order of first appearance;
+// returns, for each cell, the indices of its trials.
+std::vector<std::vector<std::size_t>> group_into_cells(const std::vector<TrialInfo>& infos,
+                                                       SweepCells& out) {
   std::vector<std::vector<std::size_t>> members;
   for (std::size_t i = 0; i < infos.size(); ++i) {
     const TrialInfo& t = infos[i];
@@ -68,24 +71,70 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
     }
     members[c].push_back(i);
   }
-  if (skip_small) {
-    std::vector<Cell> kept;
-    std::vector<std::vector<std::size_t>> kept_members;
-    for (std::size_t c = 0; c < out.cells.size(); ++c) {
-      if (static_cast<int>(members[c].size()) < min_trials) {
-        out.skipped.push_back(out.cells[c].key);
-        continue;
-      }
-      kept.push_back(out.cells[c]);
-      kept_members.push_back(members[c]);
+  return members;
+}
+
+// Moves the cells with fewer than min_trials trials to out.skipped; InputError when none is left.
+void skip_small_cells(SweepCells& out, std::vector<std::vector<std::size_t>>& members,
+                      int min_trials, std::size_t trial_count) {
+  std::vector<Cell> kept;
+  std::vector<std::vector<std::size_t>> kept_members;
+  for (std::size_t c = 0; c < out.cells.size(); ++c) {
+    if (static_cast<int>(members[c].size()) < min_trials) {
+      out.skipped.push_back(out.cells[c].key);
+      continue;
     }
-    if (kept.empty())
-      throw InputError(name + ": the sweep is too small to diagnose: no cell has " +
-                       std::to_string(min_trials) + " trials (the recording was cut off after " +
-                       std::to_string(infos.size()) + " trials)");
-    out.cells = std::move(kept);
-    members = std::move(kept_members);
+    kept.push_back(out.cells[c]);
+    kept_members.push_back(members[c]);
   }
+  if (kept.empty())
+    throw InputError(out.name + ": the sweep is too small to diagnose: no cell has " +
+                     std::to_string(min_trials) + " trials (the recording was cut off after " +
+                     std::to_string(trial_count) + " trials)");
+  out.cells = std::move(kept);
+  members = std::move(kept_members);
+}
+
+// A cell's trial features, split alternately into train and test, and its majority regions.
+void fill_cell(Cell& cell, const std::vector<std::size_t>& members,
+               const std::vector<TrialInfo>& infos, const std::vector<TrialSeries>& series,
+               double resolution_m, double noise_m) {
+  std::vector<model::Region> votes, train_votes, test_votes;
+  for (std::size_t j = 0; j < members.size(); ++j) {
+    const std::size_t i = members[j];
+    TrialFeatures f = trial_features(infos[i], series[i], resolution_m, noise_m);
+    votes.push_back(f.region);
+    (j % 2 == 0 ? train_votes : test_votes).push_back(f.region);
+    (j % 2 == 0 ? cell.train : cell.test).push_back(std::move(f));
+  }
+  cell.read_t_s = read_instants(infos[members.front()], series[members.front()]);
+  cell.measured_region = majority_region(votes);
+  cell.train_region = majority_region(train_votes);
+  cell.test_region = majority_region(test_votes);
+}
+
+}  // namespace
+
+SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
+                         const std::vector<TrialSeries>& series, const std::string& name,
+                         int min_trials, bool skip_small) {
+  if (infos.size() != series.size())
+    throw std::invalid_argument("collect_cells: infos and trials differ in size");
+  if (infos.empty())
+    throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
+  SweepCells out;
+  out.stage = stage;
+  out.resolution_m = stage.interferometer.resolution_m;
+  // noise: the readings' spread at rest, at least the quantization's
+  const double quant_sd = out.resolution_m / std::sqrt(12.0);
+  out.reading_sd_m = std::max(quant_sd, median_rest_sd_m(infos, series).value_or(quant_sd));
+  const double noise_m =
+      std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
+  out.noise_m = noise_m;
+  out.name = name;
+
+  std::vector<std::vector<std::size_t>> members = group_into_cells(infos, out);
+  if (skip_small) skip_small_cells(out, members, min_trials, infos.size());
   for (std::size_t c = 0; c < out.cells.size(); ++c) {
     Cell& cell = out.cells[c];
     if (static_cast<int>(members[c].size()) < min_trials) {
@@ -96,18 +145,7 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
         << " needed (some to fit, some held out)";
       throw InputError(m.str());
     }
-    std::vector<model::Region> votes, train_votes, test_votes;
-    for (std::size_t j = 0; j < members[c].size(); ++j) {
-      const std::size_t i = members[c][j];
-      TrialFeatures f = trial_features(infos[i], series[i], out.resolution_m, noise_m);
-      votes.push_back(f.region);
-      (j % 2 == 0 ? train_votes : test_votes).push_back(f.region);
-      (j % 2 == 0 ? cell.train : cell.test).push_back(std::move(f));
-    }
-    cell.read_t_s = read_instants(infos[members[c].front()], series[members[c].front()]);
-    cell.measured_region = majority_region(votes);
-    cell.train_region = majority_region(train_votes);
-    cell.test_region = majority_region(test_votes);
+    fill_cell(cell, members[c], infos, series, out.resolution_m, noise_m);
   }
   return out;
 }

@@ -384,7 +384,7 @@ std::string write_report(const SweepCells& sweep, const Diagnosis& d, const std:
     << "<img src=\"gap_after.svg\" alt=\"gap after\">\n"
     << "<h2>Region maps</h2><img src=\"regions.svg\" alt=\"region maps\">\n"
     << "<h2>Which effect</h2><img src=\"ranking.svg\" alt=\"ranking\">\n</body></html>\n";
-  const std::string html = (p / "report.html").string();
+  std::string html = (p / "report.html").string();
   write_file_atomic(html, h.str());
   return html;
 }

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <optional>
 #include <sstream>
 
 #include "analysis/parallel.h"
@@ -31,6 +32,7 @@ std::string joined(const std::vector<std::string>& names, const char* sep = " + 
 
 std::string key_of(const std::vector<MemberFit>& members) {
   std::vector<std::string> n;
+  n.reserve(members.size());
   for (const MemberFit& m : members) n.push_back(m.effect);
   std::sort(n.begin(), n.end());
   std::string k;
@@ -237,12 +239,13 @@ bool significant_gap(const FittedModel& m) {
   return m.test.gap > kExplainedGap && systematic_gap(m) > kSystematicGap;
 }
 
-Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
-  Diagnosis d;
-  const std::vector<CandidateSpec> library = candidate_library(sweep);
-  const int threads = options.fit.threads > 0 ? options.fit.threads : default_threads();
-  d.baseline = fit_baseline(sweep, threads);
-  d.gap_before = d.baseline.test.gap;
+namespace {
+
+// The library's wanted candidates that the sweep can identify; the others go to
+// d.not_identifiable with what the sweep lacks.
+std::vector<const CandidateSpec*> identifiable_specs(const SweepCells& sweep,
+                                                     const std::vector<CandidateSpec>& library,
+                                                     const DiagnoseOptions& options, Diagnosis& d) {
   std::vector<const CandidateSpec*> specs;
   for (const CandidateSpec& spec : library) {
     if (!wanted(options, spec.effect)) continue;
@@ -252,8 +255,14 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
     else
       specs.push_back(&spec);
   }
-  // every candidate alone, one per thread; then its intervals
-  FitOptions one = options.fit;
+  return specs;
+}
+
+// Every candidate alone, one per thread, best shrink first (d.candidates); then its intervals.
+void fit_candidates(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                    const std::vector<const CandidateSpec*>& specs, const FitOptions& fit,
+                    int threads, Diagnosis& d) {
+  FitOptions one = fit;
   one.threads = 1;
   d.candidates.resize(specs.size());
   parallel_for(specs.size(), threads, [&](std::size_t i) {
@@ -267,6 +276,121 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
     if (d.candidates[i].plausible && d.candidates[i].shrink > 0)
       d.intervals[i] = parameter_intervals(sweep, library, d.candidates[i], d.baseline, 1, false);
   });
+}
+
+// The set search (select_from) from the best plausible candidate that shrinks the gap, and from
+// the runner-up when it comes close (an amplifier and a compliant actuator trade places): the set
+// that ends with the smaller held-out gap, its steps in d.steps; none when the baseline's gap is
+// not significant or no candidate shrinks it enough.
+std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
+                                 const std::vector<CandidateSpec>& library, SetFits& fits,
+                                 Diagnosis& d) {
+  if (!significant_gap(d.baseline) || pool.empty() || pool.front()->shrink < kMinShrink)
+    return std::nullopt;
+  std::vector<const SetFit*> firsts{pool.front()};
+  if (pool.size() > 1 && pool[1]->shrink >= kMinShrink &&
+      pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
+    firsts.push_back(pool[1]);
+  std::optional<SetFit> current;
+  for (const SetFit* first : firsts) {
+    std::vector<SelectionStep> steps;
+    const SetFit end = select_from(*first, pool, library, fits, steps);
+    if (!current || end.gap < current->gap) {
+      current = end;
+      d.steps = steps;
+    }
+  }
+  return current;
+}
+
+// What is left after d.after: its gap, the significant cells and a summary; `searched`: a set
+// search ran (d.best is its result, named or not).
+void describe_unexplained(const SweepCells& sweep, bool searched, Diagnosis& d) {
+  Unexplained& u = d.unexplained;
+  u.gap = d.gap_after;
+  u.systematic_gap = systematic_gap(d.after);
+  u.significant = significant_gap(d.after);
+  for (const CellResidual& r : d.after.test.cells)
+    if (r.significant) u.cells.push_back(r.key);
+  const std::string named = d.named ? joined(d.best.names()) : "the impulse model alone";
+  if (u.significant) {
+    u.summary = remainder_summary(sweep, d.after, named);
+    if (searched && !d.named)
+      u.closest =
+          "the closest library set, " + joined(d.best.names()) + ", shrinks the gap by only " +
+          model::format_number(std::round(1000 * d.best.shrink) / 10) + " % and is not named";
+    else if (!searched && !d.candidates.empty())
+      u.closest = "the closest library effect, " + d.candidates.front().effects.front().name +
+                  ", shrinks the gap by " +
+                  model::format_number(std::round(1000 * d.candidates.front().shrink) / 10) + " %";
+  } else {
+    u.summary = "After " + named + " the held-out gap is " + model::format_number(u.gap) +
+                ", within what the measurement's noise allows (systematic part " +
+                model::format_number(u.systematic_gap) + ").";
+  }
+}
+
+// The sets that might rival the named one: with one member, every other plausible candidate;
+// else each member replaced by one of the two best candidates outside the set, screened, and the
+// ones whose training gap comes near the chosen set's finished.
+std::vector<SetFit> rival_sets(const Diagnosis& d, const std::vector<const SetFit*>& pool,
+                               SetFits& fits) {
+  std::vector<SetFit> alt;
+  if (d.best.members.size() == 1) {
+    for (const SetFit& c : d.candidates)
+      if (c.plausible && !contains(d.best, c.members.front().effect)) alt.push_back(c);
+    return alt;
+  }
+  std::vector<const SetFit*> rivals;
+  for (const SetFit* c : pool)
+    if (rivals.size() < 2 && !contains(d.best, c->members.front().effect)) rivals.push_back(c);
+  std::vector<std::vector<MemberFit>> alternatives;
+  for (std::size_t i = 0; i < d.best.members.size(); ++i)
+    for (const SetFit* c : rivals) {
+      std::vector<MemberFit> m = without(d.best, i);
+      m.push_back(c->members.front());
+      alternatives.push_back(m);
+    }
+  for (const SetFit& a : fits.screen(alternatives))
+    if (a.train_gap <= kAmbiguousRatio * d.best.train_gap + 1.0)
+      alt.push_back(fits.finish(a.members));
+  return alt;
+}
+
+// The named set's rivals that explain the data about equally well (d.ambiguous), each with the
+// sweep that would tell them apart.
+void find_ambiguities(const SweepCells& sweep, const std::vector<const SetFit*>& pool,
+                      SetFits& fits, int threads, Diagnosis& d) {
+  for (const SetFit& a : rival_sets(d, pool, fits)) {
+    if (!a.plausible) continue;
+    const double ratio = d.best.gap > 0 ? a.gap / d.best.gap : 1.0;
+    const bool both_within = a.gap <= kExplainedGap && d.best.gap <= kExplainedGap;
+    if (!(ratio <= kAmbiguousRatio || both_within)) continue;
+    Ambiguity am;
+    am.chosen = d.best.names();
+    am.alternative = a.names();
+    am.effects = am.chosen;
+    for (const std::string& n : am.alternative)
+      if (std::find(am.effects.begin(), am.effects.end(), n) == am.effects.end())
+        am.effects.push_back(n);
+    am.gap_chosen = d.best.gap;
+    am.gap_alternative = a.gap;
+    am.why = why_alike(am.chosen, am.alternative, am.gap_chosen, am.gap_alternative);
+    am.next_sweep = separating_sweep(sweep, d.best, a, threads);
+    d.ambiguous.push_back(am);
+  }
+}
+
+}  // namespace
+
+Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
+  Diagnosis d;
+  const std::vector<CandidateSpec> library = candidate_library(sweep);
+  const int threads = options.fit.threads > 0 ? options.fit.threads : default_threads();
+  d.baseline = fit_baseline(sweep, threads);
+  d.gap_before = d.baseline.test.gap;
+  fit_candidates(sweep, library, identifiable_specs(sweep, library, options, d), options.fit,
+                 threads, d);
 
   // The set starts with the best plausible candidate that shrinks the gap; every plausible
   // candidate may join it (an effect hidden under a larger one shrinks little alone).
@@ -274,30 +398,11 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   for (const SetFit& c : d.candidates)
     if (c.plausible) pool.push_back(&c);
   SetFits fits(sweep, library, d.baseline, options.fit, d.candidates);
-  SetFit current;
-  bool have = false;
-  if (significant_gap(d.baseline) && !pool.empty() && pool.front()->shrink >= kMinShrink) {
-    // The search starts from the best single and from the runner-up when it comes close (an
-    // amplifier and a compliant actuator trade places); the set that ends with the smaller
-    // held-out gap is kept.
-    std::vector<const SetFit*> firsts{pool.front()};
-    if (pool.size() > 1 && pool[1]->shrink >= kMinShrink &&
-        pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
-      firsts.push_back(pool[1]);
-    for (const SetFit* first : firsts) {
-      std::vector<SelectionStep> steps;
-      const SetFit end = select_from(*first, pool, library, fits, steps);
-      if (!have || end.gap < current.gap) {
-        current = end;
-        d.steps = steps;
-      }
-      have = true;
-    }
-  }
+  const std::optional<SetFit> found = search_set(pool, library, fits, d);
   // honesty: a set that leaves a significant remainder must explain most of the gap
-  if (have) {
-    d.best = current;
-    d.named = !(significant_gap(current.fitted) && current.shrink < kNameShrink);
+  if (found) {
+    d.best = *found;
+    d.named = !(significant_gap(found->fitted) && found->shrink < kNameShrink);
   }
   if (d.named) {
     d.chosen = d.best.effects;
@@ -308,79 +413,8 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   }
   d.gap_after = d.after.test.gap;
   d.shrink = d.gap_before > 0 ? 1.0 - d.gap_after / d.gap_before : 0.0;
-
-  // what is left
-  Unexplained& u = d.unexplained;
-  u.gap = d.gap_after;
-  u.systematic_gap = systematic_gap(d.after);
-  u.significant = significant_gap(d.after);
-  for (const CellResidual& r : d.after.test.cells)
-    if (r.significant) u.cells.push_back(r.key);
-  const std::string named = d.named ? joined(d.best.names()) : "the impulse model alone";
-  if (u.significant) {
-    u.summary = remainder_summary(sweep, d.after, named);
-    if (have && !d.named)
-      u.closest =
-          "the closest library set, " + joined(d.best.names()) + ", shrinks the gap by only " +
-          model::format_number(std::round(1000 * d.best.shrink) / 10) + " % and is not named";
-    else if (!have && !d.candidates.empty())
-      u.closest = "the closest library effect, " + d.candidates.front().effects.front().name +
-                  ", shrinks the gap by " +
-                  model::format_number(std::round(1000 * d.candidates.front().shrink) / 10) + " %";
-  } else {
-    u.summary = "After " + named + " the held-out gap is " + model::format_number(u.gap) +
-                ", within what the measurement's noise allows (systematic part " +
-                model::format_number(u.systematic_gap) + ").";
-  }
-
-  // sets that explain the data about equally well
-  if (d.named) {
-    std::vector<std::vector<MemberFit>> alternatives;
-    if (d.best.members.size() == 1) {
-      for (const SetFit& c : d.candidates)
-        if (c.plausible && !contains(d.best, c.members.front().effect))
-          alternatives.push_back(c.members);
-    } else {
-      // each member replaced by one of the two best candidates outside the set
-      std::vector<const SetFit*> rivals;
-      for (const SetFit* c : pool)
-        if (rivals.size() < 2 && !contains(d.best, c->members.front().effect)) rivals.push_back(c);
-      for (std::size_t i = 0; i < d.best.members.size(); ++i)
-        for (const SetFit* c : rivals) {
-          std::vector<MemberFit> m = without(d.best, i);
-          m.push_back(c->members.front());
-          alternatives.push_back(m);
-        }
-    }
-    std::vector<SetFit> alt;
-    if (d.best.members.size() == 1) {
-      for (const SetFit& c : d.candidates)
-        if (c.plausible && !contains(d.best, c.members.front().effect)) alt.push_back(c);
-    } else {
-      // screened; the ones whose training gap comes near the chosen set's are finished
-      for (const SetFit& a : fits.screen(alternatives))
-        if (a.train_gap <= kAmbiguousRatio * d.best.train_gap + 1.0)
-          alt.push_back(fits.finish(a.members));
-    }
-    for (const SetFit& a : alt) {
-      if (!a.plausible) continue;
-      const double ratio = d.best.gap > 0 ? a.gap / d.best.gap : 1.0;
-      const bool both_within = a.gap <= kExplainedGap && d.best.gap <= kExplainedGap;
-      if (!(ratio <= kAmbiguousRatio || both_within)) continue;
-      Ambiguity am;
-      am.chosen = d.best.names();
-      am.alternative = a.names();
-      am.effects = am.chosen;
-      for (const std::string& n : am.alternative)
-        if (std::find(am.effects.begin(), am.effects.end(), n) == am.effects.end())
-          am.effects.push_back(n);
-      am.gap_chosen = d.best.gap;
-      am.gap_alternative = a.gap;
-      am.why = why_alike(am.chosen, am.alternative, am.gap_chosen, am.gap_alternative);
-      am.next_sweep = separating_sweep(sweep, d.best, a, threads);
-      d.ambiguous.push_back(am);
-    }
-  }
+  describe_unexplained(sweep, found.has_value(), d);
+  if (d.named) find_ambiguities(sweep, pool, fits, threads, d);
 
   // where: the named effects' footprint, the spread beyond the model's, what is left
   if (d.named) {

@@ -253,9 +253,11 @@ MemberFit coarse_search(Objective& coarse, const CandidateSpec& spec,
     } else {
       const int total = n == 1 ? pts : pts * pts;
       for (int k = 0; k < total; ++k) {
+        // Point k of a pts x pts grid: column k % pts, row k / pts (integer division on purpose).
+        const int column = k % pts, row = k / pts;
         std::vector<double> u(n);
-        u[0] = (k % pts) / double(pts - 1);
-        if (n == 2) u[1] = (k / pts) / double(pts - 1);
+        u[0] = column / double(pts - 1);
+        if (n == 2) u[1] = row / double(pts - 1);
         grid.push_back({f(u), u});
       }
     }
@@ -376,7 +378,8 @@ SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& libr
   // when the set was screened, mu recentered, the polish at the scoring rate
   if (stage != JointStage::Finish)
     u0 = subplex(f(true), u0, 0.02, opt.refine_evals * n + 8, 1e-3, value);
-  if (stage == JointStage::Finish) u0 = subplex(f(true), u0, 0.01, opt.refine_evals * n / 2, 1e-3, value);
+  if (stage == JointStage::Finish)
+    u0 = subplex(f(true), u0, 0.01, opt.refine_evals * n / 2, 1e-3, value);
   if (stage != JointStage::Search) {
     unpack(u0);
     obj.recenter(members);

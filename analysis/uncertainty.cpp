@@ -117,19 +117,11 @@ Quadratic probe(const std::function<double(const std::vector<double>&)>& f,
   return q;
 }
 
-}  // namespace
-
-std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep,
-                                                    const std::vector<CandidateSpec>& library,
-                                                    const SetFit& fit, const FittedModel& baseline,
-                                                    int threads, bool scoring) {
-  (void)baseline;
-  const HeldOut held(sweep, library, fit, threads, scoring);
-  const double cells = static_cast<double>(sweep.cells.size());
-  const double reduced = fit.gap * fit.gap;
-  const double delta = 3.84 * std::max(1.0, reduced);
+// Explicit-grid members: the grid values whose held-out chi-square is within delta of the best.
+std::vector<ParameterIntervals> grid_intervals(const HeldOut& held,
+                                               const std::vector<CandidateSpec>& library,
+                                               const SetFit& fit, double delta) {
   std::vector<ParameterIntervals> out;
-  // explicit-grid members: the grid values within delta of the best
   for (std::size_t k = 0; k < fit.members.size(); ++k) {
     const CandidateSpec& spec = spec_of(library, fit.members[k].effect);
     if (spec.grid.empty()) continue;
@@ -153,24 +145,22 @@ std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep,
     }
     out.push_back(pi);
   }
-  // coordinates: one flat vector over the members with axes
-  std::vector<double> u0;
-  for (const MemberFit& m : fit.members) u0.insert(u0.end(), m.u.begin(), m.u.end());
-  auto members_at = [&](const std::vector<double>& u) {
-    std::vector<MemberFit> m = fit.members;
-    std::size_t k = 0;
-    for (MemberFit& x : m)
-      for (double& v : x.u) v = std::clamp(u[k++], 0.0, 1.0);
-    return m;
-  };
-  if (u0.empty()) return out;
-  const Quadratic q =
-      probe([&](const std::vector<double>& u) { return held.chi2(members_at(u)); }, u0, delta);
-  const std::size_t n = u0.size();
-  // the held-out minimum (at most two steps from the training optimum) and the points of the
-  // delta-ellipsoid that reach furthest along each coordinate, plus a ring for two coordinates
-  Eigen::VectorXd center = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(n));
+  return out;
+}
+
+// The delta-ellipsoid of a quadratic over the constrained coordinates (offsets from the fit):
+// its center, the held-out minimum (at most two steps from the training optimum), and the points
+// that reach furthest along each coordinate, plus a ring for two coordinates.
+struct Ellipsoid {
+  Eigen::VectorXd center;
   std::vector<Eigen::VectorXd> boundary;
+};
+
+Ellipsoid delta_ellipsoid(const Quadratic& q, std::size_t n, double delta) {
+  Ellipsoid e;
+  Eigen::VectorXd& center = e.center;
+  std::vector<Eigen::VectorXd>& boundary = e.boundary;
+  center = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(n));
   Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(q.h.rows(), q.h.cols());
   std::vector<Eigen::Index> free_axes;
   for (std::size_t i = 0; i < n; ++i)
@@ -211,15 +201,22 @@ std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep,
       }
     }
   }
-  // parameters over the boundary points; an unconstrained coordinate spans its range
+  return e;
+}
+
+// The flat coordinate vectors to evaluate: u0 moved to the ellipsoid's center and boundary; an
+// unconstrained coordinate spans its range (each point at both ends, clamped later).
+std::vector<std::vector<double>> interval_points(const std::vector<double>& u0, const Quadratic& q,
+                                                 const Ellipsoid& e) {
+  const std::size_t n = u0.size();
   std::vector<std::vector<double>> points;
   auto add_point = [&](const Eigen::VectorXd& d) {
     std::vector<double> u = u0;
     for (std::size_t i = 0; i < n; ++i) u[i] += d(static_cast<Eigen::Index>(i));
     points.push_back(u);
   };
-  add_point(center);
-  for (const Eigen::VectorXd& d : boundary) add_point(d);
+  add_point(e.center);
+  for (const Eigen::VectorXd& d : e.boundary) add_point(d);
   for (std::size_t i = 0; i < n; ++i)
     if (!q.constrained[i]) {
       const std::size_t count = points.size();
@@ -230,6 +227,14 @@ std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep,
           points.push_back(u);
         }
     }
+  return points;
+}
+
+// Members with axes: each parameter's range over the points (flat coordinates, the members in
+// order), appended to out.
+void add_axis_intervals(const std::vector<CandidateSpec>& library, const SetFit& fit,
+                        const std::vector<std::vector<double>>& points,
+                        std::vector<ParameterIntervals>& out) {
   std::size_t offset = 0;
   for (std::size_t k = 0; k < fit.members.size(); ++k) {
     const MemberFit& member = fit.members[k];
@@ -257,7 +262,34 @@ std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep,
     offset += member.u.size();
     out.push_back(pi);
   }
-  (void)cells;
+}
+
+}  // namespace
+
+std::vector<ParameterIntervals> parameter_intervals(const SweepCells& sweep,
+                                                    const std::vector<CandidateSpec>& library,
+                                                    const SetFit& fit, const FittedModel& baseline,
+                                                    int threads, bool scoring) {
+  (void)baseline;
+  const HeldOut held(sweep, library, fit, threads, scoring);
+  const double reduced = fit.gap * fit.gap;
+  const double delta = 3.84 * std::max(1.0, reduced);
+  std::vector<ParameterIntervals> out = grid_intervals(held, library, fit, delta);
+  // coordinates: one flat vector over the members with axes
+  std::vector<double> u0;
+  for (const MemberFit& m : fit.members) u0.insert(u0.end(), m.u.begin(), m.u.end());
+  auto members_at = [&](const std::vector<double>& u) {
+    std::vector<MemberFit> m = fit.members;
+    std::size_t k = 0;
+    for (MemberFit& x : m)
+      for (double& v : x.u) v = std::clamp(u[k++], 0.0, 1.0);
+    return m;
+  };
+  if (u0.empty()) return out;
+  const Quadratic q =
+      probe([&](const std::vector<double>& u) { return held.chi2(members_at(u)); }, u0, delta);
+  const Ellipsoid e = delta_ellipsoid(q, u0.size(), delta);
+  add_axis_intervals(library, fit, interval_points(u0, q, e), out);
   return out;
 }
 
@@ -297,6 +329,7 @@ std::string separating_sweep(const SweepCells& sweep, const SetFit& a, const Set
     m.search = true;
     const std::vector<CellPrediction> p = predict_sweep(wide, m, threads);
     std::vector<double> steps;
+    steps.reserve(p.size());
     for (const CellPrediction& c : p) steps.push_back(s.fitted.calibration.step(c));
     return steps;
   };

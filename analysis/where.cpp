@@ -132,28 +132,12 @@ WhereReport where_of(const SweepCells& sweep, const FittedModel& baseline, const
   return w;
 }
 
-std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& v,
-                            const std::string& what) {
+namespace {
+
+// How many cells, the largest first, carry 80 % of v's sum of squares, and the span of their
+// frequencies and duties: "K of N cells carry 80 % of it (...)."
+std::string carrying_part(const SweepCells& sweep, const std::vector<double>& v) {
   const std::size_t n = v.size();
-  if (n == 0) return what + ": no cells.";
-  std::size_t top = 0;
-  for (std::size_t c = 1; c < n; ++c)
-    if (v[c] > v[top]) top = c;
-  const CellKey& k = sweep.cells[top].key;
-  std::set<double> strokes;
-  bool fwd = false, rev = false;
-  for (const Cell& c : sweep.cells) {
-    strokes.insert(c.key.stroke_m);
-    fwd = fwd || c.key.duty < 0.5;
-    rev = rev || c.key.duty > 0.5;
-  }
-  std::string s = what;
-  const std::string at =
-      fmt("%g Hz", k.freq_hz) + ", duty " + fmt("%g", k.duty) +
-      (strokes.size() > 1 ? ", stroke " + fmt("%.4g", k.stroke_m * 1e6) + " um" : "");
-  if (v[top] < kSignificantResidual)
-    return s + " is within the noise at all " + std::to_string(n) + " cells (largest " +
-           fmt("%.2g", v[top]) + " at " + at + ").";
   double total = 0;
   for (double x : v) total += x * x;
   std::vector<double> sorted = v;
@@ -172,9 +156,15 @@ std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& 
       d_lo = std::min(d_lo, sweep.cells[c].key.duty);
       d_hi = std::max(d_hi, sweep.cells[c].key.duty);
     }
-  s += " is largest at " + at + " (" + fmt("%.3g", v[top]) + "); " + std::to_string(carrying) +
-       " of " + std::to_string(n) + " cells carry 80 % of it (" + fmt("%g", f_lo) + "-" +
-       fmt("%g", f_hi) + " Hz, duty " + fmt("%g", d_lo) + "-" + fmt("%g", d_hi) + ").";
+  return std::to_string(carrying) + " of " + std::to_string(n) + " cells carry 80 % of it (" +
+         fmt("%g", f_lo) + "-" + fmt("%g", f_hi) + " Hz, duty " + fmt("%g", d_lo) + "-" +
+         fmt("%g", d_hi) + ").";
+}
+
+// How v follows the sweep's axes: frequency, the fast phase, stroke, direction and closeness to
+// the impulse model's region boundaries (only the clear trends).
+std::vector<std::string> trends_of(const SweepCells& sweep, const std::vector<double>& v,
+                                   const std::set<double>& strokes, bool fwd, bool rev) {
   std::vector<std::string> trends;
   std::vector<double> f, fast, close;
   for (const Cell& c : sweep.cells) {
@@ -216,6 +206,35 @@ std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& 
   if (rb >= 0.4)
     trends.push_back("sits near the region boundaries of the impulse model (rank correlation " +
                      fmt("%.2f", rb) + " with closeness to the nearest)");
+  return trends;
+}
+
+}  // namespace
+
+std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& v,
+                            const std::string& what) {
+  const std::size_t n = v.size();
+  if (n == 0) return what + ": no cells.";
+  std::size_t top = 0;
+  for (std::size_t c = 1; c < n; ++c)
+    if (v[c] > v[top]) top = c;
+  const CellKey& k = sweep.cells[top].key;
+  std::set<double> strokes;
+  bool fwd = false, rev = false;
+  for (const Cell& c : sweep.cells) {
+    strokes.insert(c.key.stroke_m);
+    fwd = fwd || c.key.duty < 0.5;
+    rev = rev || c.key.duty > 0.5;
+  }
+  std::string s = what;
+  const std::string at =
+      fmt("%g Hz", k.freq_hz) + ", duty " + fmt("%g", k.duty) +
+      (strokes.size() > 1 ? ", stroke " + fmt("%.4g", k.stroke_m * 1e6) + " um" : "");
+  if (v[top] < kSignificantResidual)
+    return s + " is within the noise at all " + std::to_string(n) + " cells (largest " +
+           fmt("%.2g", v[top]) + " at " + at + ").";
+  s += " is largest at " + at + " (" + fmt("%.3g", v[top]) + "); " + carrying_part(sweep, v);
+  const std::vector<std::string> trends = trends_of(sweep, v, strokes, fwd, rev);
   if (!trends.empty()) {
     s += " It ";
     for (std::size_t i = 0; i < trends.size(); ++i)

@@ -13,7 +13,7 @@
 namespace idm::client {
 
 // The longest reply line a client accepts (SYST:ERR:ALL? of a full queue is well below).
-inline constexpr std::size_t kMaxReplyBytes = 64 * 1024;
+inline constexpr std::size_t kMaxReplyBytes = std::size_t{64} * 1024;
 
 struct ReplyError : std::runtime_error {
   using std::runtime_error::runtime_error;

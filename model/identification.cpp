@@ -7,7 +7,9 @@
 namespace idm::model {
 
 WeightedRls::WeightedRls(int n, double forgetting, double p0)
-    : forgetting_(forgetting), w_(Eigen::VectorXd::Zero(n)), p_(Eigen::MatrixXd::Identity(n, n) * p0) {}
+    : forgetting_(forgetting),
+      w_(Eigen::VectorXd::Zero(n)),
+      p_(Eigen::MatrixXd::Identity(n, n) * p0) {}
 
 void WeightedRls::update(const Eigen::VectorXd& h, double y, double weight) {
   const Eigen::VectorXd ph = p_ * h;
@@ -34,7 +36,7 @@ StiffnessEstimate identify_stiffness(const std::vector<double>& xi, const std::v
   Eigen::VectorXd h(2);
   StiffnessEstimate out;
   for (std::size_t i = 2; i + 1 < x.size(); ++i) {
-    double d_e, e, d2x;
+    double d_e = 0, e = 0, d2x = 0;
     if (diff == Differences::Backward) {
       d_e = (x[i] - x[i - 1]) - (xi[i] - xi[i - 1]);
       e = x[i] - xi[i];

@@ -250,6 +250,35 @@ CompliantPlant::SlipState CompliantPlant::slip_from(const SlipState& a, double t
   return s;
 }
 
+namespace {
+
+// The top of a peak of excess(t) between a_s and d_s (golden section, at most 40 steps), as
+// soon as it rises above 0: that t, or -1 when the peak stays at or below 0.
+template <class Excess>
+double golden_peak_crossing(const Excess& excess, double a, double d) {
+  double x1 = d - 0.618 * (d - a), x2 = a + 0.618 * (d - a);
+  double f1 = excess(x1), f2 = excess(x2);
+  for (int i = 0; i < 40 && std::max(f1, f2) <= 0; ++i) {
+    if (f1 > f2) {
+      d = x2;
+      x2 = x1;
+      f2 = f1;
+      x1 = d - 0.618 * (d - a);
+      f1 = excess(x1);
+    } else {
+      a = x1;
+      x1 = x2;
+      f1 = f2;
+      x2 = a + 0.618 * (d - a);
+      f2 = excess(x2);
+    }
+  }
+  if (std::max(f1, f2) <= 0) return -1;
+  return f1 > 0 ? x1 : x2;
+}
+
+}  // namespace
+
 void CompliantPlant::step(double dt_s, double xi_end_m) {
   if (!(dt_s > 0)) return;
   const double rate = (xi_end_m - xi_m_) / dt_s;
@@ -269,66 +298,56 @@ void CompliantPlant::step(double dt_s, double xi_end_m) {
   if (apply_end_stops(x_m_, v_m_s_) && v_m_s_ == 0.0) direction_ = 0;  // stuck on the stop
 }
 
+// A step longer than an eighth of the counter mass's oscillation can hide a break-away that its
+// end does not show: the hold force is looked at every eighth of a period, for as long as the
+// ringing could still carry it over the limit (energy bound). Returns the end of the first probe
+// interval in which |hold force| exceeds limit_n (lo_s its start), or -1 when none does.
+double CompliantPlant::breakaway_probe(double remaining, double c_stuck, double limit,
+                                       double& lo) const {
+  double hi = -1;
+  const double K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
+  const double hold_rest = hold_force_n(c_stuck / stuck_.c0(), 0.0);
+  const double probe = stuck_.probe_s();
+  auto excess = [&](double t) {
+    const DampedOscillator::State s = stuck_.at(e_m_, w_m_s_, c_stuck, t);
+    return std::fabs(hold_force_n(s.e, s.w)) - limit;
+  };
+  double e = e_m_, w = w_m_s_, f_lo = -limit, t_before = -1, f_before = 0;
+  for (double t = probe; t < remaining; t += probe) {
+    const double bound = stuck_.energy_bound(e, w, c_stuck);
+    if (std::fabs(hold_rest) + K * bound / std::sqrt(stuck_.c0()) + C * bound <= limit) break;
+    const DampedOscillator::State s = stuck_.at(e, w, c_stuck, probe, true);  // from the last probe
+    const double f = std::fabs(hold_force_n(s.e, s.w)) - limit;
+    if (f > 0) {
+      lo = t - probe;
+      hi = t;
+      break;
+    }
+    if (t_before >= 0 && f_lo > f_before && f < f_lo) {
+      // a peak between t_before and t: its top, by golden section, may cross the limit
+      const double crossing = golden_peak_crossing(excess, t_before, t);
+      if (crossing >= 0) {
+        lo = t_before;
+        hi = crossing;
+        break;
+      }
+    }
+    t_before = lo;
+    f_before = f_lo;
+    e = s.e;
+    w = s.w;
+    lo = t;
+    f_lo = f;
+  }
+  return hi;
+}
+
 void CompliantPlant::advance_stuck(double& remaining) {
   const double c_stuck = -gravity_along_m_s2_;
   const double limit = friction_.static_at(x_m_) * normal_force_n_;
-  // A step longer than an eighth of the counter mass's oscillation can hide a break-away that its
-  // end does not show: the hold force is looked at every eighth of a period, for as long as the
-  // ringing could still carry it over the limit (energy bound). Shorter steps: the end only.
+  // Long steps are probed (breakaway_probe); shorter steps: the end only.
   double lo = 0, hi = -1;
-  if (!held_ && remaining > stuck_.probe_s()) {
-    const double K = stage_.stiffness_n_m, C = stage_.damping_n_s_m;
-    const double hold_rest = hold_force_n(c_stuck / stuck_.c0(), 0.0);
-    const double probe = stuck_.probe_s();
-    auto excess = [&](double t) {
-      const DampedOscillator::State s = stuck_.at(e_m_, w_m_s_, c_stuck, t);
-      return std::fabs(hold_force_n(s.e, s.w)) - limit;
-    };
-    double e = e_m_, w = w_m_s_, f_lo = -limit, t_before = -1, f_before = 0;
-    for (double t = probe; t < remaining; t += probe) {
-      const double bound = stuck_.energy_bound(e, w, c_stuck);
-      if (std::fabs(hold_rest) + K * bound / std::sqrt(stuck_.c0()) + C * bound <= limit) break;
-      const DampedOscillator::State s =
-          stuck_.at(e, w, c_stuck, probe, true);  // from the last probe
-      const double f = std::fabs(hold_force_n(s.e, s.w)) - limit;
-      if (f > 0) {
-        lo = t - probe;
-        hi = t;
-        break;
-      }
-      if (t_before >= 0 && f_lo > f_before && f < f_lo) {
-        // a peak between t_before and t: its top, by golden section, may cross the limit
-        double a = t_before, d = t, x1 = d - 0.618 * (d - a), x2 = a + 0.618 * (d - a);
-        double f1 = excess(x1), f2 = excess(x2);
-        for (int i = 0; i < 40 && std::max(f1, f2) <= 0; ++i) {
-          if (f1 > f2) {
-            d = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = d - 0.618 * (d - a);
-            f1 = excess(x1);
-          } else {
-            a = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = a + 0.618 * (d - a);
-            f2 = excess(x2);
-          }
-        }
-        if (std::max(f1, f2) > 0) {
-          lo = t_before;
-          hi = f1 > 0 ? x1 : x2;
-          break;
-        }
-      }
-      t_before = lo;
-      f_before = f_lo;
-      e = s.e;
-      w = s.w;
-      lo = t;
-      f_lo = f;
-    }
-  }
+  if (!held_ && remaining > stuck_.probe_s()) hi = breakaway_probe(remaining, c_stuck, limit, lo);
   if (hi < 0) {
     const DampedOscillator::State end = stuck_.at(e_m_, w_m_s_, c_stuck, remaining, true);
     if (held_ || std::fabs(hold_force_n(end.e, end.w)) <= limit) {

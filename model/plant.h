@@ -145,6 +145,8 @@ class CompliantPlant final : public Plant {
   SlipState slip_from(const SlipState& start, double t_s, bool reuse = false) const;
   double hold_force_n(double e, double w) const;  // friction force needed to hold the slider
   double slip_friction_n(double direction) const;
+  // Probes a long stuck step for a break-away (the end of its interval, lo_s its start; -1 none).
+  double breakaway_probe(double remaining_s, double c_stuck, double limit_n, double& lo_s) const;
   void advance_stuck(double& remaining_s);
   void advance_sliding(double& remaining_s);
   // The first probe time (every eighth of the sliding oscillation) at which the velocity has

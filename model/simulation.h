@@ -80,6 +80,7 @@ class SimulatedStage {
   SimulatedStage(const StageParams& stage, const InterferometerParams& ifm, const SimConfig& config);
   SimulatedStage(const SimulatedStage&) = delete;
   SimulatedStage& operator=(const SimulatedStage&) = delete;
+  ~SimulatedStage() = default;
 
   // Slider at rest at x_m (absolute guide position), actuator at 0; reseeds the sensor noise.
   void reset(double x_m, std::uint64_t noise_seed);

@@ -1,3 +1,4 @@
+// The dataset reader: read_dataset, read_trial (dataset.h); the writer is dataset_writer.cpp.
 #include "recording/dataset.h"
 
 #include <fcntl.h>
@@ -22,49 +23,14 @@
 #include <unordered_map>
 #include <utility>
 
-#include "recording/durable_file.h"
+#include "recording/dataset_format.h"
 
 namespace idm::recording {
 
 namespace fs = std::filesystem;
+using namespace format;  // the parts of the format the reader and the writer share
 
 namespace {
-
-constexpr const char* kSweepFile = "sweep.csv";
-constexpr const char* kStageFile = "stage.yaml";
-constexpr const char* kTrialsDir = "trials";
-
-// The columns of sweep.csv, in the order the writer writes them.
-enum SweepColumn {
-  kTrial,
-  kFreq,
-  kDuty,
-  kStroke,
-  kCycles,
-  kRate,
-  kGuide,
-  kFile,
-  kSweepColumnCount
-};
-constexpr std::array<const char*, kSweepColumnCount> kSweepColumns = {
-    "trial", "freq_hz", "duty", "stroke_m", "cycles", "sample_rate_hz", "guide_pos_m", "file"};
-constexpr std::array<const char*, 3> kTrialColumns = {"t_s", "xi_cmd_m", "x_m"};
-constexpr double kInf = std::numeric_limits<double>::infinity();
-
-// ---------------------------------------------------------------- numbers
-
-// Shortest text that reads back to the same double.
-std::string format_number(double value) {
-  char buf[32];
-  const auto [end, ec] = std::to_chars(buf, buf + sizeof buf, value);
-  return ec == std::errc() ? std::string(buf, end) : std::string("?");
-}
-
-void append_number(std::string& out, double value) {
-  char buf[32];
-  const auto [end, ec] = std::to_chars(buf, buf + sizeof buf, value);
-  out.append(buf, ec == std::errc() ? end : buf);
-}
 
 enum class NumberStatus { Ok, Empty, NotNumber, NotFinite };
 
@@ -133,16 +99,6 @@ std::string read_text_file(const std::string& path) {
   ::close(fd);
   text.resize(got);
   return text;
-}
-
-bool is_blank(char c) {
-  return c == ' ' || c == '\t';
-}
-
-std::string_view trim(std::string_view s) {
-  while (!s.empty() && is_blank(s.front())) s.remove_prefix(1);
-  while (!s.empty() && is_blank(s.back())) s.remove_suffix(1);
-  return s;
 }
 
 // A CSV file read whole: a header line, then rows. Fields are separated by commas, trimmed of
@@ -303,86 +259,7 @@ class CsvFile {
   std::vector<std::string> header_names_;
 };
 
-// ---------------------------------------------------------------- checks (reader and writer)
-
-struct Problem {
-  const char* column;
-  std::string message;
-};
-
-std::string in_quotes(const std::string& s) {
-  return "'" + s + "'";
-}
-
-// Why `file` is not a path inside the dataset, or nothing.
-std::optional<std::string> file_problem(const std::string& file) {
-  if (file.empty()) return "empty path";
-  const fs::path p(file);
-  if (p.has_root_path())
-    return in_quotes(file) + " is an absolute path, expected a path relative to the dataset";
-  for (const fs::path& part : p)
-    if (part == "..") return in_quotes(file) + " leaves the dataset directory ('..')";
-  if (p.filename().empty() || p.filename() == ".")
-    return in_quotes(file) + " names a directory, expected a file";
-  return std::nullopt;
-}
-
-std::optional<Problem> range_problem(const char* column, double value, double lo, double hi,
-                                     bool hi_open, const char* allowed) {
-  if (std::isfinite(value) && value > lo && (hi_open ? value < hi : value <= hi))
-    return std::nullopt;
-  if (!std::isfinite(value)) return Problem{column, format_number(value) + " is not finite"};
-  return Problem{column, format_number(value) + " is out of range, allowed " + allowed};
-}
-
-// The first value of a row that the format does not allow, or nothing.
-std::optional<Problem> trial_problem(const TrialInfo& t) {
-  if (trim(t.id).empty()) return Problem{"trial", "empty trial id"};
-  if (t.id.find_first_of("\r\n") != std::string::npos)
-    return Problem{"trial", "the trial id contains a line break"};
-  if (auto p = range_problem("freq_hz", t.freq_hz, 0.0, kInf, true, "(0, inf)")) return p;
-  if (auto p = range_problem("duty", t.duty, 0.0, 1.0, true, "(0, 1)")) return p;
-  if (auto p = range_problem("stroke_m", t.stroke_m, 0.0, kInf, true, "(0, inf)")) return p;
-  if (t.cycles < 1)
-    return Problem{"cycles", std::to_string(t.cycles) + " is out of range, allowed >= 1"};
-  if (auto p = range_problem("sample_rate_hz", t.sample_rate_hz, 0.0, kInf, true, "(0, inf)"))
-    return p;
-  if (!std::isfinite(t.guide_pos_m))
-    return Problem{"guide_pos_m", format_number(t.guide_pos_m) + " is not finite"};
-  if (t.file.find_first_of("\r\n") != std::string::npos)
-    return Problem{"file", "the path contains a line break"};
-  if (auto p = file_problem(t.file)) return Problem{"file", *p};
-  return std::nullopt;
-}
-
-// CSV field as the reader will read it back: quoted when it has a comma, a quote or blanks at
-// its ends (which an unquoted field loses).
-void append_text_field(std::string& out, const std::string& text) {
-  const bool needs_quotes = text.find_first_of(",\"") != std::string::npos ||
-                            (!text.empty() && (is_blank(text.front()) || is_blank(text.back())));
-  if (!needs_quotes) {
-    out += text;
-    return;
-  }
-  out.push_back('"');
-  for (const char c : text) {
-    if (c == '"') out.push_back('"');
-    out.push_back(c);
-  }
-  out.push_back('"');
-}
-
-bool is_plain_file_name(const std::string& name) {
-  if (name.empty() || name.front() == '.') return false;
-  return std::all_of(name.begin(), name.end(), [](char c) {
-    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' ||
-           c == '_' || c == '-' || c == '+';
-  });
-}
-
 }  // namespace
-
-// ---------------------------------------------------------------- reading
 
 std::string Dataset::trial_path(std::size_t index) const {
   return (fs::path(path) / trials.at(index).file).string();
@@ -477,164 +354,6 @@ TrialSeries read_trial(const Dataset& dataset, std::size_t index) {
     throw std::out_of_range("read_trial: index " + std::to_string(index) + " of " +
                             std::to_string(dataset.trials.size()) + " trials");
   return read_trial_file(dataset.trial_path(index));
-}
-
-// ---------------------------------------------------------------- writing
-
-std::string trial_name(double freq_hz, double duty, double stroke_m, int index) {
-  // Fixed notation ("100", "2500.5") unless the frequency is too large or small for it.
-  char fixed[64];
-  const auto [end, ec] =
-      std::to_chars(fixed, fixed + sizeof fixed, freq_hz, std::chars_format::fixed);
-  const std::string freq = ec == std::errc() ? std::string(fixed, end) : format_number(freq_hz);
-  char name[160];
-  std::snprintf(name, sizeof name, "f%s_d%.3f_s%.2fum_t%d", freq.c_str(), duty, stroke_m * 1e6,
-                index);
-  return name;
-}
-
-DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage)
-    : DatasetWriter(std::move(dir), stage, {}) {}
-
-DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage,
-                             std::vector<PlannedCell> planned, std::string axis) {
-  const fs::path root(dir);
-  if (fs::exists(root / kSweepFile))
-    throw InputError(dir +
-                     ": already holds a sweep (sweep.csv); write a new sweep to a new "
-                     "directory");
-  model::validate(stage.stage, "stage");
-  model::validate(stage.interferometer, "interferometer");
-  validate_plan(planned, dir);
-  planned_ = std::move(planned);
-  axis_ = std::move(axis);
-  dataset_.path = std::move(dir);
-  dataset_.stage = stage;
-  create_directory_durably(root);
-  create_directory_durably(root / kTrialsDir);
-  // stage.yaml first: once sweep.csv exists the dataset is complete.
-  write_file_durably(root / kStageFile, model::to_yaml(stage));
-  // The mark before sweep.csv: a dataset that has trials is never unmarked by accident.
-  if (!planned_.empty()) write_plan(SweepStatus::InProgress, "");
-  write_sweep_csv();
-}
-
-void DatasetWriter::write_plan(SweepStatus status, const std::string& note) const {
-  write_file_durably(fs::path(dataset_.path) / kPlanFile, plan_yaml({status, planned_, note, axis_}));
-}
-
-void DatasetWriter::finish(SweepStatus status, const std::string& note) {
-  if (status != SweepStatus::Complete && status != SweepStatus::Stopped)
-    throw std::invalid_argument("DatasetWriter::finish: the status must be Complete or Stopped");
-  if (finished_) throw std::logic_error("DatasetWriter::finish: " + dataset_.path + " is finished");
-  if (!planned_.empty()) write_plan(status, note);
-  finished_ = true;
-}
-
-void DatasetWriter::write_sweep_csv() const {
-  std::string text;
-  for (const char* name : kSweepColumns) text += (text.empty() ? "" : ",") + std::string(name);
-  text.push_back('\n');
-  for (const TrialInfo& t : dataset_.trials) {
-    append_text_field(text, t.id);
-    for (const double v : {t.freq_hz, t.duty, t.stroke_m}) {
-      text.push_back(',');
-      append_number(text, v);
-    }
-    text += ',' + std::to_string(t.cycles);
-    for (const double v : {t.sample_rate_hz, t.guide_pos_m}) {
-      text.push_back(',');
-      append_number(text, v);
-    }
-    text.push_back(',');
-    append_text_field(text, t.file);
-    text.push_back('\n');
-  }
-  write_file_durably(fs::path(dataset_.path) / kSweepFile, text);
-}
-
-const TrialInfo& DatasetWriter::add_trial(TrialInfo info, const TrialSeries& series) {
-  if (finished_)
-    throw std::logic_error("DatasetWriter::add_trial: " + dataset_.path + " is finished");
-  auto reject = [&](const std::string& what) {
-    throw InputError(dataset_.path + ": trial " + in_quotes(info.id) + ": " + what);
-  };
-  if (info.id.empty()) {
-    for (int k = 0;; ++k) {
-      info.id = trial_name(info.freq_hz, info.duty, info.stroke_m, k);
-      if (!ids_.count(info.id)) break;
-    }
-  }
-  if (info.file.empty()) {
-    if (!is_plain_file_name(info.id))
-      reject(
-          "cannot name a file after this id; give info.file or an id of letters, digits, "
-          "'.', '_', '-', '+'");
-    info.file = std::string(kTrialsDir) + "/" + info.id + ".csv";
-  }
-  if (auto p = trial_problem(info)) reject(std::string(p->column) + ": " + p->message);
-  if (ids_.count(info.id)) reject("the id is already in the dataset");
-  if (!planned_.empty() &&
-      std::none_of(planned_.begin(), planned_.end(), [&](const PlannedCell& c) {
-        return same_cell(c, info.freq_hz, info.duty, info.stroke_m);
-      }))
-    reject("(" + format_number(info.freq_hz) + " Hz, duty " + format_number(info.duty) +
-           ", stroke " + format_number(info.stroke_m) +
-           " m) is not a planned cell; the plan must hold the values the trials carry");
-  const std::string normal_file = fs::path(info.file).lexically_normal().string();
-  if (files_.count(normal_file))
-    reject("file " + in_quotes(info.file) + " already belongs to another trial");
-
-  const std::size_t n = series.t_s.size();
-  if (n == 0) reject("no samples");
-  if (series.xi_cmd_m.size() != n || series.x_m.size() != n)
-    reject("columns of different lengths (t_s " + std::to_string(n) + ", xi_cmd_m " +
-           std::to_string(series.xi_cmd_m.size()) + ", x_m " + std::to_string(series.x_m.size()) +
-           ")");
-  for (std::size_t i = 0; i < n; ++i) {
-    const struct {
-      const char* name;
-      double value;
-    } values[] = {{"t_s", series.t_s[i]}, {"xi_cmd_m", series.xi_cmd_m[i]}, {"x_m", series.x_m[i]}};
-    for (const auto& v : values)
-      if (!std::isfinite(v.value))
-        reject(std::string(v.name) + "[" + std::to_string(i) + "] is " + format_number(v.value) +
-               ", not a finite number");
-    if (i > 0 && !(series.t_s[i] > series.t_s[i - 1]))
-      reject("t_s[" + std::to_string(i) + "] = " + format_number(series.t_s[i]) +
-             " does not increase (t_s[" + std::to_string(i - 1) +
-             "] = " + format_number(series.t_s[i - 1]) + ")");
-  }
-
-  std::string text =
-      std::string(kTrialColumns[0]) + "," + kTrialColumns[1] + "," + kTrialColumns[2] + "\n";
-  text.reserve(text.size() + n * 64);
-  for (std::size_t i = 0; i < n; ++i) {
-    append_number(text, series.t_s[i]);
-    text.push_back(',');
-    append_number(text, series.xi_cmd_m[i]);
-    text.push_back(',');
-    append_number(text, series.x_m[i]);
-    text.push_back('\n');
-  }
-  const fs::path trial_path = fs::path(dataset_.path) / info.file;
-  create_directory_durably(trial_path.parent_path());
-  write_file_durably(trial_path, text);
-
-  dataset_.trials.push_back(std::move(info));
-  try {
-    write_sweep_csv();
-  } catch (...) {
-    // sweep.csv still lists the trials before this one; the new trial file is not part of the
-    // dataset, so it goes.
-    dataset_.trials.pop_back();
-    std::error_code ignored;
-    fs::remove(trial_path, ignored);
-    throw;
-  }
-  ids_.insert(dataset_.trials.back().id);
-  files_.insert(normal_file);
-  return dataset_.trials.back();
 }
 
 }  // namespace idm::recording

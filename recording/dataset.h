@@ -87,7 +87,8 @@ std::string trial_name(double freq_hz, double duty, double stroke_m, int index);
 // reaches finish() (SIGKILL, a crash, a power loss) reads back as interrupted, with its missing
 // cells. The daemon's recorder:
 //
-//   DatasetWriter w(dir, stage, planned_cells, axis_name);   // every (f, duty, stroke) the sweep will play,
+//   DatasetWriter w(dir, stage, planned_cells, axis_name);   // every (f, duty, stroke) the sweep
+//   will play,
 //                                                 // with the values its trials will carry
 //   for each trial: w.add_trial(info, series);    // failed trials are simply not added
 //   w.finish(SweepStatus::Complete);              // or Stopped with a note ("STOP", an error)
@@ -105,6 +106,7 @@ class DatasetWriter {
   DatasetWriter& operator=(const DatasetWriter&) = delete;
   DatasetWriter(DatasetWriter&&) = default;
   DatasetWriter& operator=(DatasetWriter&&) = default;
+  ~DatasetWriter() = default;
 
   // Adds one trial. An empty info.id becomes trial_name(f, duty, stroke, next free index); an
   // empty info.file becomes "trials/<id>.csv" (the id must then be a plain file name).

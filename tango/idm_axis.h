@@ -22,6 +22,8 @@ namespace idm::tango {
 class IdmAxis : public TANGO_BASE_CLASS {
  public:
   IdmAxis(Tango::DeviceClass* cl, const char* name);
+  IdmAxis(const IdmAxis&) = delete;
+  IdmAxis& operator=(const IdmAxis&) = delete;
   ~IdmAxis() override;
 
   void init_device() override;

@@ -29,6 +29,7 @@ int main(int argc, char** argv) {
     }
   }
   std::vector<char*> targv;
+  targv.reserve(args.size() + 1);
   for (std::string& a : args) targv.push_back(a.data());
   targv.push_back(nullptr);
   int targc = static_cast<int>(args.size());

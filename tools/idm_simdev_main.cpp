@@ -37,8 +37,8 @@
 #include <string>
 #include <vector>
 
-#include "drivers/modbus/register_map.h"
 #include "drivers/modbus/modbus_backend.h"
+#include "drivers/modbus/register_map.h"
 #include "drivers/sim/sim_backend.h"
 #include "model/yaml_util.h"
 #include "tools/cli.h"
@@ -74,13 +74,16 @@ class SimModbusDevice {
         device_(sim::make_sim_device(sim_config)),
         stream_buffer_(4096) {
     mapping_ = modbus_mapping_new(0, 0, static_cast<int>(map_.register_span(width_)), 0);
-    if (!mapping_) throw model::InputError(std::string("cannot allocate the register map: ") +
-                                           modbus_strerror(errno));
+    if (!mapping_)
+      throw model::InputError(std::string("cannot allocate the register map: ") +
+                              modbus_strerror(errno));
     std::uint16_t* r = mapping_->tab_registers;
     mb::encode_value(map_.capture_rate_hz, sim_config.stream_rate_hz, map_.word_order,
                      r + map_.capture_rate_hz.address);
     if (map_.boot_id >= 0) r[map_.boot_id] = boot_id;
   }
+  SimModbusDevice(const SimModbusDevice&) = delete;
+  SimModbusDevice& operator=(const SimModbusDevice&) = delete;
   ~SimModbusDevice() {
     device_.shutdown();
     modbus_mapping_free(mapping_);
@@ -106,7 +109,8 @@ class SimModbusDevice {
     if (!device_.output->is_done(done).ok()) fault = true;
     for (;;) {
       std::size_t n = 0;
-      if (!device_.interferometer->read_stream(stream_buffer_.data(), stream_buffer_.size(), n).ok()) {
+      if (!device_.interferometer->read_stream(stream_buffer_.data(), stream_buffer_.size(), n)
+               .ok()) {
         fault = true;
         break;
       }
@@ -174,7 +178,7 @@ class SimModbusDevice {
     if (fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS) {
       const int count = (p[3] << 8) | p[4];
       if (map_.command < address || map_.command >= address + count) return -1;
-      const std::uint8_t* v = p + 6 + 2 * (map_.command - address);
+      const std::uint8_t* v = p + 6 + std::ptrdiff_t{2} * (map_.command - address);
       return (v[0] << 8) | v[1];
     }
     return -1;
@@ -191,6 +195,30 @@ class SimModbusDevice {
   std::uint16_t burst_id_ = 0;
   bool started_ = false, parameter_error_ = false, overrun_ = false;
 };
+
+// Answers one request of rc bytes (received on ctx) from the channel it addresses.
+void answer(modbus_t* ctx, const std::uint8_t* query, int rc, int header_length,
+            std::vector<std::unique_ptr<SimModbusDevice>>& devices, int unit_id) {
+  // The unit addressed (the MBAP header's last byte): one channel of the card.
+  const int unit = query[header_length - 1] - unit_id;
+  if (unit < 0 || static_cast<std::size_t>(unit) >= devices.size()) {
+    modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_GATEWAY_TARGET);
+    return;
+  }
+  SimModbusDevice& device = *devices[static_cast<std::size_t>(unit)];
+  if (device.sim().faults().timeouts) return;  // injected fault: no answer at all
+  device.refresh();
+  const int cmd = device.command_written(query, header_length);
+  if (cmd >= 0 && cmd != mb::command::kStart && cmd != mb::command::kStop) {
+    modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE);
+    return;
+  }
+  modbus_reply(ctx, query, rc, device.mapping());
+  if (cmd >= 0) {
+    device.execute(static_cast<std::uint16_t>(cmd));
+    device.refresh();
+  }
+}
 
 int serve(const std::string& host, int port, std::vector<std::unique_ptr<SimModbusDevice>>& devices,
           int unit_id, int stop_fd) {
@@ -249,26 +277,7 @@ int serve(const std::string& host, int port, std::vector<std::unique_ptr<SimModb
         continue;
       }
       ++it;
-      if (rc == 0) continue;  // not for this unit
-      // The unit addressed (the MBAP header's last byte): one channel of the card.
-      const int unit = query[static_cast<std::size_t>(header_length) - 1] - unit_id;
-      if (unit < 0 || static_cast<std::size_t>(unit) >= devices.size()) {
-        modbus_reply_exception(ctx, query.data(), MODBUS_EXCEPTION_GATEWAY_TARGET);
-        continue;
-      }
-      SimModbusDevice& device = *devices[static_cast<std::size_t>(unit)];
-      if (device.sim().faults().timeouts) continue;  // injected fault: no answer at all
-      device.refresh();
-      const int cmd = device.command_written(query.data(), header_length);
-      if (cmd >= 0 && cmd != mb::command::kStart && cmd != mb::command::kStop) {
-        modbus_reply_exception(ctx, query.data(), MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE);
-        continue;
-      }
-      modbus_reply(ctx, query.data(), rc, device.mapping());
-      if (cmd >= 0) {
-        device.execute(static_cast<std::uint16_t>(cmd));
-        device.refresh();
-      }
+      if (rc > 0) answer(ctx, query.data(), rc, header_length, devices, unit_id);  // 0: not for us
     }
   }
   for (int fd : clients) close(fd);
@@ -287,7 +296,8 @@ int main(int argc, char** argv) {
     }
   try {
     const tools::Flags flags(argc, argv, 1, {"port", "host", "config", "channels"});
-    const int channels = flags.has("channels") ? static_cast<int>(flags.integer("channels", 1, 64)) : 1;
+    const int channels =
+        flags.has("channels") ? static_cast<int>(flags.integer("channels", 1, 64)) : 1;
     const int port = static_cast<int>(flags.integer("port", 0, 65535));
     const std::string host = flags.has("host") ? flags.text("host") : "127.0.0.1";
     std::string file = "(defaults)";
@@ -298,11 +308,13 @@ int main(int argc, char** argv) {
     }
     sim::SimDeviceConfig sim_config = sim::parse_sim_device_yaml(root, file);
     const YAML::Node sim_section = detail::child(detail::child(root, "daq"), "sim");
-    if (!detail::present(detail::child(sim_section, "clock"))) sim_config.clock = sim::ClockMode::Wall;
+    if (!detail::present(detail::child(sim_section, "clock")))
+      sim_config.clock = sim::ClockMode::Wall;
     if (detail::present(detail::child(sim_section, "output")) &&
         sim_config.output.mode != OutputMode::BurstParameters)
-      throw model::InputError(file + ": daq.sim.output: idm-simdev plays burst parameters; set "
-                                     "it to parameters or leave it out");
+      throw model::InputError(file +
+                              ": daq.sim.output: idm-simdev plays burst parameters; set "
+                              "it to parameters or leave it out");
     sim_config.output.mode = OutputMode::BurstParameters;
     const mb::ModbusConfig modbus_config = mb::parse_modbus_yaml(root, file);
     sim_config.stream_capacity = modbus_config.registers.capture_capacity;
@@ -329,5 +341,8 @@ int main(int argc, char** argv) {
   } catch (const model::InputError& e) {
     std::cerr << "idm-simdev: " << e.what() << "\n" << kUsage;
     return 2;
+  } catch (const std::exception& e) {  // anything else (a failed allocation, a system error)
+    std::cerr << "idm-simdev: " << e.what() << "\n";
+    return 1;
   }
 }

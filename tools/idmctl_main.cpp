@@ -17,9 +17,9 @@
 #include <cstdio>
 #include <cstring>
 #include <iostream>
-#include <stdexcept>
 #include <map>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -53,7 +53,8 @@ const char* kUsage =
     "  region FREQ DUTY [STROKE]   CUTOFF, ONESTEP or MULTISTEP and the predicted step\n"
     "  limits [LOWER UPPER]        show or set the soft limits\n"
     "  loop                        real-time loop statistics\n"
-    "  reset                       *RST: stop, clear the fault and the errors, reload settings; waits\n"
+    "  reset                       *RST: stop, clear the fault and the errors, reload settings;\n"
+    "                              waits\n"
     "  idn                         *IDN?\n"
     "  raw LINE...                 send one protocol line (the arguments joined by spaces)\n"
     "  (none)                      interactive: send stdin's lines, print the replies of queries\n"
@@ -181,15 +182,23 @@ int show_status(Connection& c) {
   std::map<std::string, std::string> kv;
   std::istringstream words(stat);
   for (std::string w; words >> w;)
-    if (const std::size_t eq = w.find('='); eq != std::string::npos) kv[w.substr(0, eq)] = w.substr(eq + 1);
+    if (const std::size_t eq = w.find('='); eq != std::string::npos)
+      kv[w.substr(0, eq)] = w.substr(eq + 1);
   const auto spaced = [](std::string t) {
     for (char& ch : t)
       if (ch == '_') ch = ' ';
     return t;
   };
-  static const char* const kOper[] = {"moving", "in position", "holding", "referenced",
-                                      "at the lower soft limit", "at the upper soft limit",
-                                      "end of travel", "fault", "position valid", "referencing"};
+  static const char* const kOper[] = {"moving",
+                                      "in position",
+                                      "holding",
+                                      "referenced",
+                                      "at the lower soft limit",
+                                      "at the upper soft limit",
+                                      "end of travel",
+                                      "fault",
+                                      "position valid",
+                                      "referencing"};
   const long bits = std::strtol(oper.c_str(), nullptr, 10);
   std::string on;
   for (int b = 0; b < 10; ++b)
@@ -206,10 +215,13 @@ int show_status(Connection& c) {
               comma == std::string::npos ? "?" : result.substr(comma + 1).c_str());
   std::printf("operation:   %ld: %s\n", bits, on.empty() ? "nothing set" : on.c_str());
   std::printf("status byte: %ld: %s\n", sb, sbw.empty() ? "nothing to report" : sbw.c_str());
-  std::printf("fault:       %s\n", kv["fault"] == "none" ? "none" : (kv["fault"] + ": " + spaced(kv["fault_reason"])).c_str());
+  std::printf("fault:       %s\n", kv["fault"] == "none"
+                                       ? "none"
+                                       : (kv["fault"] + ": " + spaced(kv["fault_reason"])).c_str());
   std::printf("end travel:  %s\n", kv["eot"].c_str());
   std::printf("referenced:  %s\n", kv["referenced"] == "1" ? "yes" : "no");
-  if (kv["daemon_error"] != "none") std::printf("last error:  %s\n", spaced(kv["daemon_error"]).c_str());
+  if (kv["daemon_error"] != "none")
+    std::printf("last error:  %s\n", spaced(kv["daemon_error"]).c_str());
   return drain_errors(c) > 0 ? 1 : 0;
 }
 
@@ -247,11 +259,13 @@ int interactive(Connection& c) {
 int resolve_axis(Connection& c, const std::string& axis) {
   if (axis.find_first_not_of("0123456789") == std::string::npos) {
     const double n = idm::tools::parse_number(axis, "--axis");
-    if (n < 1 || n > 1e6) throw InputError("--axis: " + axis + " is out of range, allowed 1 and up");
+    if (n < 1 || n > 1e6)
+      throw InputError("--axis: " + axis + " is out of range, allowed 1 and up");
     return static_cast<int>(n);
   }
   const std::string count = c.query("AXIS:COUNt?");
-  if (drain_errors(c) > 0 || count.empty()) throw std::runtime_error("the daemon does not know axes");
+  if (drain_errors(c) > 0 || count.empty())
+    throw std::runtime_error("the daemon does not know axes");
   const int n = static_cast<int>(idm::tools::parse_number(count, "AXIS:COUNt?"));
   std::string names;
   for (int k = 1; k <= n; ++k) {
@@ -287,12 +301,14 @@ int run(const std::vector<std::string>& a, Connection& c, bool wait) {
     return print_query(c, g_axis + "STAT?");
   }
   if (verb == "show") return show_status(c);
-  if (verb == "ref") return motion(c, g_axis + "REF" + (a.size() > 1 ? " " + a[1] : std::string()), wait, true);
+  if (verb == "ref")
+    return motion(c, g_axis + "REF" + (a.size() > 1 ? " " + a[1] : std::string()), wait, true);
   if (verb == "region") {
     return print_query(c, g_axis + "REG? " + join(a, 1, ","));
   }
   if (verb == "limits") {
-    return a.size() == 1 ? print_query(c, g_axis + "LIM?") : command(c, g_axis + "LIM " + join(a, 1, ","));
+    return a.size() == 1 ? print_query(c, g_axis + "LIM?")
+                         : command(c, g_axis + "LIM " + join(a, 1, ","));
   }
   if (verb == "loop") {
     return print_query(c, "SYST:LOOP?");
@@ -319,66 +335,85 @@ int run(const std::vector<std::string>& a, Connection& c, bool wait) {
   throw InputError("unknown command '" + verb + "'");  // check_usage() knows every verb
 }
 
+// What the command line asks for.
+struct Options {
+  idm::client::Address address;  // 127.0.0.1:5025 unless --host, --port or --unix
+  double timeout_s = 60;
+  bool wait = true;
+  std::string axis;               // --axis: a name or number ("" none)
+  std::vector<std::string> args;  // the command and its arguments (none: interactive)
+  bool help = false;              // --help: print the usage and do nothing else
+};
+
+// The command line; InputError for a bad one.
+Options parse_options(int argc, char** argv) {
+  Options o;
+  o.address.host = "127.0.0.1";
+  o.address.port = 5025;
+  int i = 1;
+  bool host_given = false, port_given = false;
+  for (; i < argc && std::strncmp(argv[i], "--", 2) == 0; ++i) {
+    const std::string flag = argv[i];
+    if (flag == "--help") {
+      o.help = true;
+      return o;
+    }
+    if (flag == "--no-wait") {
+      o.wait = false;
+      continue;
+    }
+    if (flag != "--host" && flag != "--port" && flag != "--unix" && flag != "--timeout" &&
+        flag != "--axis")
+      throw InputError(flag +
+                       ": unknown flag, allowed --host, --port, --unix, --axis, --timeout, "
+                       "--no-wait, --help");
+    if (i + 1 >= argc) throw InputError(flag + ": missing value");
+    const std::string value = argv[++i];
+    if (flag == "--host") {
+      o.address.host = value;
+      host_given = true;
+    } else if (flag == "--unix") {
+      o.address.unix_path = value;
+    } else if (flag == "--axis") {
+      if (value.empty() || value.find_first_of(" \t:;,?") != std::string::npos)
+        throw InputError("--axis: '" + value + "' is not an axis name or number");
+      o.axis = value;
+    } else if (flag == "--port") {
+      const double p = idm::tools::parse_number(value, "--port");
+      if (p != static_cast<int>(p) || p < 1 || p > 65535)
+        throw InputError("--port: " + value + " is out of range, allowed 1..65535");
+      o.address.port = static_cast<int>(p);
+      port_given = true;
+    } else {
+      o.timeout_s = idm::tools::parse_number(value, "--timeout");
+      if (o.timeout_s < 0) throw InputError("--timeout: must be >= 0 (0: no limit)");
+    }
+  }
+  if (!o.address.unix_path.empty() && (host_given || port_given))
+    throw InputError("--unix: give either --unix or --host/--port");
+  for (; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg.find_first_of("\r\n") != std::string::npos)
+      throw InputError("arguments must not hold line breaks (one protocol line per command)");
+    o.args.push_back(arg);
+  }
+  if (!o.args.empty()) check_usage(o.args);
+  return o;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string host = "127.0.0.1", unix_path;
-  int port = 5025;
-  double timeout_s = 60;
-  bool wait = true;
-  std::vector<std::string> args;
-  std::string axis;
+  Options o;
   try {
-    int i = 1;
-    bool host_given = false, port_given = false;
-    for (; i < argc && std::strncmp(argv[i], "--", 2) == 0; ++i) {
-      const std::string flag = argv[i];
-      if (flag == "--help") {
-        std::fputs(kUsage, stdout);
-        return 0;
-      }
-      if (flag == "--no-wait") {
-        wait = false;
-        continue;
-      }
-      if (flag != "--host" && flag != "--port" && flag != "--unix" && flag != "--timeout" &&
-          flag != "--axis")
-        throw InputError(flag + ": unknown flag, allowed --host, --port, --unix, --axis, --timeout, "
-                                "--no-wait, --help");
-      if (i + 1 >= argc) throw InputError(flag + ": missing value");
-      const std::string value = argv[++i];
-      if (flag == "--host") {
-        host = value;
-        host_given = true;
-      } else if (flag == "--unix") {
-        unix_path = value;
-      } else if (flag == "--axis") {
-        if (value.empty() || value.find_first_of(" \t:;,?") != std::string::npos)
-          throw InputError("--axis: '" + value + "' is not an axis name or number");
-        axis = value;
-      } else if (flag == "--port") {
-        const double p = idm::tools::parse_number(value, "--port");
-        if (p != static_cast<int>(p) || p < 1 || p > 65535)
-          throw InputError("--port: " + value + " is out of range, allowed 1..65535");
-        port = static_cast<int>(p);
-        port_given = true;
-      } else {
-        timeout_s = idm::tools::parse_number(value, "--timeout");
-        if (timeout_s < 0) throw InputError("--timeout: must be >= 0 (0: no limit)");
-      }
-    }
-    if (!unix_path.empty() && (host_given || port_given))
-      throw InputError("--unix: give either --unix or --host/--port");
-    for (; i < argc; ++i) {
-      const std::string arg = argv[i];
-      if (arg.find_first_of("\r\n") != std::string::npos)
-        throw InputError("arguments must not hold line breaks (one protocol line per command)");
-      args.push_back(arg);
-    }
-    if (!args.empty()) check_usage(args);
+    o = parse_options(argc, argv);
   } catch (const InputError& e) {
     std::fprintf(stderr, "idmctl: %s\n", e.what());
     return 2;
+  }
+  if (o.help) {
+    std::fputs(kUsage, stdout);
+    return 0;
   }
 
   struct sigaction sa {};
@@ -388,13 +423,9 @@ int main(int argc, char** argv) {
   signal(SIGPIPE, SIG_IGN);
 
   try {
-    idm::client::Address address;
-    address.host = host;
-    address.port = port;
-    address.unix_path = unix_path;
-    Connection c(address, timeout_s);
-    if (!axis.empty()) g_axis = "AXIS" + std::to_string(resolve_axis(c, axis)) + ":";
-    return args.empty() ? interactive(c) : run(args, c, wait);
+    Connection c(o.address, o.timeout_s);
+    if (!o.axis.empty()) g_axis = "AXIS" + std::to_string(resolve_axis(c, o.axis)) + ":";
+    return o.args.empty() ? interactive(c) : run(o.args, c, o.wait);
   } catch (const InputError& e) {
     std::fprintf(stderr, "idmctl: %s\n", e.what());
     return 2;

@@ -21,6 +21,59 @@ std::string number_text(double value) {
   return buf;
 }
 
+// Runs `query` (a query and the parse of its reply): the daemon's error or the reply's
+// problem as text, or "" when it succeeded.
+template <class Query>
+std::string query_error(const Query& query) {
+  try {
+    query();
+  } catch (const client::DaemonError& e) {
+    return e.what();
+  } catch (const client::ReplyError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Axis `axis`'s status and operation bits into a (what failed in its *_error fields); `old`: the
+// axis as last polled on this connection (nullptr: none).
+void poll_axis(client::Client& c, int axis, const AxisView* old, AxisView& a) {
+  a.axis = axis;
+  const std::string prefix = axis_prefix(axis);
+  a.status_error = query_error([&] { a.status = client::parse_status(c.query(prefix + "STAT?")); });
+  // STATus:OPERation? is in the protocol's extension; a daemon without it answers -113 once
+  // per connection, and is not asked again until idm-web reconnects.
+  const bool unsupported = old && !old->operation && old->operation_error.rfind("-113,", 0) == 0;
+  if (unsupported) {
+    a.operation_error = old->operation_error;
+    return;
+  }
+  a.operation_error = query_error([&] {
+    const std::uint64_t bits = client::parse_reply_count(c.query(prefix + "STAT:OPER?"));
+    if (bits > 0xffffffffu) throw client::ReplyError("STAT:OPER? out of range");
+    a.operation = static_cast<std::uint32_t>(bits);
+  });
+}
+
+// Each axis's position history and FAULT count carried over from the last poll (old_axes, moved
+// from), the position at t_s appended and history older than history_s dropped.
+void carry_history(std::vector<AxisView>& old_axes, std::vector<AxisView>& axes, double t_s,
+                   double history_s) {
+  for (std::size_t k = 0; k < axes.size(); ++k) {
+    AxisView& a = axes[k];
+    if (k < old_axes.size()) {
+      a.history = std::move(old_axes[k].history);
+      a.faults_seen = old_axes[k].faults_seen;
+      const bool was_fault = old_axes[k].status && old_axes[k].status->state == "FAULT";
+      if (a.status && a.status->state == "FAULT" && !was_fault) ++a.faults_seen;
+    } else if (a.status && a.status->state == "FAULT") {
+      ++a.faults_seen;
+    }
+    if (a.status && a.status->position_valid) a.history.push_back({t_s, a.status->position_m});
+    while (!a.history.empty() && a.history.front().t < t_s - history_s) a.history.pop_front();
+  }
+}
+
 }  // namespace
 
 double now_s() {
@@ -70,8 +123,9 @@ void Monitor::run() {
       pause_s = 1;  // try to reconnect once a second
     }
     std::unique_lock<std::mutex> lock(wake_mutex_);
-    wake_.wait_until(lock, start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                       std::chrono::duration<double>(pause_s)),
+    wake_.wait_until(lock,
+                     start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                 std::chrono::duration<double>(pause_s)),
                      [this] { return stopping_.load(); });
   }
 }
@@ -93,53 +147,18 @@ void Monitor::poll_once(client::Client& c, double& next_loop) {
     old.axes.clear();
   }
   next.axes.resize(count);
-  for (std::size_t k = 0; k < count; ++k) {
-    AxisView& a = next.axes[k];
-    a.axis = static_cast<int>(k) + 1;
-    const std::string prefix = axis_prefix(a.axis);
-    try {
-      a.status = client::parse_status(c.query(prefix + "STAT?"));
-    } catch (const client::DaemonError& e) {
-      a.status_error = e.what();
-    } catch (const client::ReplyError& e) {
-      a.status_error = e.what();
-    }
-    // STATus:OPERation? is in the protocol's extension; a daemon without it answers -113 once
-    // per connection, and is not asked again until idm-web reconnects.
-    const bool unsupported = k < old.axes.size() && !old.axes[k].operation &&
-                             old.axes[k].operation_error.rfind("-113,", 0) == 0;
-    if (unsupported) {
-      a.operation_error = old.axes[k].operation_error;
-    } else {
-      try {
-        const std::uint64_t bits = client::parse_reply_count(c.query(prefix + "STAT:OPER?"));
-        if (bits > 0xffffffffu) throw client::ReplyError("STAT:OPER? out of range");
-        a.operation = static_cast<std::uint32_t>(bits);
-      } catch (const client::DaemonError& e) {
-        a.operation_error = e.what();
-      } catch (const client::ReplyError& e) {
-        a.operation_error = e.what();
-      }
-    }
-  }
+  for (std::size_t k = 0; k < count; ++k)
+    poll_axis(c, static_cast<int>(k) + 1, k < old.axes.size() ? &old.axes[k] : nullptr,
+              next.axes[k]);
   // SYSTem:CLIents:TABLe? is this repo's extension: a daemon without it answers -113 once per
   // connection, and is not asked again until idm-web reconnects.
-  if (old.connected && !old.clients && old.clients_error.rfind("-113,", 0) == 0) {
+  if (old.connected && !old.clients && old.clients_error.rfind("-113,", 0) == 0)
     next.clients_error = old.clients_error;
-  } else {
-    try {
-      next.clients = client::parse_client_table(c.query("SYST:CLI:TABL?"));
-    } catch (const client::DaemonError& e) {
-      next.clients_error = e.what();
-    } catch (const client::ReplyError& e) {
-      next.clients_error = e.what();
-    }
-  }
-  try {
-    next.sweep = client::parse_sweep(c.query("SWEEP?"));
-  } catch (const client::DaemonError&) {
-  } catch (const client::ReplyError&) {
-  }
+  else
+    next.clients_error =
+        query_error([&] { next.clients = client::parse_client_table(c.query("SYST:CLI:TABL?")); });
+  // SWEEP?: no sweep shown when it fails
+  query_error([&] { next.sweep = client::parse_sweep(c.query("SWEEP?")); });
   const double t = now_s();
   next.loop = old.loop;
   next.loop_error = old.loop_error;
@@ -157,20 +176,7 @@ void Monitor::poll_once(client::Client& c, double& next_loop) {
     }
   }
   next.time = t;
-  for (std::size_t k = 0; k < count; ++k) {
-    AxisView& a = next.axes[k];
-    if (k < old.axes.size()) {
-      a.history = std::move(old.axes[k].history);
-      a.faults_seen = old.axes[k].faults_seen;
-      const bool was_fault = old.axes[k].status && old.axes[k].status->state == "FAULT";
-      if (a.status && a.status->state == "FAULT" && !was_fault) ++a.faults_seen;
-    } else if (a.status && a.status->state == "FAULT") {
-      ++a.faults_seen;
-    }
-    if (a.status && a.status->position_valid) a.history.push_back({t, a.status->position_m});
-    while (!a.history.empty() && a.history.front().t < t - options_.history_s)
-      a.history.pop_front();
-  }
+  carry_history(old.axes, next.axes, t, options_.history_s);
   std::lock_guard<std::mutex> lock(mutex_);
   snapshot_ = std::move(next);
 }
@@ -181,7 +187,8 @@ void Monitor::command(const std::string& line) {
   // a new one (the control lines, STOP and an absolute move, may be sent twice).
   for (int attempt = 0;; ++attempt) {
     try {
-      if (!control_) control_ = std::make_unique<client::Client>(options_.address, options_.timeout_s);
+      if (!control_)
+        control_ = std::make_unique<client::Client>(options_.address, options_.timeout_s);
       control_->command(line);
       return;
     } catch (const client::DaemonError&) {
@@ -196,7 +203,8 @@ void Monitor::command(const std::string& line) {
 RegionMap Monitor::regions(int axis) {
   std::lock_guard<std::mutex> lock(regions_mutex_);
   const double t = now_s();
-  if (const auto it = regions_.find(axis); it != regions_.end() && t - it->second.time < kRegionCacheS)
+  if (const auto it = regions_.find(axis);
+      it != regions_.end() && t - it->second.time < kRegionCacheS)
     return it->second;
   RegionMap m;
   m.axis = axis;
@@ -211,8 +219,8 @@ RegionMap Monitor::regions(int axis) {
       for (const double d : m.duties) {
         client::RegionReply r;
         try {
-          r = client::parse_region(
-              regions_client_->query(axis_prefix(axis) + "REG? " + number_text(f) + "," + number_text(d)));
+          r = client::parse_region(regions_client_->query(axis_prefix(axis) + "REG? " +
+                                                          number_text(f) + "," + number_text(d)));
         } catch (const client::DaemonError& e) {
           if (e.code == -114) throw;  // no such axis: no map at all
           r.region.clear();           // a cell the daemon refuses (e.g. outside the device's range)
@@ -269,11 +277,11 @@ std::string axis_json(const AxisView& a) {
     const client::AxisStatus& s = *a.status;
     o += ",\"name\":" + json_string(s.name) + ",\"state\":" + json_string(s.state) +
          ",\"done\":" + json_bool(s.done) + ",\"position_valid\":" + json_bool(s.position_valid) +
-         ",\"position_m\":" + json_number(s.position_m) + ",\"target_m\":" + json_number(s.target_m) +
-         ",\"lower_m\":" + json_number(s.lower_m) + ",\"upper_m\":" + json_number(s.upper_m) +
-         ",\"referenced\":" + json_bool(s.referenced) + ",\"fault\":" + json_string(s.fault) +
-         ",\"device\":" + json_string(s.device) + ",\"eot\":" + json_string(s.eot) +
-         ",\"daemon_error\":" + json_string(s.daemon_error) +
+         ",\"position_m\":" + json_number(s.position_m) +
+         ",\"target_m\":" + json_number(s.target_m) + ",\"lower_m\":" + json_number(s.lower_m) +
+         ",\"upper_m\":" + json_number(s.upper_m) + ",\"referenced\":" + json_bool(s.referenced) +
+         ",\"fault\":" + json_string(s.fault) + ",\"device\":" + json_string(s.device) +
+         ",\"eot\":" + json_string(s.eot) + ",\"daemon_error\":" + json_string(s.daemon_error) +
          ",\"moves\":" + std::to_string(s.moves) + ",\"bursts\":" + std::to_string(s.bursts) +
          ",\"cycles\":" + std::to_string(s.cycles);
   } else {
@@ -294,15 +302,16 @@ std::string axis_json(const AxisView& a) {
 }  // namespace
 
 std::string state_json(const Snapshot& s, bool control) {
-  std::string o = "{\"connected\":" + json_bool(s.connected) + ",\"error\":" + json_string(s.error) +
-                  ",\"idn\":" + json_string(s.idn) + ",\"control\":" + json_bool(control) +
-                  ",\"time\":" + json_number(s.time) + ",\"axes\":[";
+  std::string o = "{\"connected\":" + json_bool(s.connected) +
+                  ",\"error\":" + json_string(s.error) + ",\"idn\":" + json_string(s.idn) +
+                  ",\"control\":" + json_bool(control) + ",\"time\":" + json_number(s.time) +
+                  ",\"axes\":[";
   for (std::size_t k = 0; k < s.axes.size(); ++k) o += (k ? "," : "") + axis_json(s.axes[k]);
   o += "],\"sweep\":";
   if (s.sweep) {
     o += "{\"state\":" + json_string(s.sweep->state) + ",\"axis\":" +
          (s.sweep->axis >= 0 && s.sweep->state != "NONE" ? std::to_string(s.sweep->axis + 1)
-                                                           : "null") +
+                                                         : "null") +
          ",\"written\":" + std::to_string(s.sweep->written) +
          ",\"failed\":" + std::to_string(s.sweep->failed) +
          ",\"planned\":" + std::to_string(s.sweep->planned) +
@@ -338,8 +347,9 @@ std::string history_json(const Snapshot& s) {
   std::string o = "{\"time\":" + json_number(s.time) + ",\"axes\":[";
   for (std::size_t k = 0; k < s.axes.size(); ++k) {
     const AxisView& a = s.axes[k];
-    o += (k ? "," : "") + std::string("{\"axis\":") + std::to_string(a.axis) + ",\"name\":" +
-         json_string(a.status ? a.status->name : "axis" + std::to_string(a.axis)) + ",\"t\":[";
+    o += (k ? "," : "") + std::string("{\"axis\":") + std::to_string(a.axis) +
+         ",\"name\":" + json_string(a.status ? a.status->name : "axis" + std::to_string(a.axis)) +
+         ",\"t\":[";
     for (std::size_t i = 0; i < a.history.size(); ++i)
       o += (i ? "," : "") + json_number(a.history[i].t - s.time);
     o += "],\"position_m\":[";
@@ -353,7 +363,8 @@ std::string history_json(const Snapshot& s) {
 std::string regions_json(const RegionMap& m) {
   std::string o = "{\"axis\":" + std::to_string(m.axis) + ",\"error\":" + json_string(m.error) +
                   ",\"freqs_hz\":[";
-  for (std::size_t k = 0; k < m.freqs_hz.size(); ++k) o += (k ? "," : "") + json_number(m.freqs_hz[k]);
+  for (std::size_t k = 0; k < m.freqs_hz.size(); ++k)
+    o += (k ? "," : "") + json_number(m.freqs_hz[k]);
   o += "],\"duties\":[";
   for (std::size_t k = 0; k < m.duties.size(); ++k) o += (k ? "," : "") + json_number(m.duties[k]);
   o += "],\"cells\":[";
@@ -377,10 +388,14 @@ namespace {
 std::string label(const std::string& v) {
   std::string out;
   for (const char c : v) {
-    if (c == '\\') out += "\\\\";
-    else if (c == '"') out += "\\\"";
-    else if (c == '\n') out += "\\n";
-    else out += c;
+    if (c == '\\')
+      out += "\\\\";
+    else if (c == '"')
+      out += "\\\"";
+    else if (c == '\n')
+      out += "\\n";
+    else
+      out += c;
   }
   return out;
 }
@@ -395,6 +410,95 @@ void family(std::string& out, const char* name, const char* type, const char* he
   out += std::string("# HELP ") + name + " " + help + "\n# TYPE " + name + " " + type + "\n";
 }
 
+// The axes' families (position, target, limits, state, counters, status bits) and the sweep's.
+void append_axis_metrics(std::string& o, const Snapshot& s) {
+  std::vector<std::pair<std::string, const client::AxisStatus*>> axes;
+  for (const AxisView& a : s.axes)
+    if (a.status) axes.emplace_back(label(a.status->name), &*a.status);
+  family(o, "idm_position_meters", "gauge", "Position of the axis (NaN when not valid).");
+  for (const auto& [n, st] : axes)
+    o += "idm_position_meters{axis=\"" + n + "\"} " + prom_number(st->position_m) + "\n";
+  family(o, "idm_target_meters", "gauge", "Target of the axis's last move.");
+  for (const auto& [n, st] : axes)
+    o += "idm_target_meters{axis=\"" + n + "\"} " + prom_number(st->target_m) + "\n";
+  family(o, "idm_soft_limit_meters", "gauge", "Soft limits of the axis.");
+  for (const auto& [n, st] : axes) {
+    o += "idm_soft_limit_meters{axis=\"" + n + "\",side=\"lower\"} " + prom_number(st->lower_m) +
+         "\n";
+    o += "idm_soft_limit_meters{axis=\"" + n + "\",side=\"upper\"} " + prom_number(st->upper_m) +
+         "\n";
+  }
+  family(o, "idm_axis_state", "gauge", "1 for the axis's current motion state.");
+  for (const auto& [n, st] : axes) {
+    bool listed = false;
+    for (const char* state : {"IDLE", "MOVING", "SETTLING", "FAULT"}) {
+      listed = listed || st->state == state;
+      o += "idm_axis_state{axis=\"" + n + "\",state=\"" + state + "\"} " +
+           (st->state == state ? "1" : "0") + "\n";
+    }
+    if (!listed) o += "idm_axis_state{axis=\"" + n + "\",state=\"" + label(st->state) + "\"} 1\n";
+  }
+  family(o, "idm_position_valid", "gauge", "1 when the axis's position can be trusted.");
+  for (const auto& [n, st] : axes)
+    o += "idm_position_valid{axis=\"" + n + "\"} " + (st->position_valid ? "1" : "0") + "\n";
+  family(o, "idm_referenced", "gauge", "1 when the axis is referenced.");
+  for (const auto& [n, st] : axes)
+    o += "idm_referenced{axis=\"" + n + "\"} " + (st->referenced ? "1" : "0") + "\n";
+  family(o, "idm_moves_total", "counter", "Closed-loop moves the daemon started on the axis.");
+  for (const auto& [n, st] : axes)
+    o += "idm_moves_total{axis=\"" + n + "\"} " + std::to_string(st->moves) + "\n";
+  family(o, "idm_bursts_total", "counter", "Bursts the daemon played on the axis.");
+  for (const auto& [n, st] : axes)
+    o += "idm_bursts_total{axis=\"" + n + "\"} " + std::to_string(st->bursts) + "\n";
+  family(o, "idm_faults_total", "counter",
+         "Times idm-web saw the axis enter FAULT (since idm-web started).");
+  for (const AxisView& a : s.axes)
+    if (a.status)
+      o += "idm_faults_total{axis=\"" + label(a.status->name) + "\"} " +
+           std::to_string(a.faults_seen) + "\n";
+  bool any_bits = false;
+  for (const AxisView& a : s.axes) any_bits = any_bits || (a.status && a.operation);
+  if (any_bits) {
+    family(o, "idm_status_bits", "gauge", "STATus:OPERation? of the axis.");
+    for (const AxisView& a : s.axes)
+      if (a.status && a.operation)
+        o += "idm_status_bits{axis=\"" + label(a.status->name) + "\"} " +
+             std::to_string(*a.operation) + "\n";
+  }
+  if (s.sweep) {
+    family(o, "idm_sweep_running", "gauge", "1 while a sweep runs.");
+    o += std::string("idm_sweep_running ") + (s.sweep->state == "RUNNING" ? "1" : "0") + "\n";
+    family(o, "idm_sweep_trials", "gauge", "Trials of the last or running sweep.");
+    o += "idm_sweep_trials{kind=\"planned\"} " + std::to_string(s.sweep->planned) + "\n";
+    o += "idm_sweep_trials{kind=\"written\"} " + std::to_string(s.sweep->written) + "\n";
+    o += "idm_sweep_trials{kind=\"failed\"} " + std::to_string(s.sweep->failed) + "\n";
+  }
+}
+
+// The real-time loop's families: wake-ups, misses, period and the latency histogram.
+void append_loop_metrics(std::string& o, const client::LoopStats& l) {
+  family(o, "idm_loop_wakeups_total", "counter", "Wake-ups of the daemon's real-time loop.");
+  o += "idm_loop_wakeups_total " + std::to_string(l.wakeups) + "\n";
+  family(o, "idm_loop_deadline_misses_total", "counter", "Deadlines the real-time loop missed.");
+  o += "idm_loop_deadline_misses_total " + std::to_string(l.misses) + "\n";
+  family(o, "idm_loop_period_seconds", "gauge", "Period of the real-time loop.");
+  o += "idm_loop_period_seconds " + prom_number(l.period_s) + "\n";
+  family(o, "idm_loop_latency_seconds", "histogram", "Wake-up latency of the real-time loop.");
+  std::uint64_t cumulative = 0;
+  for (std::size_t k = 0; k < l.hist.size(); ++k) {
+    cumulative += l.hist[k];
+    // The last bin holds everything above the others: it is +Inf's.
+    if (k + 1 < l.hist.size())
+      o += "idm_loop_latency_seconds_bucket{le=\"" +
+           prom_number(static_cast<double>(k + 1) * l.bin_width_s) + "\"} " +
+           std::to_string(cumulative) + "\n";
+  }
+  o += "idm_loop_latency_seconds_bucket{le=\"+Inf\"} " + std::to_string(cumulative) + "\n";
+  o += "idm_loop_latency_seconds_sum " + prom_number(l.avg_s * static_cast<double>(cumulative)) +
+       "\n";
+  o += "idm_loop_latency_seconds_count " + std::to_string(cumulative) + "\n";
+}
+
 }  // namespace
 
 std::string metrics_text(const Snapshot& s, std::uint64_t http_connections,
@@ -402,92 +506,12 @@ std::string metrics_text(const Snapshot& s, std::uint64_t http_connections,
   std::string o;
   family(o, "idm_up", "gauge", "1 when idm-web reaches idmd and its last poll succeeded.");
   o += "idm_up " + std::string(s.connected ? "1" : "0") + "\n";
-  std::vector<std::pair<std::string, const client::AxisStatus*>> axes;
-  for (const AxisView& a : s.axes)
-    if (a.status) axes.emplace_back(label(a.status->name), &*a.status);
-  if (s.connected) {
-    family(o, "idm_position_meters", "gauge", "Position of the axis (NaN when not valid).");
-    for (const auto& [n, st] : axes)
-      o += "idm_position_meters{axis=\"" + n + "\"} " + prom_number(st->position_m) + "\n";
-    family(o, "idm_target_meters", "gauge", "Target of the axis's last move.");
-    for (const auto& [n, st] : axes)
-      o += "idm_target_meters{axis=\"" + n + "\"} " + prom_number(st->target_m) + "\n";
-    family(o, "idm_soft_limit_meters", "gauge", "Soft limits of the axis.");
-    for (const auto& [n, st] : axes) {
-      o += "idm_soft_limit_meters{axis=\"" + n + "\",side=\"lower\"} " + prom_number(st->lower_m) + "\n";
-      o += "idm_soft_limit_meters{axis=\"" + n + "\",side=\"upper\"} " + prom_number(st->upper_m) + "\n";
-    }
-    family(o, "idm_axis_state", "gauge", "1 for the axis's current motion state.");
-    for (const auto& [n, st] : axes) {
-      bool listed = false;
-      for (const char* state : {"IDLE", "MOVING", "SETTLING", "FAULT"}) {
-        listed = listed || st->state == state;
-        o += "idm_axis_state{axis=\"" + n + "\",state=\"" + state + "\"} " +
-             (st->state == state ? "1" : "0") + "\n";
-      }
-      if (!listed) o += "idm_axis_state{axis=\"" + n + "\",state=\"" + label(st->state) + "\"} 1\n";
-    }
-    family(o, "idm_position_valid", "gauge", "1 when the axis's position can be trusted.");
-    for (const auto& [n, st] : axes)
-      o += "idm_position_valid{axis=\"" + n + "\"} " + (st->position_valid ? "1" : "0") + "\n";
-    family(o, "idm_referenced", "gauge", "1 when the axis is referenced.");
-    for (const auto& [n, st] : axes)
-      o += "idm_referenced{axis=\"" + n + "\"} " + (st->referenced ? "1" : "0") + "\n";
-    family(o, "idm_moves_total", "counter", "Closed-loop moves the daemon started on the axis.");
-    for (const auto& [n, st] : axes)
-      o += "idm_moves_total{axis=\"" + n + "\"} " + std::to_string(st->moves) + "\n";
-    family(o, "idm_bursts_total", "counter", "Bursts the daemon played on the axis.");
-    for (const auto& [n, st] : axes)
-      o += "idm_bursts_total{axis=\"" + n + "\"} " + std::to_string(st->bursts) + "\n";
-    family(o, "idm_faults_total", "counter",
-           "Times idm-web saw the axis enter FAULT (since idm-web started).");
-    for (const AxisView& a : s.axes)
-      if (a.status)
-        o += "idm_faults_total{axis=\"" + label(a.status->name) + "\"} " +
-             std::to_string(a.faults_seen) + "\n";
-    bool any_bits = false;
-    for (const AxisView& a : s.axes) any_bits = any_bits || (a.status && a.operation);
-    if (any_bits) {
-      family(o, "idm_status_bits", "gauge", "STATus:OPERation? of the axis.");
-      for (const AxisView& a : s.axes)
-        if (a.status && a.operation)
-          o += "idm_status_bits{axis=\"" + label(a.status->name) + "\"} " +
-               std::to_string(*a.operation) + "\n";
-    }
-    if (s.sweep) {
-      family(o, "idm_sweep_running", "gauge", "1 while a sweep runs.");
-      o += std::string("idm_sweep_running ") + (s.sweep->state == "RUNNING" ? "1" : "0") + "\n";
-      family(o, "idm_sweep_trials", "gauge", "Trials of the last or running sweep.");
-      o += "idm_sweep_trials{kind=\"planned\"} " + std::to_string(s.sweep->planned) + "\n";
-      o += "idm_sweep_trials{kind=\"written\"} " + std::to_string(s.sweep->written) + "\n";
-      o += "idm_sweep_trials{kind=\"failed\"} " + std::to_string(s.sweep->failed) + "\n";
-    }
-  }
-  if (s.loop) {
-    const client::LoopStats& l = *s.loop;
-    family(o, "idm_loop_wakeups_total", "counter", "Wake-ups of the daemon's real-time loop.");
-    o += "idm_loop_wakeups_total " + std::to_string(l.wakeups) + "\n";
-    family(o, "idm_loop_deadline_misses_total", "counter", "Deadlines the real-time loop missed.");
-    o += "idm_loop_deadline_misses_total " + std::to_string(l.misses) + "\n";
-    family(o, "idm_loop_period_seconds", "gauge", "Period of the real-time loop.");
-    o += "idm_loop_period_seconds " + prom_number(l.period_s) + "\n";
-    family(o, "idm_loop_latency_seconds", "histogram", "Wake-up latency of the real-time loop.");
-    std::uint64_t cumulative = 0;
-    for (std::size_t k = 0; k < l.hist.size(); ++k) {
-      cumulative += l.hist[k];
-      // The last bin holds everything above the others: it is +Inf's.
-      if (k + 1 < l.hist.size())
-        o += "idm_loop_latency_seconds_bucket{le=\"" +
-             prom_number(static_cast<double>(k + 1) * l.bin_width_s) + "\"} " +
-             std::to_string(cumulative) + "\n";
-    }
-    o += "idm_loop_latency_seconds_bucket{le=\"+Inf\"} " + std::to_string(cumulative) + "\n";
-    o += "idm_loop_latency_seconds_sum " + prom_number(l.avg_s * static_cast<double>(cumulative)) + "\n";
-    o += "idm_loop_latency_seconds_count " + std::to_string(cumulative) + "\n";
-  }
+  if (s.connected) append_axis_metrics(o, s);
+  if (s.loop) append_loop_metrics(o, *s.loop);
   if (s.connected && s.clients) {
-    family(o, "idm_clients_connected", "gauge",
-           "Connections open to idmd's command socket (idm-web's own and stop-only ones included).");
+    family(
+        o, "idm_clients_connected", "gauge",
+        "Connections open to idmd's command socket (idm-web's own and stop-only ones included).");
     o += "idm_clients_connected " + std::to_string(s.clients->connected) + "\n";
     family(o, "idm_clients_stop_only", "gauge",
            "Of those, in a stop-only slot (they came while idmd's client table was full).");

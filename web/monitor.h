@@ -38,7 +38,7 @@ struct Snapshot {
   bool connected = false;
   std::string error;  // why not connected, or the last poll's failure
   std::string idn;
-  double time = 0;    // seconds since the epoch, of the last poll
+  double time = 0;  // seconds since the epoch, of the last poll
   std::uint64_t polls = 0, poll_errors = 0;
   std::vector<AxisView> axes;
   std::optional<client::SweepInfo> sweep;
@@ -73,6 +73,8 @@ double now_s();
 class Monitor {
  public:
   explicit Monitor(MonitorOptions options);
+  Monitor(const Monitor&) = delete;
+  Monitor& operator=(const Monitor&) = delete;
   ~Monitor();
   void start();
   void stop();

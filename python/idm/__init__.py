@@ -8,7 +8,8 @@ is raised as :class:`ScpiError` with its code and text.
 """
 
 from .client import DEFAULT_PORT, Axis, Client, Sweep
-from ._core import AxisNotFound, SweepProgress
+from ._core import AxisNotFound
+from ._sweep import SweepProgress
 from .errors import (CommandError, DeviceFault, DeviceSpecificError, ExecutionError,
                      IdmConnectionError, IdmError, IdmTimeout, MoveError, MoveStopped,
                      ProtocolError, QueryError, ScpiError, SweepError)

@@ -7,8 +7,9 @@ import threading
 import time
 from typing import Any, List, Optional, Tuple
 
-from . import _core
-from ._core import AxisKey, Line, Plan, Session, Sleep, SweepInfo
+from . import _core, _sweep
+from ._core import AxisKey, Line, Plan, Session, Sleep
+from ._sweep import SweepInfo
 from .errors import (IdmConnectionError, IdmTimeout, ProtocolError, error_from_code,
                      parse_error_line)
 from .status import EventStatus, MoveResult, Operation, StatusByte, parse_bool, parse_number
@@ -56,7 +57,7 @@ class _Api:
     def sweep_state(self):
         """``SWEEP?``: the daemon's last or running sweep (:class:`~idm.SweepState`: state,
         axis, trials written / failed / planned, directory)."""
-        return self._run(_core.p_sweep_query())
+        return self._run(_sweep.p_sweep_query())
 
     # -- the instrument --
     def idn(self):
@@ -331,7 +332,7 @@ class Axis:
         client = self.client
 
         def plan():
-            info = yield from _core.p_sweep_start(self._s, self.key, directory, freqs, duties,
+            info = yield from _sweep.p_sweep_start(self._s, self.key, directory, freqs, duties,
                                                   trials, cycles, data_dir)
             return Sweep(client, info)
         return self._run(plan())
@@ -370,12 +371,12 @@ class Sweep:
     def progress(self):
         """:class:`~idm.SweepProgress`: done, trials recorded / total (and failed, state
         where the daemon answers ``SWEEP?``), elapsed."""
-        return self.client._run(_core.p_sweep_progress(self.info))
+        return self.client._run(_sweep.p_sweep_progress(self.info))
 
     def state(self):
         """This sweep's :class:`~idm.SweepState` (``SWEEP?``); None when the daemon does not
         answer ``SWEEP?`` or when a later sweep has replaced it there."""
-        return self.client._run(_core.p_sweep_state(self.info))
+        return self.client._run(_sweep.p_sweep_state(self.info))
 
     def done(self):
         return self.client._run(_core.p_bool(self.info.prefix + "MOVE:DONE?"))
@@ -387,7 +388,7 @@ class Sweep:
         client's STOP or ``*RST``), a trial failed, or fewer trials written than the sweep
         holds (``SWEEP?``; on a daemon without it: a ``STATus?`` ``daemon_error``, :meth:`stop`,
         or with ``data_dir`` the dataset's trial count)."""
-        return self.client._run(_core.p_sweep_wait(self.info, timeout, self.client.poll_interval))
+        return self.client._run(_sweep.p_sweep_wait(self.info, timeout, self.client.poll_interval))
 
     def stop(self):
         """Stop the sweep (its axis's STOP); ``wait()`` then raises :class:`~idm.SweepError`

@@ -9,7 +9,7 @@ import time
 import pytest
 
 import idm
-from idm._core import recorded_trials
+from idm._sweep import recorded_trials
 from conftest import (IDMD, TRAVEL, beam_lost_config, ready_timeout_config, single_axis_config,
                       stalled_config)
 

@@ -9,7 +9,7 @@ import math
 import pytest
 
 import idm
-from idm import _core
+from idm import _core, _sweep
 from idm._core import Line, Session, Sleep
 from idm.errors import error_from_code, parse_error_line
 from idm.status import AxisStatus, MoveResult, Operation, parse_number
@@ -249,12 +249,12 @@ def test_sweep_follows_sweep_query():
     sess = Session()
     daemon = sweep_daemon(['RUNNING,1,0,0,3,"/data/run"', 'RUNNING,1,1,0,3,"/data/run"',
                            'DONE,1,3,0,3,"/data/run"'])
-    info = daemon.run(_core.p_sweep_start(sess, 1, "run", 500, 0.1, 3, None, None))
+    info = daemon.run(_sweep.p_sweep_start(sess, 1, "run", 500, 0.1, 3, None, None))
     assert info.daemon_dir == "/data/run" and info.total == 3
-    progress = daemon.run(_core.p_sweep_progress(info))
+    progress = daemon.run(_sweep.p_sweep_progress(info))
     assert (progress.done, progress.recorded, progress.total, progress.failed,
             progress.state) == (False, 1, 3, 0, "RUNNING")
-    final = daemon.run(_core.p_sweep_wait(info, 10, 0))
+    final = daemon.run(_sweep.p_sweep_wait(info, 10, 0))
     assert final.done and final.recorded == 3 and final.state == "DONE"
     # the probe came before the sweep started
     assert daemon.sent.index("SWEEP?") < daemon.sent.index("AXIS1:SWEEP run,500,0.1,3")
@@ -268,9 +268,9 @@ def test_sweep_follows_sweep_query():
 ])
 def test_sweep_that_did_not_end_well_raises(end, match):
     daemon = sweep_daemon(['RUNNING,1,0,0,3,"/data/run"', end])
-    info = daemon.run(_core.p_sweep_start(Session(), 1, "run", 500, 0.1, 3, None, None))
+    info = daemon.run(_sweep.p_sweep_start(Session(), 1, "run", 500, 0.1, 3, None, None))
     with pytest.raises(idm.SweepError, match=match) as e:
-        daemon.run(_core.p_sweep_wait(info, 10, 0))
+        daemon.run(_sweep.p_sweep_wait(info, 10, 0))
     assert e.value.progress.state == end.split(",")[0]
 
 
@@ -280,9 +280,9 @@ def test_sweep_replaced_in_sweep_query_falls_back_to_the_status():
     daemon = sweep_daemon(['RUNNING,1,0,0,3,"/data/run"', 'RUNNING,1,0,0,5,"/data/other"'],
                           extra={"AXIS1:STATus?": ["state=IDLE daemon_error=none",
                                                    "state=IDLE daemon_error=sweep_failed"]})
-    info = daemon.run(_core.p_sweep_start(Session(), 1, "run", 500, 0.1, 3, None, None))
+    info = daemon.run(_sweep.p_sweep_start(Session(), 1, "run", 500, 0.1, 3, None, None))
     with pytest.raises(idm.SweepError, match="the daemon reporting: sweep failed"):
-        daemon.run(_core.p_sweep_wait(info, 10, 0))
+        daemon.run(_sweep.p_sweep_wait(info, 10, 0))
 
 
 def test_sweep_on_a_daemon_without_sweep_query():
@@ -290,13 +290,13 @@ def test_sweep_on_a_daemon_without_sweep_query():
     daemon = Scripted({"AXIS:COUNt?": -113, "*CLS": None,
                        "STATus?": "state=IDLE daemon_error=none",
                        "SWEEP run,500,0.1,3": None, "MOVE:DONE?": "1"})
-    info = daemon.run(_core.p_sweep_start(sess, 1, "run", 500, 0.1, 3, None, None))
+    info = daemon.run(_sweep.p_sweep_start(sess, 1, "run", 500, 0.1, 3, None, None))
     assert info.daemon_dir is None and info.total == 3
     assert daemon.sent == ["AXIS:COUNt?", "MOVE:RESult?", "STATus:OPERation?", "SWEEP?", "*CLS",
                            "STATus?", "SWEEP run,500,0.1,3"]
-    progress = daemon.run(_core.p_sweep_wait(info, 10, 0))
+    progress = daemon.run(_sweep.p_sweep_wait(info, 10, 0))
     assert progress.recorded is None and progress.state is None
     info.stopped = True
     with pytest.raises(idm.SweepError, match="stopped"):
-        daemon.run(_core.p_sweep_wait(info, 10, 0))
+        daemon.run(_sweep.p_sweep_wait(info, 10, 0))
     assert "SWEEP?" not in daemon.sent[7:]  # not asked again on this connection
