@@ -1,10 +1,12 @@
 // Helpers of bench/daemon_bench.sh (the daemon's side-by-side comparisons):
 //   daemon_bench loop SECONDS PERIOD_S CONFIG   the daemon's real-time loop on the simulated stage
-//                                               (moving back and forth): wake-up latency p50/p99/max
-//   daemon_bench echo                           a minimal line echo server (TCP, epoll), prints its port
-//   daemon_bench rtt IDMD_PORT ECHO_PORT CLIENTS QUERIES ROUNDS
-//                                               POS? round trips from CLIENTS threads to each server,
-//                                               same client code, interleaved rounds: p50/p99/max
+//                                               (moving back and forth): wake-up latency
+//                                               p50/p99/max
+//   daemon_bench echo                           a minimal line echo server (TCP, epoll), prints its
+//   port daemon_bench rtt IDMD_PORT ECHO_PORT CLIENTS QUERIES ROUNDS
+//                                               POS? round trips from CLIENTS threads to each
+//                                               server, same client code, interleaved rounds:
+//                                               p50/p99/max
 //   daemon_bench rss MOVES CONFIG               RSS before/after MOVES moves on the simulated stage
 //   daemon_bench loop-stalled SECONDS PERIOD_S CONFIG PID
 //                                               the loop on a Modbus device whose server (PID,
@@ -12,9 +14,9 @@
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <signal.h>
 #include <sys/epoll.h>
 #include <sys/socket.h>
-#include <signal.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -90,11 +92,14 @@ int loop_bench(double seconds, double period_s, const std::string& config, int s
   const double p99 = percentile_from_bins(s, 0.99);
   if (p99 >= 32 * s.bin_width_s)
     std::fprintf(stderr, "idmd_loop: p99 is past the histogram (>= %.0f us): a bound\n", p99 * 1e6);
-  std::printf("%s wakeups=%llu misses=%llu bin_us=%.0f min_us=%.1f avg_us=%.1f p50_us=%.0f p99_us=%.0f max_us=%.1f\n",
-              stall_pid > 0 ? "idmd_loop_stalled_modbus" : "idmd_loop",
-              static_cast<unsigned long long>(s.wakeups), static_cast<unsigned long long>(s.deadline_misses),
-              s.bin_width_s * 1e6, s.latency_min_s * 1e6, s.latency_avg_s * 1e6, percentile_from_bins(s, 0.5) * 1e6,
-              p99 * 1e6, s.latency_max_s * 1e6);
+  std::printf(
+      "%s wakeups=%llu misses=%llu bin_us=%.0f min_us=%.1f avg_us=%.1f p50_us=%.0f p99_us=%.0f "
+      "max_us=%.1f\n",
+      stall_pid > 0 ? "idmd_loop_stalled_modbus" : "idmd_loop",
+      static_cast<unsigned long long>(s.wakeups),
+      static_cast<unsigned long long>(s.deadline_misses), s.bin_width_s * 1e6,
+      s.latency_min_s * 1e6, s.latency_avg_s * 1e6, percentile_from_bins(s, 0.5) * 1e6, p99 * 1e6,
+      s.latency_max_s * 1e6);
   return 0;
 }
 
@@ -258,7 +263,8 @@ int rss_bench(int moves, const std::string& config) {
 
 int main(int argc, char** argv) {
   const std::string mode = argc > 1 ? argv[1] : "";
-  if (mode == "loop" && argc == 5) return loop_bench(std::atof(argv[2]), std::atof(argv[3]), argv[4]);
+  if (mode == "loop" && argc == 5)
+    return loop_bench(std::atof(argv[2]), std::atof(argv[3]), argv[4]);
   if (mode == "loop-stalled" && argc == 6)
     return loop_bench(std::atof(argv[2]), std::atof(argv[3]), argv[4], std::atoi(argv[5]));
   if (mode == "echo") return echo_server();
@@ -266,7 +272,9 @@ int main(int argc, char** argv) {
     return rtt_bench(std::atoi(argv[2]), std::atoi(argv[3]), std::atoi(argv[4]), std::atoi(argv[5]),
                      std::atoi(argv[6]));
   if (mode == "rss" && argc == 4) return rss_bench(std::atoi(argv[2]), argv[3]);
-  std::fprintf(stderr, "usage: daemon_bench loop S PERIOD CONFIG | echo | rtt IDMD_PORT ECHO_PORT CLIENTS N ROUNDS | "
+  std::fprintf(stderr,
+               "usage: daemon_bench loop S PERIOD CONFIG | echo | rtt IDMD_PORT ECHO_PORT CLIENTS "
+               "N ROUNDS | "
                "rss MOVES CONFIG\n");
   return 2;
 }

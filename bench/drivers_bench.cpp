@@ -1,5 +1,6 @@
 // Drivers benchmarks, each side by side with its reference in the same run:
-//   1. position-sample ingest (decode, unwrap, to metres) against a plain memcpy of the same buffer;
+//   1. position-sample ingest (decode, unwrap, to metres) against a plain memcpy of the same
+//   buffer;
 //   2. the simulated stage's real-time factor: a 100 kHz burst through the `sim` backend with the
 //      mass-damper-spring plant, wall time against the simulated time it covers.
 //   drivers_bench [--quick]
@@ -44,8 +45,10 @@ int main(int argc, char** argv) {
   std::vector<std::uint64_t> words(n), copy(n);
   const std::int64_t wrap = std::int64_t{1} << 35;
   for (std::size_t i = 0; i < n; ++i) {
-    const double counts = wrap - 5000.0 + 20000.0 * std::sin(2e-4 * static_cast<double>(i)) + (i % 7);
-    words[i] = encode_position_word(static_cast<std::int64_t>(counts), cfg.width, position_word::kValid);
+    const double counts =
+        wrap - 5000.0 + 20000.0 * std::sin(2e-4 * static_cast<double>(i)) + (i % 7);
+    words[i] =
+        encode_position_word(static_cast<std::int64_t>(counts), cfg.width, position_word::kValid);
   }
   std::vector<double> metres(n);
   std::vector<std::uint8_t> status(n);
@@ -55,25 +58,28 @@ int main(int argc, char** argv) {
     decoder.reset();
     decoder.decode(words.data(), n, metres.data(), status.data());
   });
-  const double t_copy = best_of(runs, [&] { std::memcpy(copy.data(), words.data(), n * sizeof(std::uint64_t)); });
+  const double t_copy =
+      best_of(runs, [&] { std::memcpy(copy.data(), words.data(), n * sizeof(std::uint64_t)); });
   std::size_t invalid = 0;
   for (std::uint8_t s : status) invalid += s != 0;
   std::printf("ingest: %zu 36-bit words, best of %d\n", n, runs);
   std::printf("  decode+unwrap+metres: %8.1f M words/s\n", n / t_decode / 1e6);
   std::printf("  memcpy (reference):   %8.1f M words/s\n", n / t_copy / 1e6);
-  std::printf("  ratio decode/memcpy:  %8.3f   (invalid samples: %zu, checksum %.6g)\n", t_copy / t_decode, invalid,
-              metres[n / 2] + static_cast<double>(copy[n / 3] & 0xff));
+  std::printf("  ratio decode/memcpy:  %8.3f   (invalid samples: %zu, checksum %.6g)\n",
+              t_copy / t_decode, invalid, metres[n / 2] + static_cast<double>(copy[n / 3] & 0xff));
 
   // 2. Real-time factor of the simulated stage, synthetic clock, mass-damper-spring plant.
   const double seconds = quick ? 0.05 : 1.0;
-  Device dev = make_backend("sim", YAML::Load("sim: {plant: mck}\ndaq: {sim: {stream_rate_hz: 100000}}"), "bench.yaml");
+  Device dev = make_backend(
+      "sim", YAML::Load("sim: {plant: mck}\ndaq: {sim: {stream_rate_hz: 100000}}"), "bench.yaml");
   if (!dev.configure().ok() || !dev.activate().ok()) {
     std::fprintf(stderr, "drivers_bench: sim device did not come up\n");
     return 1;
   }
   const idm::model::TriangleWave wave{200.0, 0.1, 20.35e-6, static_cast<int>(seconds * 200)};
   std::vector<double> xi;
-  idm::model::sample(wave, 1e5, 0.0, static_cast<std::size_t>(std::lround(wave.duration_s() * 1e5)) + 1, xi);
+  idm::model::sample(wave, 1e5, 0.0,
+                     static_cast<std::size_t>(std::lround(wave.duration_s() * 1e5)) + 1, xi);
   xi.back() = 0.0;
   std::vector<TimedWord> buf(1u << 16);
   std::size_t samples = 0;
@@ -88,8 +94,10 @@ int main(int argc, char** argv) {
     }
   });
   const double simulated_s = static_cast<double>(xi.size()) / 1e5;
-  std::printf("sim stage: %.3g s of a 200 Hz burst at 100 kHz (mck plant), %zu stream words\n", simulated_s, samples);
-  std::printf("  wall %.4f s, real-time factor %.1fx (simulated s per wall s)\n", t_sim, simulated_s / t_sim);
+  std::printf("sim stage: %.3g s of a 200 Hz burst at 100 kHz (mck plant), %zu stream words\n",
+              simulated_s, samples);
+  std::printf("  wall %.4f s, real-time factor %.1fx (simulated s per wall s)\n", t_sim,
+              simulated_s / t_sim);
   dev.shutdown();
   return 0;
 }

@@ -52,10 +52,12 @@ drivers::sim::SimDeviceConfig realistic_device(std::uint64_t seed) {
 // burst each way at the baseline's cell (200 Hz, duty 0.9 / 0.1, full stroke), m per cycle.
 double g_uncertainty = 0.15;
 double g_max_freq_hz = 2000;
-bool g_trace = false;  // --trace: one line per move of ours, and the ladder at the end
-double g_dwell_s = 0;         // --dwell S: ours, MOVE:DWELl
-double g_window_counts = 0;   // --window W: ours, MOVE:WINDow in counts (0: half a count)
-double uncertainty() { return g_uncertainty; }
+bool g_trace = false;        // --trace: one line per move of ours, and the ladder at the end
+double g_dwell_s = 0;        // --dwell S: ours, MOVE:DWELl
+double g_window_counts = 0;  // --window W: ours, MOVE:WINDow in counts (0: half a count)
+double uncertainty() {
+  return g_uncertainty;
+}
 
 struct StepMeasurement {
   double positive_m = 0, negative_m = 0;
@@ -100,16 +102,17 @@ RegionMapConfig map_config(const StepMeasurement& m) {
 struct MoveOutcome {
   bool within_count = false;       // by the interferometer reading
   bool within_count_true = false;  // by the simulated true position
-  bool within_count_fresh = false; // by a fresh reading 5 ms after done (what POS? after *OPC? sees)
+  bool within_count_fresh =
+      false;  // by a fresh reading 5 ms after done (what POS? after *OPC? sees)
   bool within_count_fresh_true = false;  // by the true position then
-  bool not_ok = false;             // ours: MOVE:RESult? other than OK
+  bool not_ok = false;                   // ours: MOVE:RESult? other than OK
   bool faulted = false;
   double time_s = 0;
   std::uint64_t cycles = 0;
   std::uint64_t bursts = 0;
   std::uint32_t corrections = 0;
   double overshoot_m = 0;  // furthest past the target along the move, at rest after a burst
-  double step_m = 0;       // the step size the side works with (ours: the final rung's learned step)
+  double step_m = 0;  // the step size the side works with (ours: the final rung's learned step)
   // A chunk that started short of the target and ended past it by more than one of its own steps:
   // the planner committed more than one cycle past the target. Its step: the larger of its
   // displacement / its cycles and the steady step it was planned with (a burst whose first cycle
@@ -156,7 +159,8 @@ MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m, Sta
     if (chunk_cycles == 0) return;
     const double moved = x_end - chunk_x0;
     const double dir = moved >= 0 ? 1.0 : -1.0;
-    const double mean_step = std::max(count_m, std::fabs(moved) / static_cast<double>(chunk_cycles));
+    const double mean_step =
+        std::max(count_m, std::fabs(moved) / static_cast<double>(chunk_cycles));
     const double step = std::max(mean_step, chunk_planned_step_m);
     const double pass = dir * (x_end - target_m);
     if (dir * (chunk_x0 - target_m) < 0 && pass > 0) {
@@ -165,8 +169,10 @@ MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m, Sta
       if (pass > step * (1 + 1e-9)) {
         r.overshot_by_more_than_step = true;
         if (g_trace)
-          std::printf("  chunk of %llu cycles moved %.1f nm and passed the target by %.1f nm (%.2f steps)\n",
-                      static_cast<unsigned long long>(chunk_cycles), moved * 1e9, pass * 1e9, pass / step);
+          std::printf(
+              "  chunk of %llu cycles moved %.1f nm and passed the target by %.1f nm (%.2f "
+              "steps)\n",
+              static_cast<unsigned long long>(chunk_cycles), moved * 1e9, pass * 1e9, pass / step);
       }
     }
   };
@@ -206,12 +212,14 @@ MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m, Sta
 void finish(MoveOutcome& r, daemon::SimAxis& rig, double target_m) {
   const Positioner& p = *rig.positioner;
   const drivers::sim::SimBackend& sim = *rig.sim;
-  r.within_count = p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
+  r.within_count =
+      p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
   r.within_count_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
   r.not_ok = p.status().kind == MotionKind::Move && p.status().result != control::MoveResult::Ok;
   // A moment later, as a client's POS? after *OPC?: the latest single reading at rest.
   rig.run_for(5e-3);
-  r.within_count_fresh = p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
+  r.within_count_fresh =
+      p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
   r.within_count_fresh_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
 }
 
@@ -239,10 +247,13 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
     if (!r.faulted) r.time_s = p.status().last_move_time_s;
     finish(r, rig, target);
     if (g_trace)
-      std::printf("move %3zu  %+11.4g um  %-8s %-12s err %+7.2f counts  t %.4f s  chunks %3llu  corr %2u  over %.1f nm\n",
-                  s.moves.size(), (target - start) * 1e6, motion_state_name(p.status().state),
-                  motion_fault_name(p.status().fault), (p.status().position_m - target) / p.count_m(),
-                  r.time_s, static_cast<unsigned long long>(p.move_chunks()), p.status().corrections, r.overshoot_m * 1e9);
+      std::printf(
+          "move %3zu  %+11.4g um  %-8s %-12s err %+7.2f counts  t %.4f s  chunks %3llu  corr %2u  "
+          "over %.1f nm\n",
+          s.moves.size(), (target - start) * 1e6, motion_state_name(p.status().state),
+          motion_fault_name(p.status().fault), (p.status().position_m - target) / p.count_m(),
+          r.time_s, static_cast<unsigned long long>(p.move_chunks()), p.status().corrections,
+          r.overshoot_m * 1e9);
     s.moves.push_back(r);
   }
   s.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
@@ -251,10 +262,12 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
       for (std::size_t i = 0; i < p.rung_count(dir); ++i) {
         const Positioner::RungInfo r = p.rung(dir, i);
         const RegionCell& c = map.cells()[r.cell];
-        std::printf("rung %+d %2zu  %6.0f Hz d %.3f S %6.3f um  model %8.2f nm  learned %8.2f nm + %8.2f  %s%s chunks %llu\n",
-                    dir, i, c.freq_hz, c.duty, c.stroke_m * 1e6, std::fabs(c.step_m) * 1e9,
-                    r.estimate.step_m * 1e9, r.estimate.offset_m * 1e9, r.dead ? "DEAD " : "",
-                    r.proven ? "proven" : "", static_cast<unsigned long long>(r.chunks));
+        std::printf(
+            "rung %+d %2zu  %6.0f Hz d %.3f S %6.3f um  model %8.2f nm  learned %8.2f nm + %8.2f  "
+            "%s%s chunks %llu\n",
+            dir, i, c.freq_hz, c.duty, c.stroke_m * 1e6, std::fabs(c.step_m) * 1e9,
+            r.estimate.step_m * 1e9, r.estimate.offset_m * 1e9, r.dead ? "DEAD " : "",
+            r.proven ? "proven" : "", static_cast<unsigned long long>(r.chunks));
       }
     }
   }
@@ -275,7 +288,8 @@ std::unique_ptr<daemon::SimAxis> peer_rig(std::uint64_t seed, const RegionMap& m
 
 // The step per cycle of a 200-cycle burst `dir` (+1 / -1) of the cell, as an operator measures it
 // once (the motor record's MRES).
-double measured_step_m(daemon::SimAxis& rig, int dir, double freq_hz, double duty, double stroke_m) {
+double measured_step_m(daemon::SimAxis& rig, int dir, double freq_hz, double duty,
+                       double stroke_m) {
   Positioner& p = *rig.positioner;
   const double before = p.status().position_m;
   p.step_open_loop(dir * 200, duty, freq_hz, stroke_m);
@@ -290,7 +304,8 @@ void play_part(daemon::SimAxis& rig, double start_m, double target_m, MoveOutcom
   const MoveOutcome part = run_move(rig, start_m, target_m, start);
   r.overshoot_m = std::max(r.overshoot_m, part.overshoot_m);
   r.overshot_by_more_than_step = r.overshot_by_more_than_step || part.overshot_by_more_than_step;
-  r.overshot_by_more_than_mean_step = r.overshot_by_more_than_mean_step || part.overshot_by_more_than_mean_step;
+  r.overshot_by_more_than_mean_step =
+      r.overshot_by_more_than_mean_step || part.overshot_by_more_than_mean_step;
   r.worst_pass_in_steps = std::max(r.worst_pass_in_steps, part.worst_pass_in_steps);
   r.left_soft_limits = r.left_soft_limits || part.left_soft_limits;
   if (part.faulted) {
@@ -334,7 +349,8 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
   Positioner& p = *rig->positioner;
   const double freq = 200, duty_positive = 0.9, stroke = 20.35e-6;
   double step_m[2] = {0, 0};  // [0] negative, [1] positive, measured
-  for (int dir : {1, -1}) step_m[dir > 0 ? 1 : 0] = measured_step_m(*rig, dir, freq, duty_positive, stroke);
+  for (int dir : {1, -1})
+    step_m[dir > 0 ? 1 : 0] = measured_step_m(*rig, dir, freq, duty_positive, stroke);
   const auto approach = [&](double target, double start, MoveOutcome& r) {
     for (int attempt = 0; attempt <= 10; ++attempt) {
       const double error = target - p.status().position_m;
@@ -353,7 +369,8 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
     }
   };
   const Summary s = run_peer(*rig, targets, std::max(step_m[0], step_m[1]), approach);
-  std::printf("baseline steps measured: +%.4g um, -%.4g um per cycle\n", step_m[1] * 1e6, step_m[0] * 1e6);
+  std::printf("baseline steps measured: +%.4g um, -%.4g um per cycle\n", step_m[1] * 1e6,
+              step_m[0] * 1e6);
   return s;
 }
 
@@ -383,17 +400,21 @@ Summary run_vendor(const std::vector<double>& targets, std::uint64_t seed, const
       double stroke = full;
       std::int64_t n = 1;
       if (std::fabs(error) > 2 * step_full[d]) {
-        n = static_cast<std::int64_t>(std::min(2000.0, std::floor(std::fabs(error) / step_full[d]) - 1));
+        n = static_cast<std::int64_t>(
+            std::min(2000.0, std::floor(std::fabs(error) / step_full[d]) - 1));
       } else {
         stroke = std::clamp(s_cut + std::fabs(error) / std::max(slope, 1e-12), min_stroke, full);
         ++fine;
       }
-      play_part(*rig, start, target, r, [&] { p.step_open_loop(dir * n, duty_positive, freq, stroke); });
+      play_part(*rig, start, target, r,
+                [&] { p.step_open_loop(dir * n, duty_positive, freq, stroke); });
     }
   };
   const Summary s = run_peer(*rig, targets, std::max(step_full[0], step_full[1]), approach);
-  std::printf("vendor steps measured: full stroke +%.4g / -%.4g um, half stroke +%.4g / -%.4g um per cycle\n",
-              step_full[1] * 1e6, step_full[0] * 1e6, step_half[1] * 1e6, step_half[0] * 1e6);
+  std::printf(
+      "vendor steps measured: full stroke +%.4g / -%.4g um, half stroke +%.4g / -%.4g um per "
+      "cycle\n",
+      step_full[1] * 1e6, step_full[0] * 1e6, step_half[1] * 1e6, step_half[0] * 1e6);
   return s;
 }
 
@@ -413,7 +434,8 @@ double median_time_to_target_s(const Summary& s) {
 
 void print_row(const char* name, const Summary& s) {
   std::vector<double> times, cycles, corrections;
-  std::size_t within = 0, within_true = 0, faults = 0, over_step = 0, over_mean_step = 0, outside = 0;
+  std::size_t within = 0, within_true = 0, faults = 0, over_step = 0, over_mean_step = 0,
+              outside = 0;
   std::size_t fresh = 0, fresh_true = 0, not_ok = 0;
   double max_overshoot = 0, worst_pass = 0;
   for (const MoveOutcome& m : s.moves) {
@@ -435,15 +457,21 @@ void print_row(const char* name, const Summary& s) {
   const double n = static_cast<double>(s.moves.size());
   const double ttt = median_time_to_target_s(s);
   char ttt_text[32];
-  if (std::isfinite(ttt)) std::snprintf(ttt_text, sizeof ttt_text, "%.4f", ttt);
-  else std::snprintf(ttt_text, sizeof ttt_text, "never");
-  std::printf("%-9s %6.1f %% %6.1f %% %8s %7.3f %7.3f %8.0f %8.0f %6.1f %5zu %9.1f %5zu %5zu %6.2f %5zu %7.2f\n", name,
-              100.0 * within / n, 100.0 * within_true / n, ttt_text, percentile(times, 0.5),
-              percentile(times, 0.95), percentile(cycles, 0.5), percentile(cycles, 0.95),
-              percentile(corrections, 0.5), faults, max_overshoot * 1e9, over_step, over_mean_step, worst_pass,
-              outside, s.wall_s);
-  std::printf("%-9s fresh reading 5 ms after done within one count %.1f %%, true position then %.1f %%; "
-              "results other than OK %zu\n", name, 100.0 * fresh / n, 100.0 * fresh_true / n, not_ok);
+  if (std::isfinite(ttt))
+    std::snprintf(ttt_text, sizeof ttt_text, "%.4f", ttt);
+  else
+    std::snprintf(ttt_text, sizeof ttt_text, "never");
+  std::printf(
+      "%-9s %6.1f %% %6.1f %% %8s %7.3f %7.3f %8.0f %8.0f %6.1f %5zu %9.1f %5zu %5zu %6.2f %5zu "
+      "%7.2f\n",
+      name, 100.0 * within / n, 100.0 * within_true / n, ttt_text, percentile(times, 0.5),
+      percentile(times, 0.95), percentile(cycles, 0.5), percentile(cycles, 0.95),
+      percentile(corrections, 0.5), faults, max_overshoot * 1e9, over_step, over_mean_step,
+      worst_pass, outside, s.wall_s);
+  std::printf(
+      "%-9s fresh reading 5 ms after done within one count %.1f %%, true position then %.1f %%; "
+      "results other than OK %zu\n",
+      name, 100.0 * fresh / n, 100.0 * fresh_true / n, not_ok);
 }
 
 // The settling study: the same moves with in-position windows of 1, 2, 5 and 10 counts (dwell
@@ -453,8 +481,10 @@ void settling_study(const std::vector<double>& targets, std::uint64_t seed, cons
                     const std::string& svg_path) {
   const double windows[] = {1, 2, 5, 10};
   std::vector<std::vector<double>> times;
-  std::printf("settling study: %zu moves, dwell %g s; time to done [s]\n", targets.size(), g_dwell_s);
-  std::printf("%-8s %8s %8s %8s %8s %8s %8s %6s\n", "window", "p10", "p50", "p90", "p95", "p99", "max", "OK");
+  std::printf("settling study: %zu moves, dwell %g s; time to done [s]\n", targets.size(),
+              g_dwell_s);
+  std::printf("%-8s %8s %8s %8s %8s %8s %8s %6s\n", "window", "p10", "p50", "p90", "p95", "p99",
+              "max", "OK");
   for (double w : windows) {
     g_window_counts = w;
     Calibration cal(map.config().stage);
@@ -466,8 +496,9 @@ void settling_study(const std::vector<double>& targets, std::uint64_t seed, cons
       t.push_back(m.time_s);
       ok += !m.not_ok && !m.faulted;
     }
-    std::printf("%5.0f ct %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %5.1f%%\n", w, percentile(t, 0.1), percentile(t, 0.5),
-                percentile(t, 0.9), percentile(t, 0.95), percentile(t, 0.99), percentile(t, 1.0),
+    std::printf("%5.0f ct %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %5.1f%%\n", w, percentile(t, 0.1),
+                percentile(t, 0.5), percentile(t, 0.9), percentile(t, 0.95), percentile(t, 0.99),
+                percentile(t, 1.0),
                 100.0 * static_cast<double>(ok) / static_cast<double>(t.size()));
     std::sort(t.begin(), t.end());
     times.push_back(t);
@@ -481,31 +512,46 @@ void settling_study(const std::vector<double>& targets, std::uint64_t seed, cons
   }
   const double W = 640, H = 400, L = 70, R = 20, T = 30, B = 50;
   const double lo = 1e-3, hi = 10;  // s, log axis
-  auto X = [&](double t) { return L + (W - L - R) * (std::log10(std::clamp(t, lo, hi)) - std::log10(lo)) / (std::log10(hi) - std::log10(lo)); };
+  auto X = [&](double t) {
+    return L + (W - L - R) * (std::log10(std::clamp(t, lo, hi)) - std::log10(lo)) /
+                   (std::log10(hi) - std::log10(lo));
+  };
   auto Y = [&](double q) { return H - B - (H - T - B) * q; };
-  std::fprintf(f, "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%g\" height=\"%g\" font-family=\"sans-serif\" font-size=\"12\">\n", W, H);
+  std::fprintf(f,
+               "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%g\" height=\"%g\" "
+               "font-family=\"sans-serif\" font-size=\"12\">\n",
+               W, H);
   std::fprintf(f, "<rect width=\"100%%\" height=\"100%%\" fill=\"white\"/>\n");
   for (double t : {1e-3, 1e-2, 1e-1, 1.0, 10.0}) {
-    std::fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"#ddd\"/>\n", X(t), Y(0), X(t), Y(1));
-    std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"middle\">%g</text>\n", X(t), Y(0) + 18, t);
+    std::fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"#ddd\"/>\n",
+                 X(t), Y(0), X(t), Y(1));
+    std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"middle\">%g</text>\n", X(t),
+                 Y(0) + 18, t);
   }
   for (int q = 0; q <= 100; q += 25) {
-    std::fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"#ddd\"/>\n", X(lo), Y(q / 100.0), X(hi), Y(q / 100.0));
-    std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"end\">%d %%</text>\n", L - 6, Y(q / 100.0) + 4, q);
+    std::fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"#ddd\"/>\n",
+                 X(lo), Y(q / 100.0), X(hi), Y(q / 100.0));
+    std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"end\">%d %%</text>\n", L - 6,
+                 Y(q / 100.0) + 4, q);
   }
-  std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"middle\">time to done [s]</text>\n", (L + W - R) / 2, H - 12);
-  std::fprintf(f, "<text x=\"16\" y=\"%.1f\" transform=\"rotate(-90 16 %.1f)\" text-anchor=\"middle\">moves done</text>\n", (T + H - B) / 2, (T + H - B) / 2);
+  std::fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" text-anchor=\"middle\">time to done [s]</text>\n",
+               (L + W - R) / 2, H - 12);
+  std::fprintf(f,
+               "<text x=\"16\" y=\"%.1f\" transform=\"rotate(-90 16 %.1f)\" "
+               "text-anchor=\"middle\">moves done</text>\n",
+               (T + H - B) / 2, (T + H - B) / 2);
   const char* colors[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728"};
   for (std::size_t k = 0; k < times.size(); ++k) {
-    std::fprintf(f, "<polyline fill=\"none\" stroke=\"%s\" stroke-width=\"2\" points=\"", colors[k]);
+    std::fprintf(f, "<polyline fill=\"none\" stroke=\"%s\" stroke-width=\"2\" points=\"",
+                 colors[k]);
     const std::vector<double>& t = times[k];
     for (std::size_t i = 0; i < t.size(); ++i) {
       const double q0 = static_cast<double>(i) / static_cast<double>(t.size());
       const double q1 = static_cast<double>(i + 1) / static_cast<double>(t.size());
       std::fprintf(f, "%.1f,%.1f %.1f,%.1f ", X(t[i]), Y(q0), X(t[i]), Y(q1));
     }
-    std::fprintf(f, "\"/>\n<text x=\"%.1f\" y=\"%.1f\" fill=\"%s\">window %g counts</text>\n", L + 10,
-                 T + 16 * static_cast<double>(k + 1), colors[k], windows[k]);
+    std::fprintf(f, "\"/>\n<text x=\"%.1f\" y=\"%.1f\" fill=\"%s\">window %g counts</text>\n",
+                 L + 10, T + 16 * static_cast<double>(k + 1), colors[k], windows[k]);
   }
   std::fprintf(f, "</svg>\n");
   std::fclose(f);
@@ -520,17 +566,28 @@ int main(int argc, char** argv) {
   std::string settling_svg;  // --settling FILE.svg: the settling study instead of the comparison
   std::uint64_t seed = 1;
   for (int i = 1; i < argc; ++i) {
-    if (std::strcmp(argv[i], "--quick") == 0) quick = true;
-    else if (std::strcmp(argv[i], "--moves") == 0 && i + 1 < argc) moves = std::atoi(argv[++i]);
-    else if (std::strcmp(argv[i], "--max-freq") == 0 && i + 1 < argc) g_max_freq_hz = std::atof(argv[++i]);
-    else if (std::strcmp(argv[i], "--uncertainty") == 0 && i + 1 < argc) g_uncertainty = std::atof(argv[++i]);
-    else if (std::strcmp(argv[i], "--trace") == 0) g_trace = true;
-    else if (std::strcmp(argv[i], "--dwell") == 0 && i + 1 < argc) g_dwell_s = std::atof(argv[++i]);
-    else if (std::strcmp(argv[i], "--window") == 0 && i + 1 < argc) g_window_counts = std::atof(argv[++i]);
-    else if (std::strcmp(argv[i], "--settling") == 0 && i + 1 < argc) settling_svg = argv[++i];
-    else if (std::strcmp(argv[i], "--seed") == 0 && i + 1 < argc) seed = std::strtoull(argv[++i], nullptr, 10);
+    if (std::strcmp(argv[i], "--quick") == 0)
+      quick = true;
+    else if (std::strcmp(argv[i], "--moves") == 0 && i + 1 < argc)
+      moves = std::atoi(argv[++i]);
+    else if (std::strcmp(argv[i], "--max-freq") == 0 && i + 1 < argc)
+      g_max_freq_hz = std::atof(argv[++i]);
+    else if (std::strcmp(argv[i], "--uncertainty") == 0 && i + 1 < argc)
+      g_uncertainty = std::atof(argv[++i]);
+    else if (std::strcmp(argv[i], "--trace") == 0)
+      g_trace = true;
+    else if (std::strcmp(argv[i], "--dwell") == 0 && i + 1 < argc)
+      g_dwell_s = std::atof(argv[++i]);
+    else if (std::strcmp(argv[i], "--window") == 0 && i + 1 < argc)
+      g_window_counts = std::atof(argv[++i]);
+    else if (std::strcmp(argv[i], "--settling") == 0 && i + 1 < argc)
+      settling_svg = argv[++i];
+    else if (std::strcmp(argv[i], "--seed") == 0 && i + 1 < argc)
+      seed = std::strtoull(argv[++i], nullptr, 10);
     else {
-      std::fprintf(stderr, "usage: positioning_bench [--quick] [--moves N] [--seed S] [--uncertainty U] [--max-freq HZ] [--trace]\n");
+      std::fprintf(stderr,
+                   "usage: positioning_bench [--quick] [--moves N] [--seed S] [--uncertainty U] "
+                   "[--max-freq HZ] [--trace]\n");
       return 2;
     }
   }
@@ -553,24 +610,32 @@ int main(int argc, char** argv) {
     settling_study(targets, seed, map, settling_svg);
     return 0;
   }
-  std::printf("measured at 200 Hz / 0.9, 0.1 / 20.35 um: +%.4g um, -%.4g um per cycle -> alpha %.4f\n",
-              measured.positive_m * 1e6, measured.negative_m * 1e6, map.config().stage.step_correction);
+  std::printf(
+      "measured at 200 Hz / 0.9, 0.1 / 20.35 um: +%.4g um, -%.4g um per cycle -> alpha %.4f\n",
+      measured.positive_m * 1e6, measured.negative_m * 1e6, map.config().stage.step_correction);
   Calibration cal(map.config().stage);
   double final_step_bound = 0;
   const Summary ours = run_ours(targets, seed, map, cal, final_step_bound);
   const Summary base = run_baseline(targets, seed, map);
   const Summary vendor = run_vendor(targets, seed, map);
-  std::printf("positioning: %d seeded moves (seed %llu), 10 nm .. 5 mm log-uniform, both directions\n", moves,
-              static_cast<unsigned long long>(seed));
-  std::printf("plant: mck (K 5.7e6, C 230) + amplifier 3 kHz + stribeck 1.15 + friction_spread 0.05; "
-              "lambda/64, 2 nm rms\n");
-  std::printf("one count %.4g nm; '>step': moves with a chunk that started short of the target and ended past it "
-              "by more than one of its own steps (the larger of displacement / cycles and the steady step it was "
-              "planned with, at least one count); '>d/n': the same with displacement / cycles alone; 'pass/st': "
-              "the largest such pass in steps\n", 9.89048e-9 * 1e9);
-  std::printf("%-9s %8s %8s %8s %7s %7s %8s %8s %6s %5s %9s %5s %5s %6s %5s %7s\n", "", "within1", "true<=1",
-              "ttt50[s]", "t50[s]", "t95[s]", "cyc50", "cyc95", "corr50", "fault", "maxover", ">step", ">d/n",
-              "pass/st", "soft", "wall[s]");
+  std::printf(
+      "positioning: %d seeded moves (seed %llu), 10 nm .. 5 mm log-uniform, both directions\n",
+      moves, static_cast<unsigned long long>(seed));
+  std::printf(
+      "plant: mck (K 5.7e6, C 230) + amplifier 3 kHz + stribeck 1.15 + friction_spread 0.05; "
+      "lambda/64, 2 nm rms\n");
+  std::printf(
+      "one count %.4g nm; '>step': moves with a chunk that started short of the target and ended "
+      "past it "
+      "by more than one of its own steps (the larger of displacement / cycles and the steady step "
+      "it was "
+      "planned with, at least one count); '>d/n': the same with displacement / cycles alone; "
+      "'pass/st': "
+      "the largest such pass in steps\n",
+      9.89048e-9 * 1e9);
+  std::printf("%-9s %8s %8s %8s %7s %7s %8s %8s %6s %5s %9s %5s %5s %6s %5s %7s\n", "", "within1",
+              "true<=1", "ttt50[s]", "t50[s]", "t95[s]", "cyc50", "cyc95", "corr50", "fault",
+              "maxover", ">step", ">d/n", "pass/st", "soft", "wall[s]");
   print_row("ours", ours);
   print_row("baseline", base);
   print_row("vendor", vendor);
@@ -581,7 +646,8 @@ int main(int argc, char** argv) {
     int by_fault[6] = {};
     for (const MoveOutcome& m : ours.moves) ++by_fault[static_cast<int>(m.fault)];
     std::printf("ours: faults by kind:");
-    for (int f = 1; f < 6; ++f) std::printf(" %s %d", motion_fault_name(static_cast<MotionFault>(f)), by_fault[f]);
+    for (int f = 1; f < 6; ++f)
+      std::printf(" %s %d", motion_fault_name(static_cast<MotionFault>(f)), by_fault[f]);
     std::printf("\n");
   }
   // The issue's ratio is of the median time to target; the median time to the end of the move
@@ -590,8 +656,9 @@ int main(int argc, char** argv) {
   if (std::isfinite(ttt_base))
     std::printf("median time-to-target ratio ours/baseline: %.3f\n", ttt_ours / ttt_base);
   else
-    std::printf("median time-to-target ratio ours/baseline: 0 (the baseline's median move never arrives "
-                "within one count)\n");
+    std::printf(
+        "median time-to-target ratio ours/baseline: 0 (the baseline's median move never arrives "
+        "within one count)\n");
   std::printf("median time-to-done ratio ours/baseline: %.3f (done = at rest, arrived or not)\n",
               percentile(t_ours, 0.5) / percentile(t_base, 0.5));
   {
@@ -608,16 +675,21 @@ int main(int argc, char** argv) {
       }
     }
     const double n = static_cast<double>(ours.moves.size());
-    std::printf("vs vendor-style loop, over the %zu moves both arrived at: time to target median %.4f / %.4f s "
-                "(ratio %.3f), p95 %.4f / %.4f s (ratio %.3f); arriving (fresh reading) %.1f %% / %.1f %%\n",
-                a.size(), percentile(a, 0.5), percentile(b, 0.5), percentile(a, 0.5) / percentile(b, 0.5),
-                percentile(a, 0.95), percentile(b, 0.95), percentile(a, 0.95) / percentile(b, 0.95),
-                100.0 * arrived_ours / n, 100.0 * arrived_vendor / n);
+    std::printf(
+        "vs vendor-style loop, over the %zu moves both arrived at: time to target median %.4f / "
+        "%.4f s "
+        "(ratio %.3f), p95 %.4f / %.4f s (ratio %.3f); arriving (fresh reading) %.1f %% / %.1f "
+        "%%\n",
+        a.size(), percentile(a, 0.5), percentile(b, 0.5), percentile(a, 0.5) / percentile(b, 0.5),
+        percentile(a, 0.95), percentile(b, 0.95), percentile(a, 0.95) / percentile(b, 0.95),
+        100.0 * arrived_ours / n, 100.0 * arrived_vendor / n);
   }
   const CalibrationState cs = cal.state();
-  std::printf("calibration after the run: %llu updates; one-step +: alpha %.4f mu %.4f; -: alpha %.4f mu %.4f\n",
-              static_cast<unsigned long long>(cs.total_updates), cs.estimates[1][1].alpha,
-              cs.estimates[1][1].mu(), cs.estimates[1][0].alpha, cs.estimates[1][0].mu());
+  std::printf(
+      "calibration after the run: %llu updates; one-step +: alpha %.4f mu %.4f; -: alpha %.4f mu "
+      "%.4f\n",
+      static_cast<unsigned long long>(cs.total_updates), cs.estimates[1][1].alpha,
+      cs.estimates[1][1].mu(), cs.estimates[1][0].alpha, cs.estimates[1][0].mu());
   // Corrections in the first and second half of the session (calibration at work).
   std::uint64_t first = 0, second = 0;
   for (std::size_t i = 0; i < ours.moves.size(); ++i)

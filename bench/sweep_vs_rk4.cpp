@@ -1,6 +1,6 @@
-// The paper's sweep on the mass-damper-spring plant: our exact integrator side by side with the same
-// plant integrated by Boost.Odeint's classic fixed-step RK4 at the largest step that reaches the
-// same accuracy (max position error <= 1 nm against a converged reference), in one run.
+// The paper's sweep on the mass-damper-spring plant: our exact integrator side by side with the
+// same plant integrated by Boost.Odeint's classic fixed-step RK4 at the largest step that reaches
+// the same accuracy (max position error <= 1 nm against a converged reference), in one run.
 //
 //   sweep_vs_rk4 [--quick]
 //
@@ -8,13 +8,12 @@
 // usual fixed-step stick-slip handling: a slider whose velocity changes sign in a step is stopped
 // and held while the spring force stays below the static limit.
 #include <algorithm>
+#include <boost/numeric/odeint.hpp>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <vector>
-
-#include <boost/numeric/odeint.hpp>
 
 #include "model/simulation.h"
 #include "model/waveform.h"
@@ -57,7 +56,8 @@ class Rk4Plant {
   }
   // Stick-slip switching after each fixed step.
   void after_step(State& y, double t) {
-    const double spring = s_.damping_n_s_m * (y[3] - w_.rate_m_s(t)) + s_.stiffness_n_m * (y[2] - w_.xi_m(t));
+    const double spring =
+        s_.damping_n_s_m * (y[3] - w_.rate_m_s(t)) + s_.stiffness_n_m * (y[2] - w_.xi_m(t));
     if (stuck_) {
       if (std::fabs(spring) > limit_) {
         stuck_ = false;
@@ -104,7 +104,8 @@ std::vector<double> rk4_trial(const StageParams& s, const TriangleWave& w, doubl
 
 double max_error(const std::vector<double>& a, const std::vector<double>& b) {
   double e = 0;
-  for (std::size_t i = 0; i < std::min(a.size(), b.size()); ++i) e = std::max(e, std::fabs(a[i] - b[i]));
+  for (std::size_t i = 0; i < std::min(a.size(), b.size()); ++i)
+    e = std::max(e, std::fabs(a[i] - b[i]));
   return e;
 }
 
@@ -136,7 +137,7 @@ int main(int argc, char** argv) {
   // to ~1e-11 m: tests/model); the largest RK4 step within 1 nm of it on probe cells.
   const std::vector<Cell> probes = quick ? std::vector<Cell>{{600, 0.3}}
                                          : std::vector<Cell>{{100, 0.05}, {200, 0.25}, {300, 0.45},
-                                                             {400, 0.1}, {600, 0.35}, {800, 0.5}};
+                                                             {400, 0.1},  {600, 0.35}, {800, 0.5}};
   SimConfig fine = mck;
   fine.internal_rate_hz = 1e6;
   std::printf("accuracy: max |x - reference| over the burst (m)\n%-16s", "integrator");
@@ -180,7 +181,10 @@ int main(int argc, char** argv) {
     double worst = 0;
     std::printf("RK4 %9.3g s ", h);
     for (std::size_t i = 0; i < probes.size(); ++i) {
-      const double e = max_error(rk4_trial(stage, TriangleWave{probes[i].freq_hz, probes[i].duty, stage.stroke_m, cycles}, h), reference[i]);
+      const double e = max_error(
+          rk4_trial(stage, TriangleWave{probes[i].freq_hz, probes[i].duty, stage.stroke_m, cycles},
+                    h),
+          reference[i]);
       worst = std::max(worst, e);
       std::printf(" %11.3g", e);
     }
@@ -195,8 +199,9 @@ int main(int argc, char** argv) {
     }
   }
   if (rk4_step == 0) {
-    std::printf("RK4 did not reach 1 nm down to %.3g s; timed at its most accurate step %.3g s (%.3g m)\n",
-                1e-5 / (1 << finest), rk4_best_step, rk4_best_error);
+    std::printf(
+        "RK4 did not reach 1 nm down to %.3g s; timed at its most accurate step %.3g s (%.3g m)\n",
+        1e-5 / (1 << finest), rk4_best_step, rk4_best_error);
     rk4_step = rk4_best_step;
   }
 
@@ -215,13 +220,16 @@ int main(int argc, char** argv) {
   const double exact_s = seconds_since(t0);
   const auto t1 = std::chrono::steady_clock::now();
   for (double f : freqs)
-    for (double d : duties) checksum += rk4_trial(stage, TriangleWave{f, d, stage.stroke_m, cycles}, rk4_step).back();
+    for (double d : duties)
+      checksum += rk4_trial(stage, TriangleWave{f, d, stage.stroke_m, cycles}, rk4_step).back();
   const double rk4_s = seconds_since(t1) * trials;
 
   std::printf("\nsweep: %zu freqs x %zu duties x %d trials x %d cycles, %ld samples at 100 kHz\n",
               freqs.size(), duties.size(), trials, cycles, samples);
-  std::printf("exact integrator:            %8.3f s  (max error vs reference %.3g m)\n", exact_s, exact_error);
-  std::printf("odeint RK4 at %.3g s step: %8.3f s  (1 trial per cell timed, x%d)\n", rk4_step, rk4_s, trials);
+  std::printf("exact integrator:            %8.3f s  (max error vs reference %.3g m)\n", exact_s,
+              exact_error);
+  std::printf("odeint RK4 at %.3g s step: %8.3f s  (1 trial per cell timed, x%d)\n", rk4_step,
+              rk4_s, trials);
   std::printf("speed-up (RK4 / exact):      %8.1fx\n", rk4_s / exact_s);
   std::printf("checksum %.6g\n", checksum);
   return exact_error <= 1e-9 ? 0 : 1;

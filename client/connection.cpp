@@ -101,8 +101,8 @@ Connection::Connection(const Address& address, double timeout_s) : timeout_s_(ti
   hints.ai_socktype = SOCK_STREAM;
   hints.ai_flags = AI_NUMERICSERV;
   addrinfo* list = nullptr;
-  if (const int rc = getaddrinfo(address.host.c_str(), std::to_string(address.port).c_str(),
-                                 &hints, &list);
+  if (const int rc =
+          getaddrinfo(address.host.c_str(), std::to_string(address.port).c_str(), &hints, &list);
       rc != 0)
     fail_connect(gai_strerror(rc));
   std::string why = "no address";

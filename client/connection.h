@@ -27,7 +27,8 @@ struct AddressError : std::invalid_argument {
 
 // "host:port", "[v6 address]:port", or "host" alone (port `default_port`). The port 1..65535
 // (0 too when `allow_port_zero`: a listener's "any free port").
-Address parse_host_port(std::string_view text, int default_port = 5025, bool allow_port_zero = false);
+Address parse_host_port(std::string_view text, int default_port = 5025,
+                        bool allow_port_zero = false);
 
 // From the environment: IDMD_SOCKET=path, else IDMD_ADDRESS=host:port, else 127.0.0.1:5025.
 // Both set is an error (AddressError), as is an address that does not parse.

@@ -11,8 +11,7 @@ namespace {
 
 std::string shown(std::string_view text) {
   std::string out;
-  for (const char c : text.substr(0, 80))
-    out += (c >= 0x20 && c < 0x7f) ? c : '?';
+  for (const char c : text.substr(0, 80)) out += (c >= 0x20 && c < 0x7f) ? c : '?';
   return text.size() > 80 ? out + "..." : out;
 }
 
@@ -208,9 +207,8 @@ RegionReply parse_region(std::string_view reply) {
 
 const char* operation_bit_name(int bit) {
   static const char* const kNames[kOperationBits] = {
-      "moving",           "in position",           "holding",        "referenced",
-      "at lower limit",   "at upper limit",        "end of travel",  "fault",
-      "position valid",   "referencing"};
+      "moving",         "in position",   "holding", "referenced",     "at lower limit",
+      "at upper limit", "end of travel", "fault",   "position valid", "referencing"};
   return bit >= 0 && bit < kOperationBits ? kNames[bit] : nullptr;
 }
 

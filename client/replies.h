@@ -36,19 +36,19 @@ std::map<std::string, std::string> parse_key_values(std::string_view reply);
 
 // STATus? of one axis.
 struct AxisStatus {
-  std::string name;         // axis=
-  std::string state;        // IDLE, MOVING, SETTLING, FAULT, ...
-  bool done = true;         // done=
+  std::string name;   // axis=
+  std::string state;  // IDLE, MOVING, SETTLING, FAULT, ...
+  bool done = true;   // done=
   bool position_valid = false;
-  double position_m = 0;    // NaN when not valid
+  double position_m = 0;  // NaN when not valid
   double target_m = 0;
-  std::string fault;        // none, stall, ...
+  std::string fault;                // none, stall, ...
   double lower_m = 0, upper_m = 0;  // soft limits (+-inf when unset)
   std::uint64_t moves = 0, bursts = 0, cycles = 0;
   bool referenced = false;
-  std::string device;       // up, lost
-  std::string eot;          // "" or low / high (end of travel), when the daemon reports it
-  std::string daemon_error; // none or the daemon core's last error (blanks as _)
+  std::string device;        // up, lost
+  std::string eot;           // "" or low / high (end of travel), when the daemon reports it
+  std::string daemon_error;  // none or the daemon core's last error (blanks as _)
 };
 AxisStatus parse_status(std::string_view reply);
 

@@ -23,11 +23,17 @@ namespace {
 constexpr const char* kMagic = "idm-calibration 2";
 constexpr const char* kMagicV1 = "idm-calibration 1";  // no rung lines; still read
 
-int direction_index(int direction) { return direction > 0 ? 1 : 0; }
+int direction_index(int direction) {
+  return direction > 0 ? 1 : 0;
+}
 
-const char* direction_name(int index) { return index == 1 ? "positive" : "negative"; }
+const char* direction_name(int index) {
+  return index == 1 ? "positive" : "negative";
+}
 
-const char* region_key(int region) { return model::region_name(static_cast<model::Region>(region)); }
+const char* region_key(int region) {
+  return model::region_name(static_cast<model::Region>(region));
+}
 
 // The regressors of a burst of `cycles` cycles of the cell along its direction, for
 // theta = (alpha, alpha mu): D(N) = alpha phi_a - alpha mu phi_m.
@@ -62,7 +68,9 @@ std::uint64_t fnv1a(const std::string& text) {
   return h;
 }
 
-bool same(double a, double b) { return std::fabs(a - b) <= 1e-12 * std::max(std::fabs(a), std::fabs(b)); }
+bool same(double a, double b) {
+  return std::fabs(a - b) <= 1e-12 * std::max(std::fabs(a), std::fabs(b));
+}
 
 bool rung_ok(const RungEstimate& e) {
   return std::isfinite(e.freq_hz) && std::isfinite(e.duty) && std::isfinite(e.stroke_m) &&
@@ -84,27 +92,35 @@ const model::ParamTable<CalibrationConfig>& calibration_params() {
   using model::boolean;
   using model::real;
   static const model::ParamTable<CalibrationConfig> table({
-      boolean<CalibrationConfig>("enabled", "learn the step model online from measured steps",
-                                 [](auto& c) -> auto& { return c.enabled; }),
-      real<CalibrationConfig>("forgetting", "1", {0, 1, true}, "RLS forgetting factor of the cell estimates",
-                              [](auto& c) -> auto& { return c.forgetting; }),
-      real<CalibrationConfig>("initial_relative_sd", "1", {0, 10, true},
-                              "relative sd of the nominal alpha and alpha mu before any update",
-                              [](auto& c) -> auto& { return c.initial_relative_sd; }),
-      real<CalibrationConfig>("observation_relative_sd", "1", {0, 10, true},
-                              "relative sd of one burst's displacement about the model",
-                              [](auto& c) -> auto& { return c.observation_relative_sd; }),
-      real<CalibrationConfig>("max_ratio", "1", {1, 100, true},
-                              "a calibrated prediction is used within this ratio of the nominal",
-                              [](auto& c) -> auto& { return c.max_ratio; }),
-      real<CalibrationConfig>("min_update_counts", "count", {0, 1e6},
-                              "a burst updates the estimate only when it moved this many counts",
-                              [](auto& c) -> auto& { return c.min_update_counts; }),
-      real<CalibrationConfig>("rung_initial_relative_sd", "1", {0, 10, true},
-                              "relative sd of a rung's seed from the model",
-                              [](auto& c) -> auto& { return c.rung_initial_relative_sd; }),
-      real<CalibrationConfig>("rung_forgetting", "1", {0, 1, true}, "RLS forgetting factor of the rungs",
-                              [](auto& c) -> auto& { return c.rung_forgetting; }),
+      boolean<CalibrationConfig>(
+          "enabled", "learn the step model online from measured steps",
+          [](auto& c) -> auto& { return c.enabled; }),
+      real<CalibrationConfig>(
+          "forgetting", "1", {0, 1, true}, "RLS forgetting factor of the cell estimates",
+          [](auto& c) -> auto& { return c.forgetting; }),
+      real<CalibrationConfig>(
+          "initial_relative_sd", "1", {0, 10, true},
+          "relative sd of the nominal alpha and alpha mu before any update",
+          [](auto& c) -> auto& { return c.initial_relative_sd; }),
+      real<CalibrationConfig>(
+          "observation_relative_sd", "1", {0, 10, true},
+          "relative sd of one burst's displacement about the model",
+          [](auto& c) -> auto& { return c.observation_relative_sd; }),
+      real<CalibrationConfig>(
+          "max_ratio", "1", {1, 100, true},
+          "a calibrated prediction is used within this ratio of the nominal",
+          [](auto& c) -> auto& { return c.max_ratio; }),
+      real<CalibrationConfig>(
+          "min_update_counts", "count", {0, 1e6},
+          "a burst updates the estimate only when it moved this many counts",
+          [](auto& c) -> auto& { return c.min_update_counts; }),
+      real<CalibrationConfig>(
+          "rung_initial_relative_sd", "1", {0, 10, true},
+          "relative sd of a rung's seed from the model",
+          [](auto& c) -> auto& { return c.rung_initial_relative_sd; }),
+      real<CalibrationConfig>(
+          "rung_forgetting", "1", {0, 1, true}, "RLS forgetting factor of the rungs",
+          [](auto& c) -> auto& { return c.rung_forgetting; }),
   });
   return table;
 }
@@ -149,7 +165,9 @@ CalibrationState Calibration::nominal_state() const {
   return s;
 }
 
-void Calibration::reset() { state_ = nominal_state(); }
+void Calibration::reset() {
+  state_ = nominal_state();
+}
 
 const CalibrationEstimate& Calibration::estimate(model::Region region, int direction) const {
   return state_.estimates[static_cast<int>(region)][direction_index(direction)];
@@ -185,7 +203,8 @@ void Calibration::set_state(const CalibrationState& s) {
   for (int d = 0; d < CalibrationState::kDirections; ++d) {
     if (s.rung_count[d] < 0 || s.rung_count[d] > CalibrationState::kMaxRungs)
       throw model::InputError(std::string("calibration: rung count ") + direction_name(d) +
-                              " out of range [0, " + std::to_string(CalibrationState::kMaxRungs) + "]");
+                              " out of range [0, " + std::to_string(CalibrationState::kMaxRungs) +
+                              "]");
     for (int i = 0; i < s.rung_count[d]; ++i)
       if (!rung_ok(s.rungs[d][i]))
         throw model::InputError(std::string("calibration: rung ") + direction_name(d) + " " +
@@ -211,7 +230,8 @@ bool Calibration::store_rung(int direction, const RungEstimate& e) {
   if (!config_.enabled || !rung_ok(e)) return false;
   const int d = direction_index(direction);
   int i = 0;
-  while (i < state_.rung_count[d] && !state_.rungs[d][i].same_cell(e.freq_hz, e.duty, e.stroke_m)) ++i;
+  while (i < state_.rung_count[d] && !state_.rungs[d][i].same_cell(e.freq_hz, e.duty, e.stroke_m))
+    ++i;
   if (i == state_.rung_count[d]) {
     if (i >= CalibrationState::kMaxRungs) return false;
     ++state_.rung_count[d];
@@ -222,8 +242,8 @@ bool Calibration::store_rung(int direction, const RungEstimate& e) {
 }
 
 bool Calibration::rls_update(RungEstimate& e, std::uint64_t cycles, double measured_along_m,
-                             double count_m, double relative_sd, double forgetting,
-                             double p_max_oo, double p_max_ss) {
+                             double count_m, double relative_sd, double forgetting, double p_max_oo,
+                             double p_max_ss) {
   if (cycles == 0 || !std::isfinite(measured_along_m) || !(count_m > 0) || !(forgetting > 0))
     return false;
   const double n = static_cast<double>(cycles);
@@ -312,9 +332,9 @@ std::string Calibration::serialize(const CalibrationState& s) {
   std::string body;
   char line[512];
   body += std::string(kMagic) + "\n";
-  std::snprintf(line, sizeof line,
-                "stage %.17g %.17g %.17g %.17g %.17g %.17g\n", s.slider_mass_kg, s.counter_mass_kg,
-                s.friction_coefficient, s.gravity_m_s2, s.stroke_m, s.step_correction);
+  std::snprintf(line, sizeof line, "stage %.17g %.17g %.17g %.17g %.17g %.17g\n", s.slider_mass_kg,
+                s.counter_mass_kg, s.friction_coefficient, s.gravity_m_s2, s.stroke_m,
+                s.step_correction);
   body += line;
   for (int r = 0; r < CalibrationState::kRegions; ++r) {
     for (int d = 0; d < CalibrationState::kDirections; ++d) {
@@ -330,11 +350,10 @@ std::string Calibration::serialize(const CalibrationState& s) {
   for (int d = 0; d < CalibrationState::kDirections; ++d) {
     for (int i = 0; i < s.rung_count[d] && i < CalibrationState::kMaxRungs; ++i) {
       const RungEstimate& e = s.rungs[d][i];
-      std::snprintf(line, sizeof line,
-                    "rung %s %.17g %.17g %.17g %llu %.17g %.17g %.17g %.17g %.17g\n",
-                    direction_name(d), e.freq_hz, e.duty, e.stroke_m,
-                    static_cast<unsigned long long>(e.updates), e.offset_m, e.step_m, e.p_oo,
-                    e.p_os, e.p_ss);
+      std::snprintf(
+          line, sizeof line, "rung %s %.17g %.17g %.17g %llu %.17g %.17g %.17g %.17g %.17g\n",
+          direction_name(d), e.freq_hz, e.duty, e.stroke_m,
+          static_cast<unsigned long long>(e.updates), e.offset_m, e.step_m, e.p_oo, e.p_os, e.p_ss);
       body += line;
     }
   }
@@ -360,18 +379,22 @@ constexpr std::size_t kEstimateLines =
 // The file's shape: the magic line, the stage line, the estimates, (version 2) 'rungs NEG POS' and
 // that many rung lines, 'total_updates N', the checksum. Reads the rung counts; checks the line
 // count and the checksum over every line before the last.
-std::optional<FileError> check_layout(const std::vector<std::string>& lines, int (&rung_counts)[2]) {
+std::optional<FileError> check_layout(const std::vector<std::string>& lines,
+                                      int (&rung_counts)[2]) {
   if (lines.empty() || (lines[0] != kMagic && lines[0] != kMagicV1))
-    return FileError{1, std::string("not a calibration file (expected first line '") + kMagic + "')"};
+    return FileError{1,
+                     std::string("not a calibration file (expected first line '") + kMagic + "')"};
   const bool v1 = lines[0] == kMagicV1;
   std::size_t expected_lines = 2 + kEstimateLines + 2;
   if (!v1) {
     const std::size_t rungs_line = 2 + kEstimateLines + 1;  // 1-based
     if (lines.size() < rungs_line + 2)
       return FileError{lines.size(), "truncated: " + std::to_string(lines.size()) +
-                                         " lines, expected at least " + std::to_string(rungs_line + 2)};
+                                         " lines, expected at least " +
+                                         std::to_string(rungs_line + 2)};
     char tail = 0;
-    if (std::sscanf(lines[rungs_line - 1].c_str(), "rungs %d %d%c", &rung_counts[0], &rung_counts[1], &tail) != 2 ||
+    if (std::sscanf(lines[rungs_line - 1].c_str(), "rungs %d %d%c", &rung_counts[0],
+                    &rung_counts[1], &tail) != 2 ||
         rung_counts[0] < 0 || rung_counts[1] < 0 || rung_counts[0] > CalibrationState::kMaxRungs ||
         rung_counts[1] > CalibrationState::kMaxRungs)
       return FileError{rungs_line, "expected 'rungs NEGATIVE POSITIVE' (each 0 .. " +
@@ -392,32 +415,35 @@ std::optional<FileError> check_layout(const std::vector<std::string>& lines, int
 }
 
 // The estimate lines (3 ..), one per region and direction in that order.
-std::optional<FileError> read_estimates(const std::vector<std::string>& lines, CalibrationState& s) {
+std::optional<FileError> read_estimates(const std::vector<std::string>& lines,
+                                        CalibrationState& s) {
   for (int r = 0; r < CalibrationState::kRegions; ++r) {
     for (int d = 0; d < CalibrationState::kDirections; ++d) {
       const std::size_t ln = 3 + static_cast<std::size_t>(r * CalibrationState::kDirections + d);
       char region[32] = {}, direction[32] = {}, tail = 0;
       unsigned long long updates = 0;
       CalibrationEstimate& e = s.estimates[r][d];
-      if (std::sscanf(lines[ln - 1].c_str(), "estimate %31s %31s %llu %lf %lf %lf %lf %lf%c", region,
-                      direction, &updates, &e.alpha, &e.alpha_mu, &e.p_aa, &e.p_am, &e.p_mm,
+      if (std::sscanf(lines[ln - 1].c_str(), "estimate %31s %31s %llu %lf %lf %lf %lf %lf%c",
+                      region, direction, &updates, &e.alpha, &e.alpha_mu, &e.p_aa, &e.p_am, &e.p_mm,
                       &tail) != 8)
-        return FileError{ln, "expected 'estimate REGION DIRECTION UPDATES ALPHA ALPHA_MU P_AA P_AM P_MM'"};
+        return FileError{
+            ln, "expected 'estimate REGION DIRECTION UPDATES ALPHA ALPHA_MU P_AA P_AM P_MM'"};
       if (std::string(region) != region_key(r) || std::string(direction) != direction_name(d))
         return FileError{ln, std::string("expected the estimate for ") + region_key(r) + " " +
                                  direction_name(d) + ", found " + region + " " + direction};
       e.updates = updates;
       if (!estimate_ok(e))
-        return FileError{ln, "alpha and alpha_mu must be finite and > 0, the covariance positive "
-                             "semi-definite"};
+        return FileError{ln,
+                         "alpha and alpha_mu must be finite and > 0, the covariance positive "
+                         "semi-definite"};
     }
   }
   return std::nullopt;
 }
 
 // The rung lines after 'rungs NEG POS': the negative rungs, then the positive ones.
-std::optional<FileError> read_rungs(const std::vector<std::string>& lines, const int (&rung_counts)[2],
-                                    CalibrationState& s) {
+std::optional<FileError> read_rungs(const std::vector<std::string>& lines,
+                                    const int (&rung_counts)[2], CalibrationState& s) {
   std::size_t ln = 2 + kEstimateLines + 2;  // the first rung line (1-based)
   for (int d = 0; d < CalibrationState::kDirections; ++d) {
     s.rung_count[d] = rung_counts[d];
@@ -425,21 +451,25 @@ std::optional<FileError> read_rungs(const std::vector<std::string>& lines, const
       char direction[32] = {}, tail = 0;
       unsigned long long updates = 0;
       RungEstimate& e = s.rungs[d][i];
-      if (std::sscanf(lines[ln - 1].c_str(), "rung %31s %lf %lf %lf %llu %lf %lf %lf %lf %lf%c", direction,
-                      &e.freq_hz, &e.duty, &e.stroke_m, &updates, &e.offset_m, &e.step_m, &e.p_oo,
-                      &e.p_os, &e.p_ss, &tail) != 10)
-        return FileError{ln, "expected 'rung DIRECTION FREQ DUTY STROKE UPDATES OFFSET STEP P_OO P_OS P_SS'"};
+      if (std::sscanf(lines[ln - 1].c_str(), "rung %31s %lf %lf %lf %llu %lf %lf %lf %lf %lf%c",
+                      direction, &e.freq_hz, &e.duty, &e.stroke_m, &updates, &e.offset_m, &e.step_m,
+                      &e.p_oo, &e.p_os, &e.p_ss, &tail) != 10)
+        return FileError{
+            ln, "expected 'rung DIRECTION FREQ DUTY STROKE UPDATES OFFSET STEP P_OO P_OS P_SS'"};
       if (std::string(direction) != direction_name(d))
-        return FileError{ln, std::string("expected a rung moving ") + direction_name(d) + ", found " + direction};
+        return FileError{ln, std::string("expected a rung moving ") + direction_name(d) +
+                                 ", found " + direction};
       e.updates = updates;
-      if (!rung_ok(e)) return FileError{ln, "a rung must be a valid cell with finite values and a covariance"};
+      if (!rung_ok(e))
+        return FileError{ln, "a rung must be a valid cell with finite values and a covariance"};
     }
   }
   return std::nullopt;
 }
 
 // The stage line (2) and 'total_updates N' (the line before the checksum).
-std::optional<FileError> read_stage_and_total(const std::vector<std::string>& lines, CalibrationState& s) {
+std::optional<FileError> read_stage_and_total(const std::vector<std::string>& lines,
+                                              CalibrationState& s) {
   char tail = 0;
   if (std::sscanf(lines[1].c_str(), "stage %lf %lf %lf %lf %lf %lf%c", &s.slider_mass_kg,
                   &s.counter_mass_kg, &s.friction_coefficient, &s.gravity_m_s2, &s.stroke_m,
@@ -524,7 +554,8 @@ void Calibration::save(const std::string& path) const {
   if (::rename(tmp.c_str(), path.c_str()) != 0) fail("cannot rename " + tmp + " to " + path);
   // The directory entry: fsync the folder so the rename survives a crash.
   const std::size_t slash = path.find_last_of('/');
-  const std::string dir = slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
+  const std::string dir =
+      slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
   const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dfd >= 0) {
     ::fsync(dfd);

@@ -68,8 +68,8 @@ struct CalibrationEstimate {
 
 // One rung of the positioner's step ladder (a played cell, one direction): the displacement of a
 // burst of N cycles from rest, along the motion, as D(N) = offset_m + N step_m (the first-cycle
-// transient and the steady step). For a fixed cell eq 22 makes step = alpha p - (alpha mu) q with p,
-// q fixed, so a per-cell (alpha, alpha mu) carries exactly one combination of the two: the rung
+// transient and the steady step). For a fixed cell eq 22 makes step = alpha p - (alpha mu) q with
+// p, q fixed, so a per-cell (alpha, alpha mu) carries exactly one combination of the two: the rung
 // keeps the identifiable pair (offset, step) instead, by weighted RLS with forgetting, seeded from
 // the map's prediction. P: covariance of (offset, step) in m^2.
 struct RungEstimate {
@@ -78,7 +78,9 @@ struct RungEstimate {
   double p_oo = 0, p_os = 0, p_ss = 0;
   std::uint64_t updates = 0;
 
-  double predict_m(std::uint64_t cycles) const { return offset_m + static_cast<double>(cycles) * step_m; }
+  double predict_m(std::uint64_t cycles) const {
+    return offset_m + static_cast<double>(cycles) * step_m;
+  }
   bool same_cell(double f, double d, double s) const;
 };
 
@@ -125,7 +127,9 @@ class Calibration {
 
   // ---- used by the Positioner (real-time safe: no allocation, no lock) ----
   const CalibrationEstimate& estimate(model::Region region, int direction) const;
-  double alpha(model::Region region, int direction) const { return estimate(region, direction).alpha; }
+  double alpha(model::Region region, int direction) const {
+    return estimate(region, direction).alpha;
+  }
   double mu(model::Region region, int direction) const { return estimate(region, direction).mu(); }
   // One measured burst of `cycles` cycles of the cell: displacement signed (as the cell's
   // step_m), count_m the interferometer count. Returns whether it updated the estimate.
@@ -136,15 +140,17 @@ class Calibration {
   // ---- per-rung estimates (real-time safe: fixed arrays, no allocation) ----
   // The stored estimate of the cell (freq, duty, stroke) moving `direction`: false when disabled
   // or none is stored.
-  bool find_rung(int direction, double freq_hz, double duty, double stroke_m, RungEstimate& out) const;
+  bool find_rung(int direction, double freq_hz, double duty, double stroke_m,
+                 RungEstimate& out) const;
   // Stores (adds or replaces by key) a rung estimate; false when disabled, the table is full or
   // the estimate is not finite. Counts one update.
   bool store_rung(int direction, const RungEstimate& estimate);
   // One weighted RLS step of a rung estimate with a measured burst of `cycles` cycles
   // (`measured_along_m` > 0 along the motion); noise: count_m and relative_sd of the displacement.
   // P is bounded by p_max_* (no wind-up). Returns false (estimate untouched) on bad input.
-  static bool rls_update(RungEstimate& e, std::uint64_t cycles, double measured_along_m, double count_m,
-                         double relative_sd, double forgetting, double p_max_oo, double p_max_ss);
+  static bool rls_update(RungEstimate& e, std::uint64_t cycles, double measured_along_m,
+                         double count_m, double relative_sd, double forgetting, double p_max_oo,
+                         double p_max_ss);
 
  private:
   CalibrationEstimate& slot(model::Region region, int direction);

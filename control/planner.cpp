@@ -11,15 +11,20 @@ const model::ParamTable<PlannerConfig>& planner_params() {
   using model::integer;
   using model::real;
   static const model::ParamTable<PlannerConfig> table({
-      real<PlannerConfig>("resolution_m", "m", {0, 1e-6, true}, "one interferometer count (from the interferometer)",
-                          [](auto& c) -> auto& { return c.resolution_m; }),
-      integer<PlannerConfig>("max_bursts", "count", 1, 1000000, "most chunks in one move",
-                             [](auto& c) -> auto& { return c.max_bursts; }),
+      real<PlannerConfig>(
+          "resolution_m", "m", {0, 1e-6, true},
+          "one interferometer count (from the interferometer)",
+          [](auto& c) -> auto& { return c.resolution_m; }),
+      integer<PlannerConfig>(
+          "max_bursts", "count", 1, 1000000, "most chunks in one move",
+          [](auto& c) -> auto& { return c.max_bursts; }),
   });
   return table;
 }
 
-void validate(const PlannerConfig& c, const std::string& where) { planner_params().validate(c, where); }
+void validate(const PlannerConfig& c, const std::string& where) {
+  planner_params().validate(c, where);
+}
 
 bool Plan::within_final_step() const {
   return std::fabs(residual_m()) <= final_step_m * (1 + 1e-9);

@@ -8,16 +8,16 @@
 #include <string>
 #include <vector>
 
-#include "model/param_table.h"
-
 #include "control/region_map.h"
+#include "model/param_table.h"
 
 namespace idm::control {
 
 struct PlannerConfig {
   // One interferometer count.
   double resolution_m = 9.8906e-9;
-  // Most bursts (chunks) in one move (a device that holds few cycles per burst needs many for a long move).
+  // Most bursts (chunks) in one move (a device that holds few cycles per burst needs many for a
+  // long move).
   int max_bursts = 10000;
 };
 

@@ -16,52 +16,93 @@ const model::ParamTable<PositionerConfig>& positioner_params() {
   using model::with_default;
   using P = PositionerConfig;
   static const model::ParamTable<P> table({
-      real<P>("tolerance_m", "m", {0, 1e-3}, "the in-position window (RDBD, MOVE:WINDow); 0: one count (the loop aims for half a count within it)",
-              [](auto& c) -> auto& { return c.tolerance_m; }),
-      integer<P>("max_retries", "count", 0, 1000, "correction rounds after the first plan (RTRY)",
-                 [](auto& c) -> auto& { return c.max_retries; }),
-      integer<P>("stall_bursts", "count", 1, 1000, "bursts in a row without progress: a stall fault",
-                 [](auto& c) -> auto& { return c.stall_bursts; }),
-      real<P>("stall_fraction", "1", {0, 1, false, true}, "a burst that moved less than this share of its prediction made no progress",
-              [](auto& c) -> auto& { return c.stall_fraction; }),
-      real<P>("settle_s", "s", {0, 10}, "after a burst, wait this long before the position is read",
-              [](auto& c) -> auto& { return c.settle_s; }),
-      real<P>("max_chunk_s", "s", {0, 10, true}, "the longest piece played at once: what a STOP waits for (must fit the capture)",
-              [](auto& c) -> auto& { return c.max_chunk_s; }),
-      integer<P>("latch_words", "count", 1, 1000, "readings averaged for a position at rest",
-                 [](auto& c) -> auto& { return c.latch_words; }),
-      with_default(real<P>("soft_lower_m", "m", {-10, 10}, "soft limit (LLM): a move or STEP ending below is refused",
-                           [](auto& c) -> auto& { return c.soft_lower_m; }),
+      real<P>(
+          "tolerance_m", "m", {0, 1e-3},
+          "the in-position window (RDBD, MOVE:WINDow); 0: one count (the loop aims for half a "
+          "count within it)",
+          [](auto& c) -> auto& { return c.tolerance_m; }),
+      integer<P>(
+          "max_retries", "count", 0, 1000, "correction rounds after the first plan (RTRY)",
+          [](auto& c) -> auto& { return c.max_retries; }),
+      integer<P>(
+          "stall_bursts", "count", 1, 1000, "bursts in a row without progress: a stall fault",
+          [](auto& c) -> auto& { return c.stall_bursts; }),
+      real<P>(
+          "stall_fraction", "1", {0, 1, false, true},
+          "a burst that moved less than this share of its prediction made no progress",
+          [](auto& c) -> auto& { return c.stall_fraction; }),
+      real<P>(
+          "settle_s", "s", {0, 10}, "after a burst, wait this long before the position is read",
+          [](auto& c) -> auto& { return c.settle_s; }),
+      real<P>(
+          "max_chunk_s", "s", {0, 10, true},
+          "the longest piece played at once: what a STOP waits for (must fit the capture)",
+          [](auto& c) -> auto& { return c.max_chunk_s; }),
+      integer<P>(
+          "latch_words", "count", 1, 1000, "readings averaged for a position at rest",
+          [](auto& c) -> auto& { return c.latch_words; }),
+      with_default(real<P>(
+                       "soft_lower_m", "m", {-10, 10},
+                       "soft limit (LLM): a move or STEP ending below is refused",
+                       [](auto& c) -> auto& { return c.soft_lower_m; }),
                    "stage.travel_m"),
-      with_default(real<P>("soft_upper_m", "m", {-10, 10}, "soft limit (HLM): a move or STEP ending above is refused",
-                           [](auto& c) -> auto& { return c.soft_upper_m; }),
+      with_default(real<P>(
+                       "soft_upper_m", "m", {-10, 10},
+                       "soft limit (HLM): a move or STEP ending above is refused",
+                       [](auto& c) -> auto& { return c.soft_upper_m; }),
                    "stage.travel_m"),
-      real<P>("approach_uncertainty", "1", {0, 10}, "share by which an approach burst may exceed its prediction",
-              [](auto& c) -> auto& { return c.approach_uncertainty; }),
-      real<P>("stall_min_counts", "count", {0, 1e6}, "chunks predicted to move fewer counts are not judged for a stall",
-              [](auto& c) -> auto& { return c.stall_min_counts; }),
-      integer<P>("max_chunks_per_move", "count", 0, 100000000, "most chunks in one move (0: the planner's max_bursts)",
-                 [](auto& c) -> auto& { return c.max_chunks_per_move; }),
-      real<P>("final_step_counts", "count", {0.5, 1000}, "the last chunks use a rung of at most this step",
-              [](auto& c) -> auto& { return c.final_step_counts; }),
-      real<P>("min_step_counts", "count", {0, 1000, false, true}, "a rung stepping less per cycle is taken as not moving (< final_step_counts)",
-              [](auto& c) -> auto& { return c.min_step_counts; }),
-      integer<P>("dead_rung_moves", "count", 1, 1000000, "a rung judged not to move is left out for this many moves",
-                 [](auto& c) -> auto& { return c.dead_rung_moves; }),
-      real<P>("chunk_overhead_s", "s", {0, 10}, "time a chunk costs beyond its cycles (planning weight)",
-              [](auto& c) -> auto& { return c.chunk_overhead_s; }),
-      real<P>("dwell_s", "s", {0, 60}, "a move is done once fresh readings stayed in the window this long (MOVE:DWELl)",
-              [](auto& c) -> auto& { return c.dwell_s; }),
-      real<P>("move_timeout_s", "s", {0, 86400}, "a move not done after this long ends with TIMEOUT (0: no limit)",
-              [](auto& c) -> auto& { return c.move_timeout_s; }),
-      real<P>("eot_step_m", "m", {0, 1e-3}, "end of travel: mean step below this while driving stops the axis (0: off; EOT:STEP)",
-              [](auto& c) -> auto& { return c.eot_step_m; }),
-      integer<P>("eot_cycles", "count", 1, 100000, "end of travel: the cycles the mean step is taken over (EOT:CYCLes)",
-                 [](auto& c) -> auto& { return c.eot_cycles; }),
-      real<P>("hold_s", "s", {-1, 86400}, "after a move: keep the target this long (0: no hold, -1: until the next motion; HOLD)",
-              [](auto& c) -> auto& { return c.hold_s; }),
-      real<P>("hold_window_m", "m", {0, 1e-3}, "a hold corrects when a reading leaves this window (0: the move window; HOLD:WINDow)",
-              [](auto& c) -> auto& { return c.hold_window_m; }),
+      real<P>(
+          "approach_uncertainty", "1", {0, 10},
+          "share by which an approach burst may exceed its prediction",
+          [](auto& c) -> auto& { return c.approach_uncertainty; }),
+      real<P>(
+          "stall_min_counts", "count", {0, 1e6},
+          "chunks predicted to move fewer counts are not judged for a stall",
+          [](auto& c) -> auto& { return c.stall_min_counts; }),
+      integer<P>(
+          "max_chunks_per_move", "count", 0, 100000000,
+          "most chunks in one move (0: the planner's max_bursts)",
+          [](auto& c) -> auto& { return c.max_chunks_per_move; }),
+      real<P>(
+          "final_step_counts", "count", {0.5, 1000},
+          "the last chunks use a rung of at most this step",
+          [](auto& c) -> auto& { return c.final_step_counts; }),
+      real<P>(
+          "min_step_counts", "count", {0, 1000, false, true},
+          "a rung stepping less per cycle is taken as not moving (< final_step_counts)",
+          [](auto& c) -> auto& { return c.min_step_counts; }),
+      integer<P>(
+          "dead_rung_moves", "count", 1, 1000000,
+          "a rung judged not to move is left out for this many moves",
+          [](auto& c) -> auto& { return c.dead_rung_moves; }),
+      real<P>(
+          "chunk_overhead_s", "s", {0, 10},
+          "time a chunk costs beyond its cycles (planning weight)",
+          [](auto& c) -> auto& { return c.chunk_overhead_s; }),
+      real<P>(
+          "dwell_s", "s", {0, 60},
+          "a move is done once fresh readings stayed in the window this long (MOVE:DWELl)",
+          [](auto& c) -> auto& { return c.dwell_s; }),
+      real<P>(
+          "move_timeout_s", "s", {0, 86400},
+          "a move not done after this long ends with TIMEOUT (0: no limit)",
+          [](auto& c) -> auto& { return c.move_timeout_s; }),
+      real<P>(
+          "eot_step_m", "m", {0, 1e-3},
+          "end of travel: mean step below this while driving stops the axis (0: off; EOT:STEP)",
+          [](auto& c) -> auto& { return c.eot_step_m; }),
+      integer<P>(
+          "eot_cycles", "count", 1, 100000,
+          "end of travel: the cycles the mean step is taken over (EOT:CYCLes)",
+          [](auto& c) -> auto& { return c.eot_cycles; }),
+      real<P>(
+          "hold_s", "s", {-1, 86400},
+          "after a move: keep the target this long (0: no hold, -1: until the next motion; HOLD)",
+          [](auto& c) -> auto& { return c.hold_s; }),
+      real<P>(
+          "hold_window_m", "m", {0, 1e-3},
+          "a hold corrects when a reading leaves this window (0: the move window; HOLD:WINDow)",
+          [](auto& c) -> auto& { return c.hold_window_m; }),
   });
   return table;
 }
@@ -72,66 +113,97 @@ void validate(const PositionerConfig& c, const std::string& where) {
   if (std::isinf(finite.soft_lower_m)) finite.soft_lower_m = -10;
   if (std::isinf(finite.soft_upper_m)) finite.soft_upper_m = 10;
   positioner_params().validate(finite, where);
-  if (std::isnan(c.soft_lower_m) || std::isnan(c.soft_upper_m) || !(c.soft_lower_m < c.soft_upper_m))
-    throw model::InputError(where + ".soft_lower_m/soft_upper_m: [" + model::format_number(c.soft_lower_m) +
-                            ", " + model::format_number(c.soft_upper_m) +
+  if (std::isnan(c.soft_lower_m) || std::isnan(c.soft_upper_m) ||
+      !(c.soft_lower_m < c.soft_upper_m))
+    throw model::InputError(where + ".soft_lower_m/soft_upper_m: [" +
+                            model::format_number(c.soft_lower_m) + ", " +
+                            model::format_number(c.soft_upper_m) +
                             "] is not an interval, allowed soft_lower_m < soft_upper_m");
   if (c.hold_s < 0 && c.hold_s != -1)
     throw model::InputError(where + ".hold_s: " + model::format_number(c.hold_s) +
                             " is out of range, allowed -1 (until the next motion) or [0, 86400]");
   if (!(c.min_step_counts < c.final_step_counts))
     throw model::InputError(where + ".min_step_counts: " + model::format_number(c.min_step_counts) +
-                            " must be below final_step_counts (" + model::format_number(c.final_step_counts) + ")");
+                            " must be below final_step_counts (" +
+                            model::format_number(c.final_step_counts) + ")");
 }
 
 const char* motion_state_name(MotionState s) {
   switch (s) {
-    case MotionState::Idle: return "IDLE";
-    case MotionState::Moving: return "MOVING";
-    case MotionState::Settling: return "SETTLING";
-    case MotionState::Fault: return "FAULT";
+    case MotionState::Idle:
+      return "IDLE";
+    case MotionState::Moving:
+      return "MOVING";
+    case MotionState::Settling:
+      return "SETTLING";
+    case MotionState::Fault:
+      return "FAULT";
   }
   return "?";
 }
 
 const char* motion_fault_name(MotionFault f) {
   switch (f) {
-    case MotionFault::None: return "none";
-    case MotionFault::InvalidSample: return "invalid_sample";
-    case MotionFault::Stall: return "stall";
-    case MotionFault::RetryLimit: return "retry_limit";
-    case MotionFault::Driver: return "driver";
-    case MotionFault::NoPlan: return "no_plan";
-    case MotionFault::CaptureOverrun: return "capture_overrun";
-    case MotionFault::DeviceLost: return "device_lost";
+    case MotionFault::None:
+      return "none";
+    case MotionFault::InvalidSample:
+      return "invalid_sample";
+    case MotionFault::Stall:
+      return "stall";
+    case MotionFault::RetryLimit:
+      return "retry_limit";
+    case MotionFault::Driver:
+      return "driver";
+    case MotionFault::NoPlan:
+      return "no_plan";
+    case MotionFault::CaptureOverrun:
+      return "capture_overrun";
+    case MotionFault::DeviceLost:
+      return "device_lost";
   }
   return "?";
 }
 
 const char* move_result_name(MoveResult r) {
   switch (r) {
-    case MoveResult::None: return "NONE";
-    case MoveResult::Ok: return "OK";
-    case MoveResult::Stopped: return "STOPPED";
-    case MoveResult::Limit: return "LIMIT";
-    case MoveResult::EndOfTravel: return "END_OF_TRAVEL";
-    case MoveResult::Fault: return "FAULT";
-    case MoveResult::Timeout: return "TIMEOUT";
+    case MoveResult::None:
+      return "NONE";
+    case MoveResult::Ok:
+      return "OK";
+    case MoveResult::Stopped:
+      return "STOPPED";
+    case MoveResult::Limit:
+      return "LIMIT";
+    case MoveResult::EndOfTravel:
+      return "END_OF_TRAVEL";
+    case MoveResult::Fault:
+      return "FAULT";
+    case MoveResult::Timeout:
+      return "TIMEOUT";
   }
   return "?";
 }
 
 const char* refusal_name(Refusal r) {
   switch (r) {
-    case Refusal::None: return "none";
-    case Refusal::NotFinite: return "not_finite";
-    case Refusal::OutsideSoftLimits: return "outside_soft_limits";
-    case Refusal::Faulted: return "faulted";
-    case Refusal::Busy: return "busy";
-    case Refusal::OutOfRange: return "out_of_range";
-    case Refusal::NoPosition: return "no_position";
-    case Refusal::NotReferenced: return "not_referenced";
-    case Refusal::EndOfTravel: return "end_of_travel";
+    case Refusal::None:
+      return "none";
+    case Refusal::NotFinite:
+      return "not_finite";
+    case Refusal::OutsideSoftLimits:
+      return "outside_soft_limits";
+    case Refusal::Faulted:
+      return "faulted";
+    case Refusal::Busy:
+      return "busy";
+    case Refusal::OutOfRange:
+      return "out_of_range";
+    case Refusal::NoPosition:
+      return "no_position";
+    case Refusal::NotReferenced:
+      return "not_referenced";
+    case Refusal::EndOfTravel:
+      return "end_of_travel";
   }
   return "?";
 }
@@ -139,11 +211,7 @@ const char* refusal_name(Refusal r) {
 Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
                        const PositionerConfig& config, const AxisDeviceInfo& device,
                        Calibration* calibration)
-    : map_(map),
-      planner_(planner),
-      config_(config),
-      device_(device),
-      calibration_(calibration) {
+    : map_(map), planner_(planner), config_(config), device_(device), calibration_(calibration) {
   validate(config_);
   if (!(device_.count_m > 0))
     throw model::InputError("control: the interferometer's count must be > 0");
@@ -169,15 +237,15 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
     const double longest_s = std::max(config_.max_chunk_s, 1.0 / limits.min_freq_hz);
     const double records = std::ceil(longest_s * device_.stream_rate_hz) + 1;
     if (records > static_cast<double>(device_.stream_capacity)) {
-      const double fit_s = (static_cast<double>(device_.stream_capacity) - 1) / device_.stream_rate_hz;
+      const double fit_s =
+          (static_cast<double>(device_.stream_capacity) - 1) / device_.stream_rate_hz;
       throw model::InputError(
           "control.max_chunk_s / control.min_freq_hz: the longest chunk (" +
           model::format_number(longest_s) + " s: max_chunk_s, or one cycle at min_freq_hz) is " +
           model::format_number(records) + " records of the interferometer's " +
           model::format_number(device_.stream_rate_hz) + " Hz capture, more than the " +
-          std::to_string(device_.stream_capacity) +
-          " it holds for one burst; set max_chunk_s <= " + model::format_number(fit_s) +
-          " and min_freq_hz >= " + model::format_number(1.0 / fit_s) +
+          std::to_string(device_.stream_capacity) + " it holds for one burst; set max_chunk_s <= " +
+          model::format_number(fit_s) + " and min_freq_hz >= " + model::format_number(1.0 / fit_s) +
           " (or a larger capture: the device's stream/capture capacity)");
     }
   }
@@ -379,11 +447,12 @@ void Positioner::next_open_loop_chunk(double now_s) {
     return;
   }
   chunk_ = open_loop_;
-  chunk_.cycles = std::min(open_loop_remaining_,
-                           chunk_cycle_limit(chunk_.freq_hz, chunk_.period_samples, 0));
+  chunk_.cycles =
+      std::min(open_loop_remaining_, chunk_cycle_limit(chunk_.freq_hz, chunk_.period_samples, 0));
   open_loop_remaining_ -= chunk_.cycles;
   const double predicted = open_loop_.predicted_m * static_cast<double>(chunk_.cycles);
-  chunk_.predicted_m = std::fabs(predicted) >= config_.stall_min_counts * count_m_ ? predicted : 0.0;
+  chunk_.predicted_m =
+      std::fabs(predicted) >= config_.stall_min_counts * count_m_ ? predicted : 0.0;
   chunk_.completes_last_burst = false;
   start_chunk();
 }
@@ -391,7 +460,8 @@ void Positioner::next_open_loop_chunk(double now_s) {
 void Positioner::after_chunk(double now_s, double position) {
   const double moved = position - chunk_start_position_m_;
   if (end_of_travel_seen(moved)) {
-    end_of_travel(now_s, chunk_.direction != 0 ? chunk_.direction : (open_loop_.predicted_m >= 0 ? 1 : -1));
+    end_of_travel(
+        now_s, chunk_.direction != 0 ? chunk_.direction : (open_loop_.predicted_m >= 0 ? 1 : -1));
     return;
   }
   if (status_.closed_loop && chunk_.rung >= 0) {
@@ -422,7 +492,8 @@ void Positioner::after_chunk(double now_s, double position) {
     // A final chunk is a try at the target once its rung is known to move (a rung still being
     // judged, or just found not to move, is the ladder learning, not a correction).
     const bool rung_known =
-        chunk_.rung < 0 || ladder_[direction_index(chunk_.direction)][static_cast<std::size_t>(chunk_.rung)].proven;
+        chunk_.rung < 0 ||
+        ladder_[direction_index(chunk_.direction)][static_cast<std::size_t>(chunk_.rung)].proven;
     last_try_done_ = (chunk_.completes_last_burst && rung_known) || passed;
     plan_next_chunk(now_s);
   } else {

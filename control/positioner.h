@@ -48,7 +48,7 @@ struct PositionerConfig {
   // Longest chunk played in one piece (whole cycles; at least one cycle).
   double max_chunk_s = 0.05;
   // Words latched and averaged for a position at rest.
-  int latch_words = 8;
+  int latch_words = 4;
   // Soft limits: a move whose target lies outside is refused before anything moves.
   double soft_lower_m = -std::numeric_limits<double>::infinity();
   double soft_upper_m = std::numeric_limits<double>::infinity();
@@ -63,7 +63,8 @@ struct PositionerConfig {
   int max_chunks_per_move = 0;
   // ---- the step ladder (control/README.md, "Positioner") ----
   // The last chunks of a move use a rung whose learned step is at most this many counts (a step
-  // under two counts, played one cycle at a time, reaches the half-count window within a few tries).
+  // under two counts, played one cycle at a time, reaches the half-count window within a few
+  // tries).
   double final_step_counts = 2.0;
   // A rung whose learned step falls below this many counts per cycle is treated as not moving.
   double min_step_counts = 0.3;
@@ -99,13 +100,14 @@ const char* motion_state_name(MotionState state);  // "IDLE", "MOVING", "SETTLIN
 
 enum class MotionFault : std::uint8_t {
   None,
-  InvalidSample,  // an interferometer word with an error bit, a glitch or lost continuity
-  Stall,          // stall_bursts bursts in a row without progress
-  RetryLimit,     // still outside tolerance after max_retries corrections
-  Driver,         // a driver call failed (the driver's message is in last_driver_error())
-  NoPlan,         // no usable cell moves toward the target (map empty for that direction)
-  CaptureOverrun, // the interferometer's capture filled before it was read (a chunk too long for it)
-  DeviceLost,     // the device stopped answering (the link reconnects by itself)
+  InvalidSample,   // an interferometer word with an error bit, a glitch or lost continuity
+  Stall,           // stall_bursts bursts in a row without progress
+  RetryLimit,      // still outside tolerance after max_retries corrections
+  Driver,          // a driver call failed (the driver's message is in last_driver_error())
+  NoPlan,          // no usable cell moves toward the target (map empty for that direction)
+  CaptureOverrun,  // the interferometer's capture filled before it was read (a chunk too long for
+                   // it)
+  DeviceLost,      // the device stopped answering (the link reconnects by itself)
 };
 const char* motion_fault_name(MotionFault fault);  // "none", "invalid_sample", ...
 
@@ -124,10 +126,10 @@ enum class Refusal : std::uint8_t {
 
 // Why the last motion ended (MOVE:RESult?).
 enum class MoveResult : std::uint8_t {
-  None,         // no motion yet
-  Ok,           // a move: in its window for the dwell; a STEP: every cycle played; a reference: found
-  Stopped,      // STOP (or a new command) ended it
-  Limit,        // a reading left the soft limits
+  None,     // no motion yet
+  Ok,       // a move: in its window for the dwell; a STEP: every cycle played; a reference: found
+  Stopped,  // STOP (or a new command) ended it
+  Limit,    // a reading left the soft limits
   EndOfTravel,  // the mean step collapsed while driving (eot_step_m over eot_cycles)
   Fault,        // it ended in a fault (MotionStatus::fault)
   Timeout,      // not done within move_timeout_s
@@ -143,37 +145,37 @@ struct MotionStatus {
   MotionState state = MotionState::Idle;
   MotionFault fault = MotionFault::None;
   bool position_valid = false;
-  double position_m = 0.0;   // last position read at rest (or during a burst, from the stream)
-  double target_m = 0.0;     // of the current or last move
-  bool closed_loop = false;  // the current/last motion is a move (not an open-loop STEP)
-  std::uint64_t moves = 0;           // moves started since construction
-  std::uint64_t bursts = 0;          // chunks played since construction
-  std::uint64_t cycles = 0;          // cycles played since construction
-  std::uint32_t corrections = 0;     // correction rounds of the current/last move
-  double last_move_time_s = 0.0;     // time the last finished move took
-  MotionKind kind = MotionKind::None;  // the current/last motion
+  double position_m = 0.0;        // last position read at rest (or during a burst, from the stream)
+  double target_m = 0.0;          // of the current or last move
+  bool closed_loop = false;       // the current/last motion is a move (not an open-loop STEP)
+  std::uint64_t moves = 0;        // moves started since construction
+  std::uint64_t bursts = 0;       // chunks played since construction
+  std::uint64_t cycles = 0;       // cycles played since construction
+  std::uint32_t corrections = 0;  // correction rounds of the current/last move
+  double last_move_time_s = 0.0;  // time the last finished move took
+  MotionKind kind = MotionKind::None;    // the current/last motion
   MoveResult result = MoveResult::None;  // why the last motion ended (None while one runs)
-  double result_distance_m = 0.0;    // target - position when it ended
-  int eot = 0;                       // -1 / +1: stopped at the end of travel that way; 0: not
-  double eot_position_m = 0.0;       // where it met it (motion beyond is refused)
-  std::uint8_t moved_dirs = 0;       // bit 0 negative, bit 1 positive: the slider has stepped that way
-  bool holding = false;              // keeping the last move's target (HOLD)
-  bool in_window = false;            // at rest within the window of the target
-  std::uint64_t references = 0;      // references found since construction
-  double window_m = 0.0;             // the move window in force (MOVE:WINDow)
-  double offset_m = 0.0;             // readings are the device's plus this (set by a reference)
+  double result_distance_m = 0.0;        // target - position when it ended
+  int eot = 0;                           // -1 / +1: stopped at the end of travel that way; 0: not
+  double eot_position_m = 0.0;           // where it met it (motion beyond is refused)
+  std::uint8_t moved_dirs = 0;   // bit 0 negative, bit 1 positive: the slider has stepped that way
+  bool holding = false;          // keeping the last move's target (HOLD)
+  bool in_window = false;        // at rest within the window of the target
+  std::uint64_t references = 0;  // references found since construction
+  double window_m = 0.0;         // the move window in force (MOVE:WINDow)
+  double offset_m = 0.0;         // readings are the device's plus this (set by a reference)
 };
 
 // What the positioner knows of its device: plain numbers the daemon takes from the drivers'
 // capabilities (drivers/interfaces.h), so that control needs no driver.
 struct AxisDeviceInfo {
-  double count_m = 9.8906e-9;          // one interferometer count
-  double max_velocity_m_s = 0.1;       // the position decoder's limit (faster reads as a glitch)
-  double stream_rate_hz = 1e5;         // the capture's sample rate during a burst
-  std::size_t stream_capacity = 1u << 20;  // records the capture holds for one burst
-  bool buffered = true;                // the output takes samples (else burst parameters)
+  double count_m = 9.8906e-9;     // one interferometer count
+  double max_velocity_m_s = 0.1;  // the position decoder's limit (faster reads as a glitch)
+  double stream_rate_hz = 1e5;    // the capture's sample rate during a burst
+  std::size_t stream_capacity = 1u << 20;    // records the capture holds for one burst
+  bool buffered = true;                      // the output takes samples (else burst parameters)
   std::size_t max_burst_samples = 1u << 20;  // buffered: the longest burst
-  std::uint32_t max_cycles = 1000000;  // parameters: most cycles in one burst
+  std::uint32_t max_cycles = 1000000;        // parameters: most cycles in one burst
 };
 
 class Positioner {
@@ -250,11 +252,11 @@ class Positioner {
   // cell per stroke and frequency band), coarse to fine by the model's step. `estimate` is what
   // the positioner currently believes a burst of the rung moves (along the motion).
   struct RungInfo {
-    std::size_t cell = 0;        // into map().cells()
-    RungEstimate estimate;       // learned (offset, step), seeded from the map
-    bool dead = false;           // judged not to move that way (left out for a while)
-    bool proven = false;         // has moved as predicted in this session
-    std::uint64_t chunks = 0;    // chunks played with it since construction
+    std::size_t cell = 0;      // into map().cells()
+    RungEstimate estimate;     // learned (offset, step), seeded from the map
+    bool dead = false;         // judged not to move that way (left out for a while)
+    bool proven = false;       // has moved as predicted in this session
+    std::uint64_t chunks = 0;  // chunks played with it since construction
   };
   std::size_t rung_count(int direction) const { return ladder_[direction > 0 ? 1 : 0].size(); }
   RungInfo rung(int direction, std::size_t index) const;
@@ -279,18 +281,18 @@ class Positioner {
     double freq_hz = 0, duty = 0, stroke_m = 0;
     std::uint32_t period_samples = 0, extension_samples = 0;
     std::uint64_t cycles = 0;
-    double predicted_m = 0;               // signed, 0: not judged for a stall
-    const RegionCell* cell = nullptr;     // the map cell (closed loop), for calibration
-    bool completes_last_burst = false;    // ends the plan's last burst (a try at the target)
-    int direction = 0;                    // +1 / -1
-    int rung = -1;                        // index into the ladder of `direction`; -1 open loop
-    double predicted_along_m = 0;         // the rung's estimate for the chunk (closed loop)
+    double predicted_m = 0;             // signed, 0: not judged for a stall
+    const RegionCell* cell = nullptr;   // the map cell (closed loop), for calibration
+    bool completes_last_burst = false;  // ends the plan's last burst (a try at the target)
+    int direction = 0;                  // +1 / -1
+    int rung = -1;                      // index into the ladder of `direction`; -1 open loop
+    double predicted_along_m = 0;       // the rung's estimate for the chunk (closed loop)
   };
   struct Rung {
     std::size_t cell = 0;
     int direction = 0;
-    RungEstimate seed;      // the map's prediction, low confidence
-    RungEstimate est;       // current
+    RungEstimate seed;  // the map's prediction, low confidence
+    RungEstimate est;   // current
     bool dead = false;
     bool killed_in_streak = false;  // marked dead during the current run of non-moving chunks
     bool proven = false;
@@ -315,11 +317,10 @@ class Positioner {
   };
   FinalChunk final_chunk_for(const Rung& r, double distance) const;
   void build_ladder();
-  void load_rung_estimates();           // at a move's start: from the calibration, or the seeds
-  bool rung_live(Rung& r);              // revives a rung whose dead time is over
+  void load_rung_estimates();  // at a move's start: from the calibration, or the seeds
+  bool rung_live(Rung& r);     // revives a rung whose dead time is over
   void kill_rung(Rung& r);
   bool judge_and_learn(double moved_m);  // false: a fault was entered
-  bool landed(double error_m) const;     // the fresh readings say the slider is in the window
   // judge_and_learn's two outcomes: a rung that did not move (false: a stall fault or the end of
   // travel was entered); a rung that moved updates its scatter and its estimate.
   bool rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign, double along);
@@ -362,17 +363,17 @@ class Positioner {
   // Sized in the constructor; never grown afterwards.
   Plan plan_;
   double count_m_ = 0;
-  bool buffered_ = true;          // clocked segments (samples) or burst parameters
-  double sample_rate_hz_ = 0;     // the output clock for buffered bursts
+  bool buffered_ = true;               // clocked segments (samples) or burst parameters
+  double sample_rate_hz_ = 0;          // the output clock for buffered bursts
   std::size_t max_chunk_samples_ = 0;  // buffered: the longest chunk the output takes
   // The link: what tick() has to say, the segment in flight, fresh readings.
   bool request_due_ = false;
   model::OutputRequest request_;
-  std::uint32_t seq_ = 0;         // of the last segment requested
+  std::uint32_t seq_ = 0;  // of the last segment requested
   Fresh fresh_;
-  double now_s_ = 0;              // the last tick's time
-  bool device_lost_ = false;      // between DeviceLost and DeviceBack
-  bool lost_at_rest_ = false;     // the loss came with nothing moving
+  double now_s_ = 0;           // the last tick's time
+  bool device_lost_ = false;   // between DeviceLost and DeviceBack
+  bool lost_at_rest_ = false;  // the loss came with nothing moving
   int max_chunks_ = 0;
   std::vector<Rung> ladder_[2];
   CalibrationConfig rung_cfg_;  // the calibration's (or the default) RLS settings for the rungs
@@ -386,10 +387,10 @@ class Positioner {
   bool stop_requested_ = false;
   double move_start_s_ = 0;
   double settle_until_s_ = 0;
-  bool move_started_ = false;     // move_start_s_ is set (the first tick after the command)
+  bool move_started_ = false;  // move_start_s_ is set (the first tick after the command)
   Chunk chunk_;
   double chunk_start_position_m_ = 0;
-  bool last_try_done_ = false;    // the chunk just played ended a try (last burst, or passed)
+  bool last_try_done_ = false;  // the chunk just played ended a try (last burst, or passed)
   int stall_count_ = 0;
   std::uint64_t move_chunks_ = 0;
   std::uint64_t move_cycles_ = 0;
@@ -409,9 +410,9 @@ class Positioner {
   bool referencing_ = false;
   double reference_position_m_ = 0;
   double dwell_until_s_ = 0;
-  bool hold_armed_ = false;       // holding: at rest, watching the readings
-  double hold_until_s_ = 0;       // +inf: until the next command
-  bool hold_correcting_ = false;  // a correction of a hold is playing
+  bool hold_armed_ = false;                 // holding: at rest, watching the readings
+  double hold_until_s_ = 0;                 // +inf: until the next command
+  bool hold_correcting_ = false;            // a correction of a hold is playing
   double chunk_lo_m_ = 0, chunk_hi_m_ = 0;  // the readings' extent during the chunk
   double hold_sum_m_ = 0;
   int hold_n_ = 0;

@@ -32,7 +32,8 @@ void Positioner::finish(double now_s, MoveResult result) {
   if (status_.in_window && config_.hold_s != 0) {
     hold_armed_ = true;
     status_.holding = true;
-    hold_until_s_ = config_.hold_s < 0 ? std::numeric_limits<double>::infinity() : now_s + config_.hold_s;
+    hold_until_s_ =
+        config_.hold_s < 0 ? std::numeric_limits<double>::infinity() : now_s + config_.hold_s;
     hold_sum_m_ = 0;
     hold_n_ = 0;
     hold_correction_due_ = false;
@@ -100,7 +101,8 @@ void Positioner::hold_tick(double now_s) {
 }
 
 bool Positioner::end_of_travel_seen(double moved_m) {
-  const double eot_step = config_.eot_step_m > 0 ? config_.eot_step_m : (referencing_ ? 0.25 * count_m_ : 0.0);
+  const double eot_step =
+      config_.eot_step_m > 0 ? config_.eot_step_m : (referencing_ ? 0.25 * count_m_ : 0.0);
   if (!(eot_step > 0) || chunk_.cycles == 0) return false;
   const int sign = chunk_.direction != 0 ? chunk_.direction : (chunk_.predicted_m >= 0 ? 1 : -1);
   // Only chunks that were expected to move well above the threshold say anything: open-loop
@@ -118,8 +120,9 @@ bool Positioner::end_of_travel_seen(double moved_m) {
   if (!expected) return false;
   // A collapse needs steps before it: a slider that has never moved this way is stuck (a stall
   // fault), not at the end of its travel. A reference looks for the stop, wherever it starts.
-  const double expected_along = chunk_.rung < 0 ? std::fabs(open_loop_.predicted_m) * static_cast<double>(chunk_.cycles)
-                                                : std::max(chunk_.predicted_along_m, 0.0);
+  const double expected_along =
+      chunk_.rung < 0 ? std::fabs(open_loop_.predicted_m) * static_cast<double>(chunk_.cycles)
+                      : std::max(chunk_.predicted_along_m, 0.0);
   const std::uint8_t bit = static_cast<std::uint8_t>(1u << direction_index(sign));
   const bool had_moved = (status_.moved_dirs & bit) != 0 || referencing_;
   const double along = sign * moved_m;
@@ -148,7 +151,8 @@ bool Positioner::end_of_travel_seen(double moved_m) {
 
 void Positioner::end_of_travel(double now_s, int sign) {
   status_.eot = sign;
-  status_.eot_position_m = sign < 0 ? std::min(chunk_lo_m_, status_.position_m) : std::max(chunk_hi_m_, status_.position_m);
+  status_.eot_position_m = sign < 0 ? std::min(chunk_lo_m_, status_.position_m)
+                                    : std::max(chunk_hi_m_, status_.position_m);
   if (referencing_) {
     // At the stop: this is where the reference lies.
     const double shift = reference_position_m_ - status_.position_m;

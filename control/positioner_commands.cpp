@@ -69,7 +69,8 @@ Refusal Positioner::move_absolute(double target_m) {
 Refusal Positioner::move_relative(double distance_m) {
   requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
   if (!std::isfinite(distance_m)) return Refusal::NotFinite;
-  if (!status_.position_valid) return phase_ == Phase::Fault ? Refusal::Faulted : Refusal::NoPosition;
+  if (!status_.position_valid)
+    return phase_ == Phase::Fault ? Refusal::Faulted : Refusal::NoPosition;
   // From the target when in position (no creep of the error from move to move), else the reading.
   const double base = status_.in_window ? status_.target_m : status_.position_m;
   return move_absolute(base + distance_m);
@@ -134,7 +135,8 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
   if (toward_eot(end)) return Refusal::EndOfTravel;
   const double reach = static_cast<double>(n) * step * (1.0 + config_.approach_uncertainty);
   const double far_end = status_.position_m + reach;
-  if (std::min(end, far_end) < config_.soft_lower_m || std::max(end, far_end) > config_.soft_upper_m)
+  if (std::min(end, far_end) < config_.soft_lower_m ||
+      std::max(end, far_end) > config_.soft_upper_m)
     return Refusal::OutsideSoftLimits;
   c.predicted_m = step;  // per cycle here; per chunk when a chunk is made
   c.cell = nullptr;

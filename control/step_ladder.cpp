@@ -54,7 +54,8 @@ void Positioner::build_ladder() {
         const double sd_step = rel * r.seed.step_m;
         // The model's first-cycle transient means little on a compliant actuator (measured:
         // up to a full step either way): its seed is known no better than one step.
-        const double sd_offset = std::max(rel, 1.0) * std::max(std::fabs(r.seed.offset_m), r.seed.step_m);
+        const double sd_offset =
+            std::max(rel, 1.0) * std::max(std::fabs(r.seed.offset_m), r.seed.step_m);
         r.seed.p_ss = sd_step * sd_step;
         r.seed.p_oo = sd_offset * sd_offset;
         r.seed.p_os = 0;
@@ -75,8 +76,8 @@ void Positioner::load_rung_estimates() {
   for (std::vector<Rung>& ladder : ladder_) {
     for (Rung& r : ladder) {
       RungEstimate stored;
-      if (calibration_ != nullptr &&
-          calibration_->find_rung(r.direction, r.seed.freq_hz, r.seed.duty, r.seed.stroke_m, stored))
+      if (calibration_ != nullptr && calibration_->find_rung(r.direction, r.seed.freq_hz,
+                                                             r.seed.duty, r.seed.stroke_m, stored))
         r.est = stored;
       else if (calibration_ == nullptr || !calibration_->config().enabled)
         r.est = r.seed;  // without calibration nothing is carried from one move to the next
@@ -124,11 +125,14 @@ Positioner::FinalChunk Positioner::final_chunk_for(const Rung& r, double distanc
   };
   FinalChunk out;
   const double n_real = std::round((distance - a) / b);
-  out.cycles = !(n_real >= 1) ? 1 : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real));
+  out.cycles = !(n_real >= 1) ? 1
+                              : (n_real >= 1e15 ? static_cast<std::uint64_t>(1e15)
+                                                : static_cast<std::uint64_t>(n_real));
   const std::uint64_t max_cycles = map_.cells()[r.cell].max_cycles;
   if (max_cycles > 0) out.cycles = std::min(out.cycles, max_cycles);
   const double n_moving = std::ceil((0.5 * b - a) / b);
-  const std::uint64_t n_min = n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
+  const std::uint64_t n_min =
+      n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
   while (out.cycles > n_min && passes(out.cycles)) {
     --out.cycles;
     out.cut = true;
@@ -169,19 +173,10 @@ double Positioner::finest_live_step_m(int direction) const {
   return finest;
 }
 
-bool Positioner::landed(double error_m) const {
-  if (tolerance_m() > count_m_ * (1 + 1e-9)) return std::fabs(error_m) <= tolerance_m();
-  // A window of up to one count: every reading of the fresh set reads within it. Readings are
-  // whole counts; the slider reads within the window from anywhere in the half counts around the
-  // counts the window holds, and a set that never reads outside says it is not at their edge.
-  return std::fabs(error_m) <= landing_m() &&
-         (fresh_.count < config_.latch_words || fresh_.worst_m <= tolerance_m());
-}
-
 void Positioner::plan_next_chunk(double now_s) {
   const double error = status_.target_m - status_.position_m;
   const double tolerance = landing_m();
-  if (landed(error)) {
+  if (std::fabs(error) <= tolerance) {
     arrived(now_s);
     return;
   }
@@ -236,7 +231,8 @@ int Positioner::final_rung(std::vector<Rung>& ladder) {
     Rung& r = ladder[i];
     if (!rung_live(r)) continue;
     const double b = r.est.step_m;
-    if (finest < 0 || b < ladder[static_cast<std::size_t>(finest)].est.step_m) finest = static_cast<int>(i);
+    if (finest < 0 || b < ladder[static_cast<std::size_t>(finest)].est.step_m)
+      finest = static_cast<int>(i);
     const double rate = b * map_.cells()[r.cell].freq_hz;
     if (b <= final_bound && rate > fin_rate) {
       fin_rate = rate;
@@ -262,14 +258,18 @@ int Positioner::approach_rung(const std::vector<Rung>& ladder, double distance, 
     // approach_uncertainty (friction along the guide).
     const double a_hi = a + 2.0 * std::sqrt(std::max(r.est.p_oo, 0.0));
     const double b_hi = b + 2.0 * std::sqrt(std::max(r.est.p_ss, 0.0));
-    const double n_real = std::floor(((distance - keep) / (1.0 + config_.approach_uncertainty) - a_hi) / b_hi);
+    const double n_real =
+        std::floor(((distance - keep) / (1.0 + config_.approach_uncertainty) - a_hi) / b_hi);
     if (!(n_real >= 1)) continue;
-    std::uint64_t n = n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real);
+    std::uint64_t n =
+        n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real);
     if (cell.max_cycles > 0) n = std::min(n, cell.max_cycles);
-    const std::uint64_t n_chunk = std::min(n, chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles));
+    const std::uint64_t n_chunk =
+        std::min(n, chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles));
     const double progress = a + b * static_cast<double>(n_chunk);
     if (!(progress > 0)) continue;
-    const double score = progress / (static_cast<double>(n_chunk) / cell.freq_hz + config_.chunk_overhead_s);
+    const double score =
+        progress / (static_cast<double>(n_chunk) / cell.freq_hz + config_.chunk_overhead_s);
     if (score > best_score) {
       best_score = score;
       chosen = static_cast<int>(i);
@@ -362,12 +362,15 @@ bool Positioner::judge_and_learn(double moved_m) {
   r.pending_cycles += chunk_.cycles;
   // Judged once the prediction is a few counts and more than one cycle was played (a burst's
   // first cycle can stay in static friction: one cycle alone says little).
-  const bool judged = r.pending_pred_m >= config_.stall_min_counts * count_m_ && r.pending_cycles >= 2;
+  const bool judged =
+      r.pending_pred_m >= config_.stall_min_counts * count_m_ && r.pending_cycles >= 2;
   const bool wrong_way = along < -2.0 * count_m_;
   // Not moving: less than stall_fraction of the prediction and less than two counts (a rung
   // that moves a quarter of its seed is slow, not dead: its estimate learns that).
   const bool failed =
-      wrong_way || (judged && r.pending_moved_m < std::min(config_.stall_fraction * r.pending_pred_m, 2.0 * count_m_));
+      wrong_way ||
+      (judged &&
+       r.pending_moved_m < std::min(config_.stall_fraction * r.pending_pred_m, 2.0 * count_m_));
   if (judged || failed) {
     r.pending_pred_m = r.pending_moved_m = 0;
     r.pending_cycles = 0;
@@ -411,7 +414,8 @@ bool Positioner::rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign,
           x.killed_in_streak = false;
         }
     // Driven and not moving: at an end stop when the mean step over the run collapsed.
-    if (config_.eot_step_m > 0 && streak_cycles_ > 0 && (status_.moved_dirs & (1u << direction_index(sign))) &&
+    if (config_.eot_step_m > 0 && streak_cycles_ > 0 &&
+        (status_.moved_dirs & (1u << direction_index(sign))) &&
         streak_along_m_ / static_cast<double>(streak_cycles_) < config_.eot_step_m) {
       end_of_travel(now_s_, sign);
       return false;
@@ -431,8 +435,9 @@ void Positioner::learn_rung(Rung& r, int sign, double along, double predicted, d
     r.scatter_var += w * (rel * rel - r.scatter_var);
   }
   if (along > -count_m_ &&
-      Calibration::rls_update(r.est, chunk_.cycles, along, count_m_, rung_cfg_.observation_relative_sd,
-                              rung_cfg_.rung_forgetting, r.seed.p_oo, r.seed.p_ss)) {
+      Calibration::rls_update(r.est, chunk_.cycles, along, count_m_,
+                              rung_cfg_.observation_relative_sd, rung_cfg_.rung_forgetting,
+                              r.seed.p_oo, r.seed.p_ss)) {
     if (calibration_ != nullptr) calibration_->store_rung(sign, r.est);
   }
   if (!(r.est.step_m >= config_.min_step_counts * count_m_)) kill_rung(r);

@@ -24,7 +24,8 @@ bool grid_changed(const ControlConfig& a, const ControlConfig& b) {
 // continuity.
 bool counts_lost(std::uint8_t status) {
   namespace ss = drivers::sample_status;
-  return (status & (ss::kMeasurementSignalLost | ss::kReferenceSignalLost | ss::kContinuityLost)) != 0;
+  return (status & (ss::kMeasurementSignalLost | ss::kReferenceSignalLost | ss::kContinuityLost)) !=
+         0;
 }
 
 }  // namespace
@@ -42,12 +43,18 @@ void set_note(ErrorNote& note, double t_s, const char* a, const char* b, const c
 
 const char* trial_failure_text(TrialFailure why) {
   switch (why) {
-    case TrialFailure::None: return "none";
-    case TrialFailure::Positioning: return "positioning failed";
-    case TrialFailure::Driver: return "the device failed or was lost";
-    case TrialFailure::Overflow: return "sample queue overflow";
-    case TrialFailure::Stopped: return "stopped";
-    case TrialFailure::Busy: return "motion in progress";
+    case TrialFailure::None:
+      return "none";
+    case TrialFailure::Positioning:
+      return "positioning failed";
+    case TrialFailure::Driver:
+      return "the device failed or was lost";
+    case TrialFailure::Overflow:
+      return "sample queue overflow";
+    case TrialFailure::Stopped:
+      return "stopped";
+    case TrialFailure::Busy:
+      return "motion in progress";
   }
   return "?";
 }
@@ -74,7 +81,8 @@ void Axis::build(const ControlConfig& control) {
   const drivers::InterferometerCapabilities& ic = link_.interferometer_capabilities(channel());
   count_m_ = ic.word.count_m();
   if (!next_map_ && (!map_ || grid_changed(control_, control))) prepare(control);
-  const control::MotionStatus previous = positioner_ ? positioner_->status() : control::MotionStatus{};
+  const control::MotionStatus previous =
+      positioner_ ? positioner_->status() : control::MotionStatus{};
   const bool had_positioner = positioner_ != nullptr;
   control::PositionerConfig pc = control.positioner;
   pc.soft_lower_m = soft_lower_m_;
@@ -84,8 +92,8 @@ void Axis::build(const ControlConfig& control) {
   if (!calibration_ && control.calibration.enabled)
     calibration_ = std::make_unique<control::Calibration>(config_.stage.stage, control.calibration);
   // Built before anything is swapped: a bad setting leaves the axis as it was.
-  auto positioner = std::make_unique<control::Positioner>(use, control.planner, pc,
-                                                          axis_device_info(oc, ic), calibration_.get());
+  auto positioner = std::make_unique<control::Positioner>(
+      use, control.planner, pc, axis_device_info(oc, ic), calibration_.get());
   if (had_positioner) positioner->continue_from(previous);
   positioner_ = std::move(positioner);
   if (map) {
@@ -179,10 +187,12 @@ void Axis::observe(const model::AxisEvent& e, TrialNotices& notices) {
       if (trial_phase_ != TrialPhase::Idle) fail_trial(TrialFailure::Driver, notices);
       return;
     case Kind::SegmentDone:
-      if (trial_phase_ == TrialPhase::Playing && e.seq == trial_seq_) trial_phase_ = TrialPhase::Idle;
+      if (trial_phase_ == TrialPhase::Playing && e.seq == trial_seq_)
+        trial_phase_ = TrialPhase::Idle;
       return;
     case Kind::OutputFailed:
-      if (trial_phase_ == TrialPhase::Playing && e.seq == trial_seq_) fail_trial(TrialFailure::Driver, notices);
+      if (trial_phase_ == TrialPhase::Playing && e.seq == trial_seq_)
+        fail_trial(TrialFailure::Driver, notices);
       return;
     case Kind::SegmentStarted:
       return;
@@ -274,7 +284,8 @@ void Axis::publish(bool parked) {
   pub_.settings.eot_cycles = pc.eot_cycles;
   pub_.settings.hold_s = pc.hold_s;
   pub_.settings.hold_window_set_m = pc.hold_window_m;
-  pub_.settings.hold_window_m = pc.hold_window_m > 0 ? pc.hold_window_m : positioner_->tolerance_m();
+  pub_.settings.hold_window_m =
+      pc.hold_window_m > 0 ? pc.hold_window_m : positioner_->tolerance_m();
   pub_.trial_active = trial_phase_ != TrialPhase::Idle;
   pub_.referenced = referenced_;
   pub_.parked = parked;

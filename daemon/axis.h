@@ -26,8 +26,16 @@ using drivers::SpscRing;
 // server -> loop. Stop with axis -1 stops every axis.
 struct AxisCommand {
   enum class Kind : std::uint8_t {
-    MoveAbsolute, MoveRelative, Step, Stop, SetLimits,
-    SetWindow, SetDwell, SetEot, SetHold, Reference,  // settings: a (and b, n); Reference: n = direction
+    MoveAbsolute,
+    MoveRelative,
+    Step,
+    Stop,
+    SetLimits,
+    SetWindow,
+    SetDwell,
+    SetEot,
+    SetHold,
+    Reference,  // settings: a (and b, n); Reference: n = direction
   };
   Kind kind = Kind::Stop;
   std::int32_t axis = -1;
@@ -65,8 +73,8 @@ void set_note(ErrorNote& note, double t_s, const char* a, const char* b = "", co
 // A sweep trial: recorder -> loop.
 struct TrialRequest {
   std::uint32_t index = 0;
-  std::uint32_t seq = 0;   // unique across sweeps (the recorder's running number, top bit set):
-                           // the notices and the capture records of this trial carry it
+  std::uint32_t seq = 0;  // unique across sweeps (the recorder's running number, top bit set):
+                          // the notices and the capture records of this trial carry it
   std::int32_t axis = 0;
   model::Segment segment;
   double return_to_m = 0;  // NaN: play where the slider is

@@ -20,19 +20,26 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-std::string num(double v) { return model::format_number(v); }
+std::string num(double v) {
+  return model::format_number(v);
+}
 
 }  // namespace
 
-std::string Daemon::identity() { return std::string("idm,idmd,0,") + IDM_VERSION; }
+std::string Daemon::identity() {
+  return std::string("idm,idmd,0,") + IDM_VERSION;
+}
 
-std::string Daemon::axis_name(int axis) { return axes_.at(static_cast<std::size_t>(axis))->config().name; }
+std::string Daemon::axis_name(int axis) {
+  return axes_.at(static_cast<std::size_t>(axis))->config().name;
+}
 
 // ---- commands through the loop ----
 
 CommandError Daemon::submit(AxisCommand command) {
   const MotionSupervisor::Ack ack = supervisor_->submit(command, *loop_);
-  if (!ack.taken) return {error_code::kExecutionError, "the real-time loop did not take the command"};
+  if (!ack.taken)
+    return {error_code::kExecutionError, "the real-time loop did not take the command"};
   return refusal_error(command.axis, ack.refusal, ack.target_m, command.kind);
 }
 
@@ -44,40 +51,51 @@ CommandError Daemon::fault_error(control::MotionFault fault) {
   return {error_code::kSettingsConflict, text};
 }
 
-CommandError Daemon::refusal_error(int axis, control::Refusal r, double target, AxisCommand::Kind kind) {
+CommandError Daemon::refusal_error(int axis, control::Refusal r, double target,
+                                   AxisCommand::Kind kind) {
   if (r == control::Refusal::None) return {};
   const AxisPublished p = axes_.at(static_cast<std::size_t>(std::max(axis, 0)))->published();
   switch (r) {
-    case control::Refusal::None: return {};
+    case control::Refusal::None:
+      return {};
     case control::Refusal::NotFinite:
       return {error_code::kNumericDataError, "the argument is not a finite number"};
     case control::Refusal::OutsideSoftLimits:
-      return {error_code::kDataOutOfRange,
-              (std::isnan(target) ? std::string("the motion's end") : "target " + num(target) + " m") +
-                  " is outside the soft limits [" + num(p.soft_lower_m) + ", " + num(p.soft_upper_m) +
-                  "] m; nothing moved"};
-    case control::Refusal::Faulted: return fault_error(p.motion.fault);
+      return {
+          error_code::kDataOutOfRange,
+          (std::isnan(target) ? std::string("the motion's end") : "target " + num(target) + " m") +
+              " is outside the soft limits [" + num(p.soft_lower_m) + ", " + num(p.soft_upper_m) +
+              "] m; nothing moved"};
+    case control::Refusal::Faulted:
+      return fault_error(p.motion.fault);
     case control::Refusal::Busy:
       if (kind == AxisCommand::Kind::SetLimits)
-        return {error_code::kSettingsConflict, "the motion in progress ends at " + num(p.motion.target_m) +
+        return {error_code::kSettingsConflict, "the motion in progress ends at " +
+                                                   num(p.motion.target_m) +
                                                    " m, outside the new limits: STOP it first"};
-      if (supervisor_->stopping()) return {error_code::kSettingsConflict, "the daemon is shutting down"};
+      if (supervisor_->stopping())
+        return {error_code::kSettingsConflict, "the daemon is shutting down"};
       if (p.trial_active || (sweeps_ && sweeps_->active()))
         return {error_code::kSettingsConflict, "a sweep is running: STOP it first"};
-      return {error_code::kSettingsConflict, "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
+      return {error_code::kSettingsConflict,
+              "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
     case control::Refusal::OutOfRange:
       if (kind == AxisCommand::Kind::Reference)
         return {error_code::kSettingsConflict, "REFerence: no cell of the map moves that way"};
-      return {error_code::kDataOutOfRange, "outside the device limits (cycles, duty, frequency or stroke)"};
+      return {error_code::kDataOutOfRange,
+              "outside the device limits (cycles, duty, frequency or stroke)"};
     case control::Refusal::NoPosition:
-      return {error_code::kDataCorruptOrStale, "the position is not known (no valid interferometer reading)"};
+      return {error_code::kDataCorruptOrStale,
+              "the position is not known (no valid interferometer reading)"};
     case control::Refusal::EndOfTravel:
       return {error_code::kSettingsConflict,
-              std::string("the axis stopped at its end of travel (") + (p.motion.eot < 0 ? "low" : "high") +
+              std::string("the axis stopped at its end of travel (") +
+                  (p.motion.eot < 0 ? "low" : "high") +
                   "): only motion away from it is allowed (or REFerence)"};
     case control::Refusal::NotReferenced:
-      return {error_code::kSettingsConflict,
-              "the axis is not referenced (require_reference): REFerence it first, or MOVE:RELative"};
+      return {
+          error_code::kSettingsConflict,
+          "the axis is not referenced (require_reference): REFerence it first, or MOVE:RELative"};
   }
   return {error_code::kExecutionError, control::refusal_name(r)};
 }
@@ -98,7 +116,8 @@ CommandError Daemon::move_relative(int axis, double distance_m) {
   return submit(c);
 }
 
-CommandError Daemon::step(int axis, std::int64_t cycles, double duty, double freq_hz, double stroke_m) {
+CommandError Daemon::step(int axis, std::int64_t cycles, double duty, double freq_hz,
+                          double stroke_m) {
   if (cycles == 0) return {error_code::kDataOutOfRange, "STEP cycles: must not be 0"};
   const bool cell_given = !std::isnan(duty) || !std::isnan(freq_hz);
   if (cell_given && (std::isnan(duty) || std::isnan(freq_hz)))
@@ -106,8 +125,8 @@ CommandError Daemon::step(int axis, std::int64_t cycles, double duty, double fre
   if (!std::isnan(stroke_m) && !cell_given)
     return {error_code::kMissingParameter, "STEP stroke_m needs duty and freq_hz before it"};
   const auto out_of_range = [](const char* what, double v, const std::string& allowed) {
-    return CommandError{error_code::kDataOutOfRange,
-                        std::string("STEP ") + what + ": " + num(v) + " is out of range, allowed " + allowed};
+    return CommandError{error_code::kDataOutOfRange, std::string("STEP ") + what + ": " + num(v) +
+                                                         " is out of range, allowed " + allowed};
   };
   control::DeviceLimits limits;
   {
@@ -121,7 +140,8 @@ CommandError Daemon::step(int axis, std::int64_t cycles, double duty, double fre
       return out_of_range("freq_hz", freq_hz,
                           "[" + num(limits.min_freq_hz) + ", " + num(limits.max_freq_hz) + "] Hz");
   }
-  if (!std::isnan(stroke_m) && !(stroke_m >= limits.min_stroke_m && stroke_m <= limits.max_stroke_m))
+  if (!std::isnan(stroke_m) &&
+      !(stroke_m >= limits.min_stroke_m && stroke_m <= limits.max_stroke_m))
     return out_of_range("stroke_m", stroke_m,
                         "[" + num(limits.min_stroke_m) + ", " + num(limits.max_stroke_m) + "] m");
   AxisCommand c;
@@ -155,13 +175,17 @@ CommandError Daemon::set_soft_limits(int axis, double lower_m, double upper_m) {
     return {error_code::kNumericDataError, "a soft limit is not a number"};
   if (!(lower_m < upper_m))
     return {error_code::kDataOutOfRange, "the lower limit " + num(lower_m) +
-                                             " m must be below the upper limit " + num(upper_m) + " m"};
+                                             " m must be below the upper limit " + num(upper_m) +
+                                             " m"};
   const model::StageFile& st = axes_.at(static_cast<std::size_t>(axis))->config().stage;
-  const std::string travel = "the stage's travel [" + num(st.travel_lower_m) + ", " + num(st.travel_upper_m) + "] m";
+  const std::string travel =
+      "the stage's travel [" + num(st.travel_lower_m) + ", " + num(st.travel_upper_m) + "] m";
   if (lower_m < st.travel_lower_m)
-    return {error_code::kDataOutOfRange, "the lower limit " + num(lower_m) + " m lies outside " + travel};
+    return {error_code::kDataOutOfRange,
+            "the lower limit " + num(lower_m) + " m lies outside " + travel};
   if (upper_m > st.travel_upper_m)
-    return {error_code::kDataOutOfRange, "the upper limit " + num(upper_m) + " m lies outside " + travel};
+    return {error_code::kDataOutOfRange,
+            "the upper limit " + num(upper_m) + " m lies outside " + travel};
   AxisCommand c;
   c.kind = AxisCommand::Kind::SetLimits;
   c.axis = axis;
@@ -182,20 +206,28 @@ CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double va
                 {"HOLD", -1, 86400, "s (0: no hold, -1: until the next motion)"},
                 {"HOLD:WINDow", 0, 1e-3, "m (0: the move window)"}};
   const auto& r = kRange[static_cast<std::size_t>(which)];
-  if (!std::isfinite(value)) return {error_code::kNumericDataError, std::string(r.name) + ": not a finite number"};
+  if (!std::isfinite(value))
+    return {error_code::kNumericDataError, std::string(r.name) + ": not a finite number"};
   const bool integral = which == MotionSetting::EotCycles;
   const bool hold_gap = which == MotionSetting::Hold && value < 0 && value != -1;
   if (value < r.lo || value > r.hi || hold_gap || (integral && value != std::floor(value)))
-    return {error_code::kDataOutOfRange, std::string(r.name) + ": " + num(value) + " is out of range, allowed " +
-                                             (which == MotionSetting::Hold ? std::string("-1 or [0, 86400]")
-                                                                           : "[" + num(r.lo) + ", " + num(r.hi) + "]") +
-                                             (integral ? " (an integer)" : "") + " " + r.unit};
+    return {error_code::kDataOutOfRange,
+            std::string(r.name) + ": " + num(value) + " is out of range, allowed " +
+                (which == MotionSetting::Hold ? std::string("-1 or [0, 86400]")
+                                              : "[" + num(r.lo) + ", " + num(r.hi) + "]") +
+                (integral ? " (an integer)" : "") + " " + r.unit};
   const AxisPublished p = axes_.at(static_cast<std::size_t>(axis))->published();
   AxisCommand c;
   c.axis = axis;
   switch (which) {
-    case MotionSetting::Window: c.kind = AxisCommand::Kind::SetWindow; c.a = value; break;
-    case MotionSetting::Dwell: c.kind = AxisCommand::Kind::SetDwell; c.a = value; break;
+    case MotionSetting::Window:
+      c.kind = AxisCommand::Kind::SetWindow;
+      c.a = value;
+      break;
+    case MotionSetting::Dwell:
+      c.kind = AxisCommand::Kind::SetDwell;
+      c.a = value;
+      break;
     case MotionSetting::EotStep:
       c.kind = AxisCommand::Kind::SetEot;
       c.a = value;
@@ -223,12 +255,18 @@ CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double va
 double Daemon::motion_setting(int axis, MotionSetting which) {
   const MotionSettings s = axes_.at(static_cast<std::size_t>(axis))->published().settings;
   switch (which) {
-    case MotionSetting::Window: return s.window_m;
-    case MotionSetting::Dwell: return s.dwell_s;
-    case MotionSetting::EotStep: return s.eot_step_m;
-    case MotionSetting::EotCycles: return s.eot_cycles;
-    case MotionSetting::Hold: return s.hold_s;
-    case MotionSetting::HoldWindow: return s.hold_window_m;
+    case MotionSetting::Window:
+      return s.window_m;
+    case MotionSetting::Dwell:
+      return s.dwell_s;
+    case MotionSetting::EotStep:
+      return s.eot_step_m;
+    case MotionSetting::EotCycles:
+      return s.eot_cycles;
+    case MotionSetting::Hold:
+      return s.hold_s;
+    case MotionSetting::HoldWindow:
+      return s.hold_window_m;
   }
   return kNaN;
 }
@@ -241,8 +279,9 @@ CommandError Daemon::reference(int axis, ReferenceMethod method) {
              : cfg.reference == AxisConfig::Reference::Mark   ? ReferenceMethod::Mark
                                                               : ReferenceMethod::Negative;
   if (method == ReferenceMethod::Mark)
-    return {error_code::kSettingsConflict, "REFerence MARK: axis " + cfg.name +
-                                               "'s interferometer reports no reference mark; use NEGative or POSitive"};
+    return {error_code::kSettingsConflict,
+            "REFerence MARK: axis " + cfg.name +
+                "'s interferometer reports no reference mark; use NEGative or POSitive"};
   const bool negative = method == ReferenceMethod::Negative;
   double at = cfg.reference_position_m;
   if (std::isnan(at)) at = negative ? cfg.stage.travel_lower_m : cfg.stage.travel_upper_m;
@@ -256,7 +295,7 @@ CommandError Daemon::reference(int axis, ReferenceMethod method) {
 
 CommandError Daemon::reset() {
   if (CommandError e = stop(); !e.ok()) return e;
-  errors_cleared_s_ = drivers::monotonic_s();  // after the stop: what it stopped is cleared too
+  errors_cleared_s_ = drivers::monotonic_s();     // after the stop: what it stopped is cleared too
   if (housekeeping_->reset_pending()) return {};  // already on its way
   if (sweeps_->active()) {
     // The sweep winds down on the recorder thread; rather than hold the server thread (and every
@@ -267,7 +306,8 @@ CommandError Daemon::reset() {
   }
   // No sweep: the loop parks at the playing chunks' ends (at most control.max_chunk_s).
   std::string error;
-  if (!reload_control(error, SoftLimits::Keep)) return {error_code::kExecutionError, "*RST: " + error};
+  if (!reload_control(error, SoftLimits::Keep))
+    return {error_code::kExecutionError, "*RST: " + error};
   return {};
 }
 
@@ -282,8 +322,8 @@ bool Daemon::motion_done(int axis) {
   if (housekeeping_->reset_pending()) return false;
   if (sweeps_->active() && sweeps_->status().axis == axis) return false;
   const AxisPublished p = axes_.at(static_cast<std::size_t>(axis))->published();
-  return (p.motion.state == control::MotionState::Idle || p.motion.state == control::MotionState::Fault ||
-          p.motion.holding) &&
+  return (p.motion.state == control::MotionState::Idle ||
+          p.motion.state == control::MotionState::Fault || p.motion.holding) &&
          !p.trial_active;
 }
 
@@ -325,7 +365,8 @@ InstrumentStatus Daemon::status(int axis) {
              : p.motion.kind == control::MotionKind::Reference ? "reference"
                                                                : "";
   s.eot = p.motion.eot;
-  s.in_position = p.motion.in_window && s.motion_done && p.motion.state != control::MotionState::Fault;
+  s.in_position =
+      p.motion.in_window && s.motion_done && p.motion.state != control::MotionState::Fault;
   s.holding = p.motion.holding;
   s.referencing = p.referencing;
   const ErrorNote fault = a.fault_note();
@@ -344,8 +385,8 @@ std::vector<double> Daemon::positions() {
   return out;
 }
 
-CommandError Daemon::region(int axis, double freq_hz, double duty, double stroke_m, std::string& region,
-                            double& step_m) {
+CommandError Daemon::region(int axis, double freq_hz, double duty, double stroke_m,
+                            std::string& region, double& step_m) {
   if (!std::isfinite(freq_hz) || !std::isfinite(duty) || std::isinf(stroke_m))
     return {error_code::kNumericDataError, "the argument is not a finite number"};
   if (!(freq_hz > 0) || !(duty > 0 && duty < 1) || !(std::isnan(stroke_m) || stroke_m > 0))
@@ -363,9 +404,13 @@ CommandError Daemon::region(int axis, double freq_hz, double duty, double stroke
   return {};
 }
 
-LoopStats Daemon::loop_stats() { return loop_->stats(); }
+LoopStats Daemon::loop_stats() {
+  return loop_->stats();
+}
 
-SweepStatus Daemon::sweep_status() { return sweeps_->status(); }
+SweepStatus Daemon::sweep_status() {
+  return sweeps_->status();
+}
 
 // ---- the simulated stage ----
 
@@ -374,9 +419,10 @@ namespace {
 CommandError inject(Axis& a, drivers::SimAction action) {
   action.channel = static_cast<std::uint32_t>(a.channel());
   if (!a.link().simulated(a.channel()))
-    return {error_code::kHardwareMissing, "axis " + a.config().name + " is on a " +
-                                              a.config().document["daq"]["driver"].as<std::string>() +
-                                              " device, not a simulated one"};
+    return {error_code::kHardwareMissing,
+            "axis " + a.config().name + " is on a " +
+                a.config().document["daq"]["driver"].as<std::string>() +
+                " device, not a simulated one"};
   if (!a.link().inject(action))
     return {error_code::kExecutionError, "the simulated device's queue is full: try again"};
   return {};
@@ -386,7 +432,8 @@ CommandError inject(Axis& a, drivers::SimAction action) {
 
 CommandError Daemon::sim_push(int axis, double distance_m) {
   if (!std::isfinite(distance_m) || std::fabs(distance_m) > 0.1)
-    return {error_code::kDataOutOfRange, "SIMulation:PUSH: " + num(distance_m) + " is out of range, allowed [-0.1, 0.1] m"};
+    return {error_code::kDataOutOfRange,
+            "SIMulation:PUSH: " + num(distance_m) + " is out of range, allowed [-0.1, 0.1] m"};
   drivers::SimAction a;
   a.kind = drivers::SimAction::Kind::Push;
   a.value = distance_m;
@@ -398,8 +445,9 @@ CommandError Daemon::sim_fault(int axis, const std::string& fault, double value)
   static const struct {
     const char* name;
     K kind;
-  } kFaults[] = {{"beam_lost", K::BeamLost}, {"stalled", K::Stalled}, {"glitches", K::Glitches},
-                 {"disconnect", K::Disconnect}, {"power_cycle", K::PowerCycle}, {"timeouts", K::Timeouts}};
+  } kFaults[] = {{"beam_lost", K::BeamLost},     {"stalled", K::Stalled},
+                 {"glitches", K::Glitches},      {"disconnect", K::Disconnect},
+                 {"power_cycle", K::PowerCycle}, {"timeouts", K::Timeouts}};
   drivers::SimAction a;
   bool known = false;
   for (const auto& f : kFaults)
@@ -408,10 +456,12 @@ CommandError Daemon::sim_fault(int axis, const std::string& fault, double value)
       known = true;
     }
   if (!known)
-    return {error_code::kDataOutOfRange, "SIMulation:FAULt: unknown fault '" + fault +
-                                             "', allowed beam_lost, stalled, glitches, disconnect, power_cycle, timeouts"};
+    return {error_code::kDataOutOfRange,
+            "SIMulation:FAULt: unknown fault '" + fault +
+                "', allowed beam_lost, stalled, glitches, disconnect, power_cycle, timeouts"};
   if (!std::isfinite(value) || value < 0 || value > 1)
-    return {error_code::kDataOutOfRange, "SIMulation:FAULt " + fault + ": " + num(value) + " is out of range, allowed [0, 1]"};
+    return {error_code::kDataOutOfRange,
+            "SIMulation:FAULt " + fault + ": " + num(value) + " is out of range, allowed [0, 1]"};
   if (a.kind == K::Disconnect && value == 0) a.kind = K::Reconnect;
   if (a.kind == K::PowerCycle && value == 0) a.kind = K::Reconnect;  // switched back on
   a.value = value;
@@ -426,17 +476,21 @@ CommandError Daemon::check_sweep(int axis, const std::vector<double>& freqs_hz,
     return {error_code::kMissingParameter, "SWEEP needs at least one frequency and one duty"};
   if (trials < 1 || trials > kMaxSweepTrials)
     return {error_code::kDataOutOfRange, "SWEEP trials: " + std::to_string(trials) +
-                                             " is out of range, allowed [1, " + std::to_string(kMaxSweepTrials) + "]"};
+                                             " is out of range, allowed [1, " +
+                                             std::to_string(kMaxSweepTrials) + "]"};
   if (cycles < 1 || cycles > kMaxSweepCycles)
     return {error_code::kDataOutOfRange, "SWEEP cycles: " + std::to_string(cycles) +
-                                             " is out of range, allowed [1, " + std::to_string(kMaxSweepCycles) + "]"};
+                                             " is out of range, allowed [1, " +
+                                             std::to_string(kMaxSweepCycles) + "]"};
   const std::size_t total = freqs_hz.size() * duties.size() * static_cast<std::size_t>(trials);
   if (total > static_cast<std::size_t>(config_.recording.sweep_max_trials))
-    return {error_code::kDataOutOfRange, std::to_string(total) + " trials, more than recording.sweep_max_trials (" +
-                                             std::to_string(config_.recording.sweep_max_trials) + ")"};
+    return {error_code::kDataOutOfRange,
+            std::to_string(total) + " trials, more than recording.sweep_max_trials (" +
+                std::to_string(config_.recording.sweep_max_trials) + ")"};
   if (sweeps_->active()) return {error_code::kSettingsConflict, "a sweep is already running"};
   if (!motion_done(axis))
-    return {error_code::kSettingsConflict, "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
+    return {error_code::kSettingsConflict,
+            "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
   Axis& a = *axes_.at(static_cast<std::size_t>(axis));
   const AxisPublished p = a.published();
   if (p.motion.state == control::MotionState::Fault) return fault_error(p.motion.fault);
@@ -448,26 +502,31 @@ CommandError Daemon::check_sweep(int axis, const std::vector<double>& freqs_hz,
     if (!std::isfinite(f)) return {error_code::kNumericDataError, "a frequency is not finite"};
     if (f < lim.min_freq_hz || f > lim.max_freq_hz)
       return {error_code::kDataOutOfRange, "frequency " + num(f) + " Hz outside the device's [" +
-                                               num(lim.min_freq_hz) + ", " + num(lim.max_freq_hz) + "] Hz"};
+                                               num(lim.min_freq_hz) + ", " + num(lim.max_freq_hz) +
+                                               "] Hz"};
     const double trial_s = config_.recording.sweep_rest_s +
                            static_cast<double>(cycles + config_.recording.sweep_settle_cycles) / f;
     const double records = trial_s * ic.stream_rate_hz + 2;
     if (records > static_cast<double>(ic.stream_capacity))
-      return {error_code::kDataOutOfRange, "a trial at " + num(f) + " Hz with " + std::to_string(cycles) +
-                                               " cycles is " + num(records) + " records, the capture holds " +
+      return {error_code::kDataOutOfRange, "a trial at " + num(f) + " Hz with " +
+                                               std::to_string(cycles) + " cycles is " +
+                                               num(records) + " records, the capture holds " +
                                                std::to_string(ic.stream_capacity)};
     for (double d : duties) {
       if (!std::isfinite(d)) return {error_code::kNumericDataError, "a duty is not finite"};
-      if (!(d > 0 && d < 1)) return {error_code::kDataOutOfRange, "duty " + num(d) + ": allowed (0, 1)"};
+      if (!(d > 0 && d < 1))
+        return {error_code::kDataOutOfRange, "duty " + num(d) + ": allowed (0, 1)"};
       if (buffered) {
-        const model::Segment seg = model::make_segment(f, d, lim.max_stroke_m, static_cast<std::uint64_t>(cycles),
-                                                       lim.output_sample_rate_hz, config_.recording.sweep_rest_s,
-                                                       config_.recording.sweep_settle_cycles / f);
-        const std::size_t room = std::min<std::size_t>(caps.max_burst_samples, std::size_t{1} << 21);
+        const model::Segment seg = model::make_segment(
+            f, d, lim.max_stroke_m, static_cast<std::uint64_t>(cycles), lim.output_sample_rate_hz,
+            config_.recording.sweep_rest_s, config_.recording.sweep_settle_cycles / f);
+        const std::size_t room =
+            std::min<std::size_t>(caps.max_burst_samples, std::size_t{1} << 21);
         if (seg.sample_count() > room)
-          return {error_code::kDataOutOfRange, "a trial at " + num(f) + " Hz with " + std::to_string(cycles) +
-                                                   " cycles needs " + std::to_string(seg.sample_count()) +
-                                                   " samples, the output holds " + std::to_string(room)};
+          return {error_code::kDataOutOfRange,
+                  "a trial at " + num(f) + " Hz with " + std::to_string(cycles) + " cycles needs " +
+                      std::to_string(seg.sample_count()) + " samples, the output holds " +
+                      std::to_string(room)};
       } else if (static_cast<std::uint32_t>(cycles) > caps.max_cycles) {
         return {error_code::kDataOutOfRange, "cycles above the device's max_cycles"};
       }
@@ -497,7 +556,8 @@ CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<d
   job->trials = trials;
   job->cycles = cycles;
   job->stroke_m = a.limits().max_stroke_m;
-  job->sample_rate_hz = caps.mode == drivers::OutputMode::BufferedSamples ? a.limits().output_sample_rate_hz : 0.0;
+  job->sample_rate_hz =
+      caps.mode == drivers::OutputMode::BufferedSamples ? a.limits().output_sample_rate_hz : 0.0;
   job->rest_s = config_.recording.sweep_rest_s;
   job->settle_cycles = config_.recording.sweep_settle_cycles;
   job->span_m = config_.recording.sweep_span_m;
@@ -507,7 +567,8 @@ CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<d
   } catch (const std::exception& e) {
     return {error_code::kExecutionError, std::string("cannot create the dataset: ") + e.what()};
   }
-  if (!sweeps_->submit(std::move(job))) return {error_code::kSettingsConflict, "a sweep is already running"};
+  if (!sweeps_->submit(std::move(job)))
+    return {error_code::kSettingsConflict, "a sweep is already running"};
   return {};
 }
 

@@ -29,7 +29,9 @@ namespace {
 constexpr double kInf = std::numeric_limits<double>::infinity();
 using Node = YAML::Node;
 
-bool present(const Node& n) { return n.IsDefined() && !n.IsNull(); }
+bool present(const Node& n) {
+  return n.IsDefined() && !n.IsNull();
+}
 
 // map[key], or an undefined node (never yaml-cpp's invalid one, which cannot be assigned).
 Node child(const Node& map, const char* key) {
@@ -61,14 +63,17 @@ model::Param<S> section(const char* name, const char* doc, Node S::*field) {
 
 const model::ParamTable<AxisSections>& axis_params() {
   static const model::ParamTable<AxisSections> table({
-      text<AxisSections>("device", "the device (devices.NAME) it is on; the only one when there is one",
-                         [](auto& a) -> auto& { return a.device; }, "a name under devices:"),
-      with_default(integer<AxisSections>("channel", "count", 0, 63,
-                                         "its output channel and interferometer axis on the device",
-                                         [](auto& a) -> auto& { return a.channel; }),
-                   "its place among the device's axes"),
-      boolean<AxisSections>("require_reference", "MOVE:ABS is refused (-221) until the axis is referenced",
-                            [](auto& a) -> auto& { return a.require_reference; }),
+      text<AxisSections>(
+          "device", "the device (devices.NAME) it is on; the only one when there is one",
+          [](auto& a) -> auto& { return a.device; }, "a name under devices:"),
+      with_default(
+          integer<AxisSections>(
+              "channel", "count", 0, 63, "its output channel and interferometer axis on the device",
+              [](auto& a) -> auto& { return a.channel; }),
+          "its place among the device's axes"),
+      boolean<AxisSections>(
+          "require_reference", "MOVE:ABS is refused (-221) until the axis is referenced",
+          [](auto& a) -> auto& { return a.require_reference; }),
       choice<AxisSections, AxisConfig::Reference>(
           "reference",
           {{"negative", AxisConfig::Reference::Negative},
@@ -76,14 +81,17 @@ const model::ParamTable<AxisSections>& axis_params() {
            {"mark", AxisConfig::Reference::Mark}},
           "what REFerence without an argument finds: an end stop or the reference mark",
           [](auto& a) -> auto& { return a.reference; }),
-      with_default(real<AxisSections>("reference_position_m", "m", {-10, 10},
-                                      "the position REFerence sets where it finds the reference",
-                                      [](auto& a) -> auto& { return a.reference_position_m; }),
+      with_default(real<AxisSections>(
+                       "reference_position_m", "m", {-10, 10},
+                       "the position REFerence sets where it finds the reference",
+                       [](auto& a) -> auto& { return a.reference_position_m; }),
                    "the end of stage.travel_m it lies at (the mark: 0)"),
       section<AxisSections>("stage", "the stage (below), travel_m required", &AxisSections::stage),
-      section<AxisSections>("interferometer", "the position words (below)", &AxisSections::interferometer),
+      section<AxisSections>("interferometer", "the position words (below)",
+                            &AxisSections::interferometer),
       section<AxisSections>("sim", "this axis's simulated stage (below)", &AxisSections::sim),
-      section<AxisSections>("control", "the axis's control settings (below)", &AxisSections::control),
+      section<AxisSections>("control", "the axis's control settings (below)",
+                            &AxisSections::control),
   });
   return table;
 }
@@ -91,8 +99,9 @@ const model::ParamTable<AxisSections>& axis_params() {
 void check_range_order(double lo, double hi, const std::string& f, const Node& node,
                        const std::string& key, const std::string& other) {
   if (lo > hi)
-    throw InputError(located(f, node, key, model::format_number(lo) + " must not exceed " + other +
-                                               " (" + model::format_number(hi) + ")"));
+    throw InputError(located(f, node, key,
+                             model::format_number(lo) + " must not exceed " + other + " (" +
+                                 model::format_number(hi) + ")"));
 }
 
 ControlConfig parse_control(const Node& node, const std::string& f, const std::string& key,
@@ -103,18 +112,22 @@ ControlConfig parse_control(const Node& node, const std::string& f, const std::s
   auto& p = c.positioner;
   check_range_order(c.min_freq_hz, c.max_freq_hz, f, node, key + ".min_freq_hz", "max_freq_hz");
   if (c.max_stroke_m > 0)
-    check_range_order(c.min_stroke_m, c.max_stroke_m, f, node, key + ".min_stroke_m", "max_stroke_m");
+    check_range_order(c.min_stroke_m, c.max_stroke_m, f, node, key + ".min_stroke_m",
+                      "max_stroke_m");
   // Soft limits: default to the stage's travel, and never outside it.
-  const bool has_lower = present(child(node, "soft_lower_m")), has_upper = present(child(node, "soft_upper_m"));
+  const bool has_lower = present(child(node, "soft_lower_m")),
+             has_upper = present(child(node, "soft_upper_m"));
   if (!has_lower) p.soft_lower_m = stage.has_travel() ? stage.travel_lower_m : -kInf;
   if (!has_upper) p.soft_upper_m = stage.has_travel() ? stage.travel_upper_m : kInf;
   if (!(p.soft_lower_m < p.soft_upper_m))
     throw InputError(located(f, node, key + ".soft_lower_m",
-                             model::format_number(p.soft_lower_m) + " must be below soft_upper_m (" +
+                             model::format_number(p.soft_lower_m) +
+                                 " must be below soft_upper_m (" +
                                  model::format_number(p.soft_upper_m) + ")"));
   if (stage.has_travel()) {
     const std::string travel = "the stage's travel [" + model::format_number(stage.travel_lower_m) +
-                               ", " + model::format_number(stage.travel_upper_m) + "] m (stage.travel_m)";
+                               ", " + model::format_number(stage.travel_upper_m) +
+                               "] m (stage.travel_m)";
     if (p.soft_lower_m < stage.travel_lower_m)
       throw InputError(located(f, child(node, "soft_lower_m"), key + ".soft_lower_m",
                                model::format_number(p.soft_lower_m) + " lies outside " + travel));
@@ -139,16 +152,18 @@ DeviceConfig parse_device(const Node& node, const std::string& f, const std::str
   d.name = name;
   device_params().read(node, f, key, d);
   bool known = false;
-  for (const drivers::BackendEntry& e : drivers::backend_table()) known = known || d.driver == e.name;
+  for (const drivers::BackendEntry& e : drivers::backend_table())
+    known = known || d.driver == e.name;
   if (!known)
-    throw InputError(located(f, child(node, "driver"), key + ".driver",
-                             "unknown driver '" + d.driver + "', known: " + drivers::known_backends()));
+    throw InputError(
+        located(f, child(node, "driver"), key + ".driver",
+                "unknown driver '" + d.driver + "', known: " + drivers::known_backends()));
   for (const drivers::BackendEntry& e : drivers::backend_table()) {
     const Node sub = child(node, e.name);
     if (present(sub) && d.driver != e.name)
-      throw InputError(located(f, sub, key + "." + e.name,
-                               std::string("a section for driver ") + e.name + ", but the driver is " +
-                                   d.driver));
+      throw InputError(located(
+          f, sub, key + "." + e.name,
+          std::string("a section for driver ") + e.name + ", but the driver is " + d.driver));
   }
   d.node = child(node, d.driver.c_str());
   if (d.crosstalk_fraction != 0 && d.driver != "sim")
@@ -187,7 +202,8 @@ AxisConfig parse_axis(const AxisSections& a, const std::string& name, std::size_
   axis.reference = a.reference;
   axis.reference_position_m = a.reference_position_m;
   axis.document = axis_document(a, c.devices[device]);
-  axis.stage = model::parse_stage_yaml(axis.document, f, {.strict = true, .require_dataset_keys = false});
+  axis.stage =
+      model::parse_stage_yaml(axis.document, f, {.strict = true, .require_dataset_keys = false});
   try {
     model::validate(axis.stage.stage, prefix + "stage");
   } catch (const InputError& e) {
@@ -206,10 +222,11 @@ AxisConfig parse_axis(const AxisSections& a, const std::string& name, std::size_
   axis.control = parse_control(a.control, f, prefix + "control", axis.stage);
   // Last, so that a typo elsewhere is reported first.
   if (!axis.stage.has_travel())
-    throw InputError(located(f, present(a.stage) ? a.stage : name_node, prefix + "stage.travel_m",
-                             "missing: the stage's mechanical range in metres, e.g. "
-                             "`travel_m: [-5e-3, 5e-3]` under stage:; the soft limits default to it "
-                             "and no move or STEP may leave it"));
+    throw InputError(
+        located(f, present(a.stage) ? a.stage : name_node, prefix + "stage.travel_m",
+                "missing: the stage's mechanical range in metres, e.g. "
+                "`travel_m: [-5e-3, 5e-3]` under stage:; the soft limits default to it "
+                "and no move or STEP may leave it"));
   return axis;
 }
 
@@ -223,7 +240,8 @@ void parse_globals(const Node& root, DaemonConfig& c) {
   logging_params().read(child(root, "logging"), f, "logging", c.logging);
   recording_params().read(child(root, "recording"), f, "recording", c.recording);
   if (c.recording.data_dir.empty())
-    throw InputError(located(f, child(root, "recording"), "recording.data_dir", "must not be empty"));
+    throw InputError(
+        located(f, child(root, "recording"), "recording.data_dir", "must not be empty"));
 }
 
 // The single-axis form: one device `daq`, one axis `x`.
@@ -263,13 +281,15 @@ void parse_axes(const Node& root, DaemonConfig& c) {
     const std::string name = kv.first.as<std::string>();
     const std::string key = "axes." + name;
     if (name.empty() || name.find_first_of(" \t,;:") != std::string::npos)
-      throw InputError(located(f, kv.first, key, "an axis name is a word without blanks, ',', ';' or ':'"));
+      throw InputError(
+          located(f, kv.first, key, "an axis name is a word without blanks, ',', ';' or ':'"));
     AxisSections a;
     axis_params().read(kv.second, f, key, a);
     std::size_t device = 0;
     if (a.device.empty()) {
       if (c.devices.size() > 1)
-        throw InputError(located(f, kv.second, key + ".device", "missing: there are several devices"));
+        throw InputError(
+            located(f, kv.second, key + ".device", "missing: there are several devices"));
     } else {
       auto it = std::find_if(c.devices.begin(), c.devices.end(),
                              [&](const DeviceConfig& d) { return d.name == a.device; });
@@ -297,33 +317,49 @@ const model::ParamTable<ControlConfig>& control_params() {
   using C = ControlConfig;
   static const model::ParamTable<C> table(model::join<C>({
       {
-          real<C>("freq_step_hz", "Hz", {0, 1e5, true}, "region map grid: frequency step",
-                  [](auto& c) -> auto& { return c.freq_step_hz; }),
-          real<C>("duty_step", "1", {0, 0.25, true}, "region map grid: duty step",
-                  [](auto& c) -> auto& { return c.duty_step; }),
-          integer<C>("stroke_count", "count", 1, 64, "region map grid: strokes",
-                     [](auto& c) -> auto& { return c.stroke_count; }),
-          real<C>("min_freq_hz", "Hz", {0, 1e6, true}, "lowest frequency (narrowed by the device)",
-                  [](auto& c) -> auto& { return c.min_freq_hz; }),
-          real<C>("max_freq_hz", "Hz", {0, 1e6, true}, "highest frequency (narrowed by the device)",
-                  [](auto& c) -> auto& { return c.max_freq_hz; }),
-          real<C>("min_stroke_m", "m", {0, 1e-3, true}, "smallest stroke of the map",
-                  [](auto& c) -> auto& { return c.min_stroke_m; }),
-          with_default(real<C>("max_stroke_m", "m", {0, 1e-3}, "largest stroke; 0: the stage's (capped by the output)",
-                               [](auto& c) -> auto& { return c.max_stroke_m; }),
+          real<C>(
+              "freq_step_hz", "Hz", {0, 1e5, true}, "region map grid: frequency step",
+              [](auto& c) -> auto& { return c.freq_step_hz; }),
+          real<C>(
+              "duty_step", "1", {0, 0.25, true}, "region map grid: duty step",
+              [](auto& c) -> auto& { return c.duty_step; }),
+          integer<C>(
+              "stroke_count", "count", 1, 64, "region map grid: strokes",
+              [](auto& c) -> auto& { return c.stroke_count; }),
+          real<C>(
+              "min_freq_hz", "Hz", {0, 1e6, true}, "lowest frequency (narrowed by the device)",
+              [](auto& c) -> auto& { return c.min_freq_hz; }),
+          real<C>(
+              "max_freq_hz", "Hz", {0, 1e6, true}, "highest frequency (narrowed by the device)",
+              [](auto& c) -> auto& { return c.max_freq_hz; }),
+          real<C>(
+              "min_stroke_m", "m", {0, 1e-3, true}, "smallest stroke of the map",
+              [](auto& c) -> auto& { return c.min_stroke_m; }),
+          with_default(real<C>(
+                           "max_stroke_m", "m", {0, 1e-3},
+                           "largest stroke; 0: the stage's (capped by the output)",
+                           [](auto& c) -> auto& { return c.max_stroke_m; }),
                        "0 (stage.stroke_m)"),
-          real<C>("output_sample_rate_hz", "Hz", {0, 1e8, true}, "buffered outputs: the DAC clock (capped by the device)",
-                  [](auto& c) -> auto& { return c.output_sample_rate_hz; }),
-          real<C>("friction_uncertainty", "1", {0, 0.45}, "relative uncertainty of mu the map keeps a margin for",
-                  [](auto& c) -> auto& { return c.friction_uncertainty; }),
-          text<C>("calibration_file", "the learned step model: loaded at start, saved after moves; \"\": none",
-                  [](auto& c) -> auto& { return c.calibration_file; }, "a path"),
-          model::nested<C>("calibration", "online calibration (control.calibration.KEY below)",
-                           control::calibration_params(), [](auto& c) -> auto& { return c.calibration; }),
+          real<C>(
+              "output_sample_rate_hz", "Hz", {0, 1e8, true},
+              "buffered outputs: the DAC clock (capped by the device)",
+              [](auto& c) -> auto& { return c.output_sample_rate_hz; }),
+          real<C>(
+              "friction_uncertainty", "1", {0, 0.45},
+              "relative uncertainty of mu the map keeps a margin for",
+              [](auto& c) -> auto& { return c.friction_uncertainty; }),
+          text<C>(
+              "calibration_file",
+              "the learned step model: loaded at start, saved after moves; \"\": none",
+              [](auto& c) -> auto& { return c.calibration_file; }, "a path"),
+          model::nested<C>(
+              "calibration", "online calibration (control.calibration.KEY below)",
+              control::calibration_params(), [](auto& c) -> auto& { return c.calibration; }),
       },
       model::lifted<C>(control::planner_params(), [](auto& c) -> auto& { return c.planner; },
                        {"max_bursts"}),
-      model::lifted<C>(control::positioner_params(), [](auto& c) -> auto& { return c.positioner; }),
+      model::lifted<C>(
+          control::positioner_params(), [](auto& c) -> auto& { return c.positioner; }),
   }));
   return table;
 }
@@ -331,18 +367,25 @@ const model::ParamTable<ControlConfig>& control_params() {
 const model::ParamTable<ListenConfig>& server_params() {
   using S = ListenConfig;
   static const model::ParamTable<S> table({
-      text<S>("tcp_address", "TCP listener address; \"\": none", [](auto& c) -> auto& { return c.tcp_address; },
-              "an address"),
-      integer<S>("tcp_port", "", 0, 65535, "TCP port; 0: any free port (`--port` overrides)",
-                 [](auto& c) -> auto& { return c.tcp_port; }),
-      text<S>("unix_socket", "the Unix socket; \"\": none (`--unix` overrides)",
-              [](auto& c) -> auto& { return c.unix_socket; }, "a path, <= 100 characters"),
-      integer<S>("max_clients", "count", 1, 1024, "clients that may send any command",
-                 [](auto& c) -> auto& { return c.max_clients; }),
-      integer<S>("overflow_slots", "count", 1, 64, "with the table full, stop-only connections",
-                 [](auto& c) -> auto& { return c.overflow_slots; }),
-      real<S>("ready_timeout_s", "s", {0, 600, true}, "every axis must read a valid position within this at start, or idmd exits 3",
-              [](auto& c) -> auto& { return c.ready_timeout_s; }),
+      text<S>(
+          "tcp_address", "TCP listener address; \"\": none",
+          [](auto& c) -> auto& { return c.tcp_address; }, "an address"),
+      integer<S>(
+          "tcp_port", "", 0, 65535, "TCP port; 0: any free port (`--port` overrides)",
+          [](auto& c) -> auto& { return c.tcp_port; }),
+      text<S>(
+          "unix_socket", "the Unix socket; \"\": none (`--unix` overrides)",
+          [](auto& c) -> auto& { return c.unix_socket; }, "a path, <= 100 characters"),
+      integer<S>(
+          "max_clients", "count", 1, 1024, "clients that may send any command",
+          [](auto& c) -> auto& { return c.max_clients; }),
+      integer<S>(
+          "overflow_slots", "count", 1, 64, "with the table full, stop-only connections",
+          [](auto& c) -> auto& { return c.overflow_slots; }),
+      real<S>(
+          "ready_timeout_s", "s", {0, 600, true},
+          "every axis must read a valid position within this at start, or idmd exits 3",
+          [](auto& c) -> auto& { return c.ready_timeout_s; }),
   });
   return table;
 }
@@ -350,16 +393,27 @@ const model::ParamTable<ListenConfig>& server_params() {
 const model::ParamTable<RealtimeConfig>& realtime_params() {
   using R = RealtimeConfig;
   static const model::ParamTable<R> table({
-      real<R>("period_s", "s", {1e-5, 0.1}, "the real-time loop's period", [](auto& c) -> auto& { return c.period_s; }),
-      boolean<R>("sched_fifo", "SCHED_FIFO when permitted (CAP_SYS_NICE)", [](auto& c) -> auto& { return c.sched_fifo; }),
-      integer<R>("priority", "", 1, 99, "SCHED_FIFO priority", [](auto& c) -> auto& { return c.priority; }),
-      integer<R>("cpu", "", -1, 1023, "pin the loop to this CPU; -1: no affinity", [](auto& c) -> auto& { return c.cpu; }),
-      boolean<R>("lock_memory", "mlockall when permitted (CAP_IPC_LOCK / RLIMIT_MEMLOCK)",
-                 [](auto& c) -> auto& { return c.lock_memory; }),
-      real<R>("histogram_bin_s", "s", {1e-7, 1e-2}, "wake-up latency histogram bin (32 bins)",
-              [](auto& c) -> auto& { return c.histogram_bin_s; }),
-      real<R>("watchdog_stall_s", "s", {1e-3, 60}, "no tick for this long: the loop has stalled",
-              [](auto& c) -> auto& { return c.watchdog_stall_s; }),
+      real<R>(
+          "period_s", "s", {1e-5, 0.1}, "the real-time loop's period",
+          [](auto& c) -> auto& { return c.period_s; }),
+      boolean<R>(
+          "sched_fifo", "SCHED_FIFO when permitted (CAP_SYS_NICE)",
+          [](auto& c) -> auto& { return c.sched_fifo; }),
+      integer<R>(
+          "priority", "", 1, 99, "SCHED_FIFO priority",
+          [](auto& c) -> auto& { return c.priority; }),
+      integer<R>(
+          "cpu", "", -1, 1023, "pin the loop to this CPU; -1: no affinity",
+          [](auto& c) -> auto& { return c.cpu; }),
+      boolean<R>(
+          "lock_memory", "mlockall when permitted (CAP_IPC_LOCK / RLIMIT_MEMLOCK)",
+          [](auto& c) -> auto& { return c.lock_memory; }),
+      real<R>(
+          "histogram_bin_s", "s", {1e-7, 1e-2}, "wake-up latency histogram bin (32 bins)",
+          [](auto& c) -> auto& { return c.histogram_bin_s; }),
+      real<R>(
+          "watchdog_stall_s", "s", {1e-3, 60}, "no tick for this long: the loop has stalled",
+          [](auto& c) -> auto& { return c.watchdog_stall_s; }),
   });
   return table;
 }
@@ -367,13 +421,20 @@ const model::ParamTable<RealtimeConfig>& realtime_params() {
 const model::ParamTable<LoggingConfig>& logging_params() {
   using L = LoggingConfig;
   static const model::ParamTable<L> table({
-      model::choice<L, std::string>("level", {{"trace", "trace"}, {"debug", "debug"}, {"info", "info"},
-                                              {"warn", "warn"}, {"error", "error"}, {"critical", "critical"},
-                                              {"off", "off"}},
-                                    "the least severe level logged", [](auto& c) -> auto& { return c.level; }),
-      model::choice<L, std::string>("format", {{"auto", "auto"}, {"console", "console"}, {"journal", "journal"}},
-                                    "journal: <N> priority prefixes, no time stamps; auto: journal under systemd",
-                                    [](auto& c) -> auto& { return c.format; }),
+      model::choice<L, std::string>(
+          "level",
+          {{"trace", "trace"},
+           {"debug", "debug"},
+           {"info", "info"},
+           {"warn", "warn"},
+           {"error", "error"},
+           {"critical", "critical"},
+           {"off", "off"}},
+          "the least severe level logged", [](auto& c) -> auto& { return c.level; }),
+      model::choice<L, std::string>(
+          "format", {{"auto", "auto"}, {"console", "console"}, {"journal", "journal"}},
+          "journal: <N> priority prefixes, no time stamps; auto: journal under systemd",
+          [](auto& c) -> auto& { return c.format; }),
   });
   return table;
 }
@@ -381,16 +442,22 @@ const model::ParamTable<LoggingConfig>& logging_params() {
 const model::ParamTable<RecordingConfig>& recording_params() {
   using R = RecordingConfig;
   static const model::ParamTable<R> table({
-      text<R>("data_dir", "SWEEP directories are created below it, and only there",
-              [](auto& c) -> auto& { return c.data_dir; }, "a path"),
-      real<R>("sweep_rest_s", "s", {0, 1}, "command at rest before each trial's first cycle",
-              [](auto& c) -> auto& { return c.sweep_rest_s; }),
-      integer<R>("sweep_settle_cycles", "periods", 0, 1000, "rest recorded after each trial's last cycle",
-                 [](auto& c) -> auto& { return c.sweep_settle_cycles; }),
-      real<R>("sweep_span_m", "m", {0, 1, true}, "a trial farther than this from the sweep's start returns there first",
-              [](auto& c) -> auto& { return c.sweep_span_m; }),
-      integer<R>("sweep_max_trials", "count", 1, 10000000, "most trials in one SWEEP",
-                 [](auto& c) -> auto& { return c.sweep_max_trials; }),
+      text<R>(
+          "data_dir", "SWEEP directories are created below it, and only there",
+          [](auto& c) -> auto& { return c.data_dir; }, "a path"),
+      real<R>(
+          "sweep_rest_s", "s", {0, 1}, "command at rest before each trial's first cycle",
+          [](auto& c) -> auto& { return c.sweep_rest_s; }),
+      integer<R>(
+          "sweep_settle_cycles", "periods", 0, 1000, "rest recorded after each trial's last cycle",
+          [](auto& c) -> auto& { return c.sweep_settle_cycles; }),
+      real<R>(
+          "sweep_span_m", "m", {0, 1, true},
+          "a trial farther than this from the sweep's start returns there first",
+          [](auto& c) -> auto& { return c.sweep_span_m; }),
+      integer<R>(
+          "sweep_max_trials", "count", 1, 10000000, "most trials in one SWEEP",
+          [](auto& c) -> auto& { return c.sweep_max_trials; }),
   });
   return table;
 }
@@ -398,25 +465,36 @@ const model::ParamTable<RecordingConfig>& recording_params() {
 const model::ParamTable<DeviceConfig>& device_params() {
   using D = DeviceConfig;
   const auto driver_section = [](const char* name) {
-    return custom<D>(name, "map", "see its section", "", "the driver's own keys (only for that driver)",
+    return custom<D>(name, "map", "see its section", "",
+                     "the driver's own keys (only for that driver)",
                      [](D&, const Node& v, const std::string& f, const std::string& k) {
                        if (!v.IsMap()) throw InputError(located(f, v, k, "expected a map"));
                      });
   };
   static const model::ParamTable<D> table({
-      text<D>("driver", "the backend", [](auto& d) -> auto& { return d.driver; }, "sim, modbus, usb"),
-      real<D>("poll_interval_s", "s", {1e-5, 10}, "each axis's position is read this often at rest",
-              [](auto& d) -> auto& { return d.link.poll_interval_s; }),
-      real<D>("io_period_s", "s", {1e-6, 0.1}, "the device's I/O thread cycle",
-              [](auto& d) -> auto& { return d.link.io_period_s; }),
-      integer<D>("stream_every", "count", 1, 1000000, "in a burst, every Nth streamed reading goes to the controller",
-                 [](auto& d) -> auto& { return d.link.stream_every; }),
-      real<D>("reconnect_min_s", "s", {1e-3, 60}, "first retry after the device is lost (then doubling)",
-              [](auto& d) -> auto& { return d.link.reconnect_min_s; }),
-      real<D>("reconnect_max_s", "s", {1e-3, 3600}, "longest wait between retries",
-              [](auto& d) -> auto& { return d.link.reconnect_max_s; }),
-      real<D>("crosstalk_fraction", "1", {-1, 1}, "sim: a step of one axis moves the device's other axes by this share of it",
-              [](auto& d) -> auto& { return d.crosstalk_fraction; }),
+      text<D>(
+          "driver", "the backend", [](auto& d) -> auto& { return d.driver; }, "sim, modbus, usb"),
+      real<D>(
+          "poll_interval_s", "s", {1e-5, 10}, "each axis's position is read this often at rest",
+          [](auto& d) -> auto& { return d.link.poll_interval_s; }),
+      real<D>(
+          "io_period_s", "s", {1e-6, 0.1}, "the device's I/O thread cycle",
+          [](auto& d) -> auto& { return d.link.io_period_s; }),
+      integer<D>(
+          "stream_every", "count", 1, 1000000,
+          "in a burst, every Nth streamed reading goes to the controller",
+          [](auto& d) -> auto& { return d.link.stream_every; }),
+      real<D>(
+          "reconnect_min_s", "s", {1e-3, 60},
+          "first retry after the device is lost (then doubling)",
+          [](auto& d) -> auto& { return d.link.reconnect_min_s; }),
+      real<D>(
+          "reconnect_max_s", "s", {1e-3, 3600}, "longest wait between retries",
+          [](auto& d) -> auto& { return d.link.reconnect_max_s; }),
+      real<D>(
+          "crosstalk_fraction", "1", {-1, 1},
+          "sim: a step of one axis moves the device's other axes by this share of it",
+          [](auto& d) -> auto& { return d.crosstalk_fraction; }),
       driver_section("sim"),
       driver_section("modbus"),
       driver_section("usb"),
@@ -438,23 +516,27 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
   model::require_unique_keys(root, f);
   const bool multi = present(child(root, "axes")) || present(child(root, "devices"));
   static const char* const kCommon[] = {"server", "realtime", "logging", "recording"};
-  static const char* const kSingle[] = {"stage", "interferometer", "daq", "control", "sim",
-                                        "require_reference", "reference", "reference_position_m"};
+  static const char* const kSingle[] = {
+      "stage", "interferometer",    "daq",       "control",
+      "sim",   "require_reference", "reference", "reference_position_m"};
   for (const auto& kv : root) {
     const std::string name = kv.first.as<std::string>();
-    const bool common = std::find(std::begin(kCommon), std::end(kCommon), name) != std::end(kCommon);
-    const bool single = std::find(std::begin(kSingle), std::end(kSingle), name) != std::end(kSingle);
+    const bool common =
+        std::find(std::begin(kCommon), std::end(kCommon), name) != std::end(kCommon);
+    const bool single =
+        std::find(std::begin(kSingle), std::end(kSingle), name) != std::end(kSingle);
     const bool axes = name == "axes" || name == "devices";
     if (common || (multi ? axes : single)) continue;
     if (multi && single)
       throw InputError(located(f, kv.first, name,
-                               "with axes:, each axis has its own " + name +
-                                   ": (axes.NAME." + name + "); devices are declared under devices:"));
-    throw InputError(located(f, kv.first, name,
-                             multi ? "unknown section, allowed devices, axes, server, realtime, logging, recording"
-                                   : "unknown section, allowed stage, interferometer, daq, control, sim, "
-                                     "require_reference, reference, reference_position_m, "
-                                     "server, realtime, logging, recording (or devices: and axes:)"));
+                               "with axes:, each axis has its own " + name + ": (axes.NAME." +
+                                   name + "); devices are declared under devices:"));
+    throw InputError(located(
+        f, kv.first, name,
+        multi ? "unknown section, allowed devices, axes, server, realtime, logging, recording"
+              : "unknown section, allowed stage, interferometer, daq, control, sim, "
+                "require_reference, reference, reference_position_m, "
+                "server, realtime, logging, recording (or devices: and axes:)"));
   }
   DaemonConfig c;
   c.file = f;
@@ -475,8 +557,9 @@ std::vector<ControlConfig> reload_control_configs(const YAML::Node& root, const 
                                                   const DaemonConfig& running) {
   const DaemonConfig fresh = parse_daemon_config(root, f);
   if (fresh.axes.size() != running.axes.size())
-    throw InputError(f + ": the axes changed (" + std::to_string(fresh.axes.size()) + " instead of " +
-                     std::to_string(running.axes.size()) + "): restart idmd to apply that");
+    throw InputError(f + ": the axes changed (" + std::to_string(fresh.axes.size()) +
+                     " instead of " + std::to_string(running.axes.size()) +
+                     "): restart idmd to apply that");
   std::vector<ControlConfig> out;
   for (std::size_t i = 0; i < fresh.axes.size(); ++i) {
     if (fresh.axes[i].name != running.axes[i].name)
@@ -499,15 +582,18 @@ std::string config_reference() {
          section("realtime", realtime_params().markdown()) +
          section("logging", logging_params().markdown()) +
          section("recording", recording_params().markdown()) +
-         section("stage (axes.NAME.stage; model/stage.h, the paper's Table 1)", model::stage_reference_rows()) +
+         section("stage (axes.NAME.stage; model/stage.h, the paper's Table 1)",
+                 model::stage_reference_rows()) +
          section("interferometer (axes.NAME.interferometer; drivers/config.h)",
                  drivers::interferometer_reference_rows()) +
          section("interferometer.air", drivers::air_reference_rows()) +
-         section("sim (axes.NAME.sim; model/simulation.h): the simulated stage, whatever the driver",
-                 model::sim_params().markdown()) +
+         section(
+             "sim (axes.NAME.sim; model/simulation.h): the simulated stage, whatever the driver",
+             model::sim_params().markdown()) +
          section("devices.NAME.sim (drivers/sim/)", drivers::sim::sim_device_params().markdown()) +
          section("devices.NAME.sim.faults", drivers::sim::sim_fault_params().markdown("faults.")) +
-         section("devices.NAME.modbus (drivers/modbus/)", drivers::modbus::modbus_params().markdown()) +
+         section("devices.NAME.modbus (drivers/modbus/)",
+                 drivers::modbus::modbus_params().markdown()) +
          section("devices.NAME.usb (drivers/usb/)", drivers::usb::usb_device_params().markdown());
 }
 
@@ -517,7 +603,8 @@ control::DeviceLimits device_limits(const ControlConfig& c, const model::StagePa
                                     const drivers::OutputCapabilities& caps) {
   control::DeviceLimits lim;
   const bool buffered = caps.mode == drivers::OutputMode::BufferedSamples;
-  lim.output_sample_rate_hz = buffered ? std::min(c.output_sample_rate_hz, caps.max_sample_rate_hz) : 0.0;
+  lim.output_sample_rate_hz =
+      buffered ? std::min(c.output_sample_rate_hz, caps.max_sample_rate_hz) : 0.0;
   lim.min_freq_hz = c.min_freq_hz;
   double fmax = c.max_freq_hz;
   // A buffered output needs at least a few samples per period.
@@ -545,8 +632,8 @@ control::RegionMapConfig region_map_config(const ControlConfig& c, const model::
       std::max(limits.min_freq_hz, c.freq_step_hz), limits.max_freq_hz, c.freq_step_hz);
   if (m.grid.freqs_hz.empty()) m.grid.freqs_hz.push_back(limits.max_freq_hz);
   m.grid.duty_step = c.duty_step;
-  m.grid.strokes_m = control::RegionGrid::stroke_steps(limits.min_stroke_m, limits.max_stroke_m,
-                                                       c.stroke_count);
+  m.grid.strokes_m =
+      control::RegionGrid::stroke_steps(limits.min_stroke_m, limits.max_stroke_m, c.stroke_count);
   return m;
 }
 

@@ -26,12 +26,12 @@
 // Parsing does no I/O.
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <cstdint>
 #include <limits>
 #include <string>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
 
 #include "control/calibration.h"
 #include "control/planner.h"
@@ -61,17 +61,17 @@ struct ControlConfig {
   double max_stroke_m = 0.0;
   double output_sample_rate_hz = 1e5;  // buffered outputs: the DAC clock (capped by the device)
   double friction_uncertainty = 0.15;
-  control::PlannerConfig planner;     // resolution_m comes from the interferometer
+  control::PlannerConfig planner;  // resolution_m comes from the interferometer
   control::PositionerConfig positioner;
   control::CalibrationConfig calibration;
-  std::string calibration_file;       // "" = no saved calibration
+  std::string calibration_file;  // "" = no saved calibration
 };
 const model::ParamTable<ControlConfig>& control_params();
 
 // `server:`: where the command protocol listens.
 struct ListenConfig {
-  std::string tcp_address = "127.0.0.1";  // "" = no TCP listener
-  int tcp_port = 5025;                    // 0 = any free port (printed at start)
+  std::string tcp_address = "127.0.0.1";            // "" = no TCP listener
+  int tcp_port = 5025;                              // 0 = any free port (printed at start)
   std::string unix_socket = "/run/idmd/idmd.sock";  // "" = no Unix socket
   int max_clients = 16;
   int overflow_slots = 4;
@@ -81,11 +81,11 @@ const model::ParamTable<ListenConfig>& server_params();
 
 // `realtime:`: the loop's period and the real-time setup it attempts.
 struct RealtimeConfig {
-  double period_s = 1e-4;       // 10 kHz
-  bool sched_fifo = true;       // SCHED_FIFO at `priority` when permitted (CAP_SYS_NICE)
-  int priority = 80;            // 1..99
-  int cpu = -1;                 // pin the loop to this CPU; -1 = no affinity
-  bool lock_memory = true;      // mlockall when permitted (RLIMIT_MEMLOCK / CAP_IPC_LOCK)
+  double period_s = 1e-4;         // 10 kHz
+  bool sched_fifo = true;         // SCHED_FIFO at `priority` when permitted (CAP_SYS_NICE)
+  int priority = 80;              // 1..99
+  int cpu = -1;                   // pin the loop to this CPU; -1 = no affinity
+  bool lock_memory = true;        // mlockall when permitted (RLIMIT_MEMLOCK / CAP_IPC_LOCK)
   double histogram_bin_s = 5e-6;  // wake-up latency histogram bin width
   double watchdog_stall_s = 0.5;  // no tick for this long: the loop is considered stalled
 };
@@ -101,10 +101,10 @@ const model::ParamTable<LoggingConfig>& logging_params();
 // `recording:`
 struct RecordingConfig {
   std::string data_dir = "/var/lib/idmd/data";  // SWEEP directories are relative to this
-  double sweep_rest_s = 5e-4;       // command at rest before each trial's first cycle
-  int sweep_settle_cycles = 2;      // periods of rest recorded after the last cycle
-  double sweep_span_m = 1e-3;       // a trial that would start farther than this from the sweep's
-                                    // start returns there first (closed-loop move)
+  double sweep_rest_s = 5e-4;                   // command at rest before each trial's first cycle
+  int sweep_settle_cycles = 2;                  // periods of rest recorded after the last cycle
+  double sweep_span_m = 1e-3;  // a trial that would start farther than this from the sweep's
+                               // start returns there first (closed-loop move)
   int sweep_max_trials = 100000;
 };
 const model::ParamTable<RecordingConfig>& recording_params();
@@ -122,10 +122,10 @@ const model::ParamTable<DeviceConfig>& device_params();
 // `axes.NAME:`.
 struct AxisConfig {
   std::string name;
-  std::size_t device = 0;           // into DaemonConfig::devices
-  int channel = 0;                  // on the device
-  model::StageFile stage;           // stage: and the interferometer's model view; travel
-  model::SimConfig sim;             // sim: (the simulated stage of this axis)
+  std::size_t device = 0;  // into DaemonConfig::devices
+  int channel = 0;         // on the device
+  model::StageFile stage;  // stage: and the interferometer's model view; travel
+  model::SimConfig sim;    // sim: (the simulated stage of this axis)
   ControlConfig control;
   bool require_reference = false;
   // REFerence without an argument: which end stop (or the mark); and the position the reference

@@ -21,7 +21,9 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-void sleep_s(double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); }
+void sleep_s(double s) {
+  std::this_thread::sleep_for(std::chrono::duration<double>(s));
+}
 
 }  // namespace
 
@@ -79,8 +81,8 @@ void Daemon::build_devices() {
     by_device[device] = links_.back().get();
   }
   for (std::size_t i = 0; i < config_.axes.size(); ++i)
-    axes_.push_back(std::make_unique<Axis>(config_.axes[i], *by_device[config_.axes[i].device],
-                                           link_index[i]));
+    axes_.push_back(
+        std::make_unique<Axis>(config_.axes[i], *by_device[config_.axes[i].device], link_index[i]));
 }
 
 void Daemon::open_devices() {
@@ -162,10 +164,11 @@ std::string Daemon::start() {
     throw;
   }
   sweeps_ = std::make_unique<SweepRunner>(*supervisor_, axes);
-  housekeeping_ = std::make_unique<Housekeeping>(axes, links, *supervisor_, *sweeps_, control_mutex_, [this] {
-    std::string error;
-    return reload_control(error, SoftLimits::Keep) ? std::string() : error;
-  });
+  housekeeping_ =
+      std::make_unique<Housekeeping>(axes, links, *supervisor_, *sweeps_, control_mutex_, [this] {
+        std::string error;
+        return reload_control(error, SoftLimits::Keep) ? std::string() : error;
+      });
   housekeeping_->start();
   return warning;
 }
@@ -187,7 +190,8 @@ void Daemon::shutdown() {
   supervisor_->request_stop_all();
   if (sweeps_) sweeps_->abort();
   double longest_chunk = 0;
-  for (const auto& a : axes_) longest_chunk = std::max(longest_chunk, a->control().positioner.max_chunk_s);
+  for (const auto& a : axes_)
+    longest_chunk = std::max(longest_chunk, a->control().positioner.max_chunk_s);
   // The playing chunks end by themselves (at most max_chunk_s); trials are stopped at once.
   wait_at_rest(std::max(2.0, 4 * longest_chunk));
   if (sweeps_) sweeps_->quit();
@@ -268,7 +272,9 @@ double Daemon::sim_output_m(int axis) {
   return s ? s->commanded_elongation_m() : kNaN;
 }
 
-std::string Daemon::last_sweep_report() const { return sweeps_ ? sweeps_->report() : std::string(); }
+std::string Daemon::last_sweep_report() const {
+  return sweeps_ ? sweeps_->report() : std::string();
+}
 
 std::vector<Housekeeping::Note> Daemon::take_notes() {
   std::vector<Housekeeping::Note> out = std::exchange(start_notes_, {});

@@ -31,10 +31,10 @@ namespace idm::daemon {
 // idmd's exit codes (daemon/README.md).
 namespace exit_code {
 inline constexpr int kOk = 0;
-inline constexpr int kRuntimeError = 1;   // a failure while running (logged)
-inline constexpr int kBadConfig = 2;      // bad command line or configuration: nothing touched
-inline constexpr int kNoHardware = 3;     // a device could not be opened, or no valid position
-inline constexpr int kListenFailed = 4;   // the TCP port or Unix socket could not be bound
+inline constexpr int kRuntimeError = 1;  // a failure while running (logged)
+inline constexpr int kBadConfig = 2;     // bad command line or configuration: nothing touched
+inline constexpr int kNoHardware = 3;    // a device could not be opened, or no valid position
+inline constexpr int kListenFailed = 4;  // the TCP port or Unix socket could not be bound
 }  // namespace exit_code
 
 // start() failed; exit_code says how idmd should exit.
@@ -79,7 +79,9 @@ class Daemon final : public Instrument {
   double sim_output_m(int axis = 0);
   // The simulated stage behind a `sim` axis (tests, fault injection); null otherwise.
   drivers::sim::SimBackend* sim(int axis = 0);
-  drivers::DeviceLink& link_of(int axis) { return axes_.at(static_cast<std::size_t>(axis))->link(); }
+  drivers::DeviceLink& link_of(int axis) {
+    return axes_.at(static_cast<std::size_t>(axis))->link();
+  }
   // Description of the last finished SWEEP ("" before any).
   std::string last_sweep_report() const;
   // Lines to log since the last call (warnings and news).

@@ -24,7 +24,9 @@ Housekeeping::Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceL
   for (drivers::DeviceLink* l : links_) seen_health_.push_back(l->health());
 }
 
-Housekeeping::~Housekeeping() { quit(); }
+Housekeeping::~Housekeeping() {
+  quit();
+}
 
 void Housekeeping::start() {
   thread_ = drivers::StackThread(drivers::kSmallStackBytes * 4, [this] { main(); });
@@ -129,8 +131,8 @@ void Housekeeping::watch_links() {
     drivers::LinkHealth& seen = seen_health_[k];
     const std::string device = "device " + links_[k]->name();
     if (h.losses != seen.losses) {
-      const std::string text = device + " lost: " + h.message +
-                               " (the output is stopped; reconnecting by itself)";
+      const std::string text =
+          device + " lost: " + h.message + " (the output is stopped; reconnecting by itself)";
       add_note(true, text);
       for (std::size_t i = 0; i < axes_.size(); ++i)
         if (&axes_[i]->link() == links_[k]) set_error(i, text);
@@ -143,7 +145,8 @@ void Housekeeping::watch_links() {
                          (h.reconnects == 1 ? "" : "s");
       for (std::size_t i = 0; i < axes_.size(); ++i) {
         if (&axes_[i]->link() != links_[k]) continue;
-        if (!axes_[i]->published().referenced) text += "; axis " + axes_[i]->config().name + " not referenced";
+        if (!axes_[i]->published().referenced)
+          text += "; axis " + axes_[i]->config().name + " not referenced";
       }
       add_note(true, text);
     }

@@ -14,8 +14,8 @@
 #include <vector>
 
 #include "daemon/axis.h"
-#include "daemon/sweep_runner.h"
 #include "daemon/supervisor.h"
+#include "daemon/sweep_runner.h"
 #include "drivers/link.h"
 #include "drivers/thread.h"
 
@@ -70,8 +70,8 @@ class Housekeeping {
   mutable std::mutex mutex_;
   std::condition_variable cv_;
   bool quit_ = false;
-  std::vector<Note> notes_;          // mutex_
-  std::vector<ErrorNote> errors_;    // mutex_
+  std::vector<Note> notes_;        // mutex_
+  std::vector<ErrorNote> errors_;  // mutex_
   drivers::StackThread thread_;
 };
 

@@ -3,12 +3,11 @@
 // available, 4 cannot listen).
 #include <poll.h>
 #include <signal.h>
-#include <sys/signalfd.h>
-#include <unistd.h>
-
 #include <spdlog/pattern_formatter.h>
 #include <spdlog/sinks/stdout_sinks.h>
 #include <spdlog/spdlog.h>
+#include <sys/signalfd.h>
+#include <unistd.h>
 
 #include <cerrno>
 #include <cmath>
@@ -55,7 +54,8 @@ void usage(std::FILE* to) {
 // journald reads "<N>" priority prefixes on stderr/stdout lines (sd-daemon(3)).
 class JournalPriority final : public spdlog::custom_flag_formatter {
  public:
-  void format(const spdlog::details::log_msg& msg, const std::tm&, spdlog::memory_buf_t& dest) override {
+  void format(const spdlog::details::log_msg& msg, const std::tm&,
+              spdlog::memory_buf_t& dest) override {
     static const char* const kPrefix[] = {"<7>", "<7>", "<6>", "<4>", "<3>", "<2>", "<6>"};
     const char* p = kPrefix[static_cast<int>(msg.level)];
     dest.append(p, p + 3);
@@ -66,9 +66,11 @@ class JournalPriority final : public spdlog::custom_flag_formatter {
 };
 
 void setup_logging(const LoggingConfig& cfg) {
-  auto logger = std::make_shared<spdlog::logger>("idmd", std::make_shared<spdlog::sinks::stderr_sink_mt>());
-  const bool journal = cfg.format == "journal" ||
-                       (cfg.format == "auto" && (std::getenv("JOURNAL_STREAM") || Notifier::under_systemd()));
+  auto logger =
+      std::make_shared<spdlog::logger>("idmd", std::make_shared<spdlog::sinks::stderr_sink_mt>());
+  const bool journal =
+      cfg.format == "journal" ||
+      (cfg.format == "auto" && (std::getenv("JOURNAL_STREAM") || Notifier::under_systemd()));
   auto formatter = std::make_unique<spdlog::pattern_formatter>();
   if (journal) {
     formatter->add_flag<JournalPriority>('*').set_pattern("%*%v");
@@ -86,7 +88,8 @@ std::string axes_text(const DaemonConfig& c) {
   std::string s;
   for (const AxisConfig& a : c.axes) {
     const DeviceConfig& d = c.devices[a.device];
-    s += (s.empty() ? "" : ", ") + std::string("axis ") + a.name + " on " + d.name + " (" + d.driver + ")";
+    s += (s.empty() ? "" : ", ") + std::string("axis ") + a.name + " on " + d.name + " (" +
+         d.driver + ")";
   }
   return s;
 }
@@ -221,14 +224,17 @@ int serve_until_signal(int sfd, Daemon& daemon, Notifier& notifier, const std::s
     signalfd_siginfo si{};
     if (read(sfd, &si, sizeof si) != static_cast<ssize_t>(sizeof si)) continue;
     if (si.ssi_signo != SIGHUP) {
-      spdlog::info("{}: stopping motion and shutting down", si.ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT");
+      spdlog::info("{}: stopping motion and shutting down",
+                   si.ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT");
       return exit_code::kOk;
     }
     spdlog::info("SIGHUP: reloading the control settings from {}", config_path);
     notifier.send_reloading();
     std::string error;
-    if (daemon.reload_control(error)) spdlog::info("control settings reloaded");
-    else spdlog::error("reload failed, the old settings stay: {}", error);
+    if (daemon.reload_control(error))
+      spdlog::info("control settings reloaded");
+    else
+      spdlog::error("reload failed, the old settings stay: {}", error);
     notifier.ready("Ready: control settings reloaded, listening on " + where);
   }
 }
@@ -236,8 +242,10 @@ int serve_until_signal(int sfd, Daemon& daemon, Notifier& notifier, const std::s
 // "tcp 127.0.0.1:5025, unix /run/idmd/idmd.sock"
 std::string listeners_text(const Server& server, const ServerConfig& sc) {
   std::string where;
-  if (server.tcp_port() >= 0) where = "tcp " + sc.tcp_host + ":" + std::to_string(server.tcp_port());
-  if (!sc.unix_path.empty()) where += (where.empty() ? "" : ", ") + std::string("unix ") + sc.unix_path;
+  if (server.tcp_port() >= 0)
+    where = "tcp " + sc.tcp_host + ":" + std::to_string(server.tcp_port());
+  if (!sc.unix_path.empty())
+    where += (where.empty() ? "" : ", ") + std::string("unix ") + sc.unix_path;
   return where;
 }
 
@@ -249,7 +257,8 @@ void log_stopped(Daemon& daemon) {
       outputs += (outputs.empty() ? " (commanded elongation " : ", ") + daemon.axis_name(a) + " " +
                  idm::model::format_number(xi) + " m";
   }
-  spdlog::info("stopped: every output at zero{}, devices shut down", outputs.empty() ? "" : outputs + ")");
+  spdlog::info("stopped: every output at zero{}, devices shut down",
+               outputs.empty() ? "" : outputs + ")");
 }
 
 // Opens the devices, listens, serves until a signal, shuts down; returns the exit code.
@@ -292,7 +301,8 @@ int run(const DaemonConfig& config, const std::string& config_path, int sfd) {
   spdlog::info("ready: listening on {}", where);
   notifier.ready("Ready: " + axes_text(config) + ", listening on " + where);
   if (const double wd = notifier.start_watchdog([&daemon] { return daemon.loop_ticks(); }); wd > 0)
-    spdlog::info("watchdog: every {} s while the real-time loop advances", idm::model::format_number(wd / 4));
+    spdlog::info("watchdog: every {} s while the real-time loop advances",
+                 idm::model::format_number(wd / 4));
 
   const int exit_status = serve_until_signal(sfd, daemon, notifier, config_path, where);
   notifier.stopping("Stopping: bringing the actuator to rest");

@@ -29,15 +29,15 @@ inline constexpr int kParameterNotAllowed = -108;  // too many arguments
 inline constexpr int kMissingParameter = -109;     // too few arguments
 inline constexpr int kUndefinedHeader = -113;
 inline constexpr int kHeaderSuffixOutOfRange = -114;  // AXIS<n> with no axis n
-inline constexpr int kNumericDataError = -120;     // not a number, not finite
+inline constexpr int kNumericDataError = -120;        // not a number, not finite
 inline constexpr int kExecutionError = -200;
-inline constexpr int kSettingsConflict = -221;     // e.g. a move while in FAULT or busy
-inline constexpr int kDataOutOfRange = -222;       // e.g. a target past the soft limits
+inline constexpr int kSettingsConflict = -221;    // e.g. a move while in FAULT or busy
+inline constexpr int kDataOutOfRange = -222;      // e.g. a target past the soft limits
 inline constexpr int kDataCorruptOrStale = -230;  // a position that cannot be trusted
 inline constexpr int kHardwareError = -240;
 inline constexpr int kHardwareMissing = -241;  // e.g. a simulation command on a real backend
 inline constexpr int kQueueOverflow = -350;
-inline constexpr int kInputBufferOverrun = -363;   // a line longer than the limit
+inline constexpr int kInputBufferOverrun = -363;  // a line longer than the limit
 // Device faults (positive): see kDeviceFaults.
 inline constexpr int kFaultInvalidSample = 101;
 inline constexpr int kFaultStall = 102;
@@ -96,12 +96,12 @@ struct CommandError {
 
 // A plain snapshot of one axis for STATus? and friends.
 struct InstrumentStatus {
-  std::string name;       // the axis's name ("x")
-  std::string state;      // "IDLE", "MOVING", "SETTLING", "FAULT"
+  std::string name;   // the axis's name ("x")
+  std::string state;  // "IDLE", "MOVING", "SETTLING", "FAULT"
   bool position_valid = false;
   double position_m = 0;  // meaningful only when position_valid
   double target_m = 0;
-  std::string fault;      // "none", "invalid_sample", "stall", ...
+  std::string fault;  // "none", "invalid_sample", "stall", ...
   bool motion_done = true;
   double soft_lower_m = 0;
   double soft_upper_m = 0;
@@ -121,8 +121,8 @@ struct InstrumentStatus {
   std::string result = "NONE";
   double result_distance_m = 0;
   std::string motion;
-  int eot = 0;              // -1 / +1: stopped at the end of travel that way
-  bool in_position = false; // at rest within the window of the target
+  int eot = 0;               // -1 / +1: stopped at the end of travel that way
+  bool in_position = false;  // at rest within the window of the target
   bool holding = false;
   bool referencing = false;
 };

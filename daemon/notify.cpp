@@ -16,9 +16,15 @@ void Notifier::send(const std::string& text) {
   if (under_systemd()) sd_notify(0, text.c_str());
 }
 
-void Notifier::ready(const std::string& status) { send("READY=1\nSTATUS=" + status); }
-void Notifier::status(const std::string& status) { send("STATUS=" + status); }
-void Notifier::stopping(const std::string& status) { send("STOPPING=1\nSTATUS=" + status); }
+void Notifier::ready(const std::string& status) {
+  send("READY=1\nSTATUS=" + status);
+}
+void Notifier::status(const std::string& status) {
+  send("STATUS=" + status);
+}
+void Notifier::stopping(const std::string& status) {
+  send("STOPPING=1\nSTATUS=" + status);
+}
 
 double Notifier::start_watchdog(std::function<std::uint64_t()> ticks) {
   std::uint64_t usec = 0;

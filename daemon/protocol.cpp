@@ -253,7 +253,8 @@ CommandError parse_line(std::string_view line, ParsedLine& out) {
     header.remove_suffix(1);
   }
   if (!header.empty() && header.front() == ':') header.remove_prefix(1);
-  if (!header_well_formed(header)) return make_error(ec::kSyntaxError, "malformed header " + echo(shown));
+  if (!header_well_formed(header))
+    return make_error(ec::kSyntaxError, "malformed header " + echo(shown));
   out.header = std::string(header);
   const std::string_view rest = trim(line.substr(end));
   if (rest.empty()) return {};
@@ -401,14 +402,15 @@ CommandError parse_list(std::string_view text, std::string_view what, std::vecto
     for (int i = 0; i < 3; ++i)
       if (CommandError e = parse_number(parts[i], what, range[i]); !e.ok()) return e;
     switch (model::expand_range(range[0], range[1], range[2], kMaxListValues, values)) {
-      case model::RangeError::None: return {};
+      case model::RangeError::None:
+        return {};
       case model::RangeError::BadRange:
         return make_error(ec::kDataOutOfRange,
                           std::string(what) + ": " + echo(t) + " needs step > 0 and stop >= start");
-      case model::RangeError::TooMany: break;
+      case model::RangeError::TooMany:
+        break;
     }
-    return make_error(ec::kDataOutOfRange, std::string(what) + ": " + echo(t) +
-                                               " has more than " +
+    return make_error(ec::kDataOutOfRange, std::string(what) + ": " + echo(t) + " has more than " +
                                                std::to_string(kMaxListValues) + " values");
   }
   std::size_t start = 0;

@@ -257,18 +257,42 @@ class Session {
   CommandError operation(const Args&, std::string& reply);
   CommandError move_result(const Args&, std::string& reply);
   CommandError set_setting(MotionSetting which, const Args&, const char* what);
-  CommandError window(const Args& a, std::string&) { return set_setting(MotionSetting::Window, a, "MOVE:WINDow"); }
-  CommandError dwell(const Args& a, std::string&) { return set_setting(MotionSetting::Dwell, a, "MOVE:DWELl"); }
-  CommandError eot_step(const Args& a, std::string&) { return set_setting(MotionSetting::EotStep, a, "EOT:STEP"); }
-  CommandError eot_cycles(const Args& a, std::string&) { return set_setting(MotionSetting::EotCycles, a, "EOT:CYCLes"); }
-  CommandError hold(const Args& a, std::string&) { return set_setting(MotionSetting::Hold, a, "HOLD"); }
-  CommandError hold_window(const Args& a, std::string&) { return set_setting(MotionSetting::HoldWindow, a, "HOLD:WINDow"); }
-  CommandError window_query(const Args&, std::string& r) { return setting_query(MotionSetting::Window, r); }
-  CommandError dwell_query(const Args&, std::string& r) { return setting_query(MotionSetting::Dwell, r); }
-  CommandError eot_step_query(const Args&, std::string& r) { return setting_query(MotionSetting::EotStep, r); }
-  CommandError eot_cycles_query(const Args&, std::string& r) { return setting_query(MotionSetting::EotCycles, r); }
-  CommandError hold_query(const Args&, std::string& r) { return setting_query(MotionSetting::Hold, r); }
-  CommandError hold_window_query(const Args&, std::string& r) { return setting_query(MotionSetting::HoldWindow, r); }
+  CommandError window(const Args& a, std::string&) {
+    return set_setting(MotionSetting::Window, a, "MOVE:WINDow");
+  }
+  CommandError dwell(const Args& a, std::string&) {
+    return set_setting(MotionSetting::Dwell, a, "MOVE:DWELl");
+  }
+  CommandError eot_step(const Args& a, std::string&) {
+    return set_setting(MotionSetting::EotStep, a, "EOT:STEP");
+  }
+  CommandError eot_cycles(const Args& a, std::string&) {
+    return set_setting(MotionSetting::EotCycles, a, "EOT:CYCLes");
+  }
+  CommandError hold(const Args& a, std::string&) {
+    return set_setting(MotionSetting::Hold, a, "HOLD");
+  }
+  CommandError hold_window(const Args& a, std::string&) {
+    return set_setting(MotionSetting::HoldWindow, a, "HOLD:WINDow");
+  }
+  CommandError window_query(const Args&, std::string& r) {
+    return setting_query(MotionSetting::Window, r);
+  }
+  CommandError dwell_query(const Args&, std::string& r) {
+    return setting_query(MotionSetting::Dwell, r);
+  }
+  CommandError eot_step_query(const Args&, std::string& r) {
+    return setting_query(MotionSetting::EotStep, r);
+  }
+  CommandError eot_cycles_query(const Args&, std::string& r) {
+    return setting_query(MotionSetting::EotCycles, r);
+  }
+  CommandError hold_query(const Args&, std::string& r) {
+    return setting_query(MotionSetting::Hold, r);
+  }
+  CommandError hold_window_query(const Args&, std::string& r) {
+    return setting_query(MotionSetting::HoldWindow, r);
+  }
   CommandError setting_query(MotionSetting which, std::string& reply);
   CommandError reference(const Args&, std::string& reply);
   CommandError reference_query(const Args&, std::string& reply);
@@ -285,9 +309,10 @@ class Session {
   bool discarding_ = false;  // inside a too-long line: drop up to the next newline
   bool end_of_input_ = false;
   Wait wait_ = Wait::None;
-  int axis_ = 0;                 // the axis of the line being executed (0-based)
-  bool axis_given_ = false;      // it came with an AXIS<n>: prefix
-  std::uint64_t started_axes_ = 0;  // axes (bits) whose motion this session started, not yet seen end
+  int axis_ = 0;             // the axis of the line being executed (0-based)
+  bool axis_given_ = false;  // it came with an AXIS<n>: prefix
+  std::uint64_t started_axes_ =
+      0;  // axes (bits) whose motion this session started, not yet seen end
   bool stop_only_ = false;
   const ClientTable* client_table_ = nullptr;
   // IEEE 488.2 standard event status register and its enable mask (*ESR?, *ESE).

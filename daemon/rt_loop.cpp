@@ -16,7 +16,9 @@ namespace {
 
 constexpr std::int64_t kNsPerS = 1000000000;
 
-std::int64_t to_ns(const timespec& t) { return std::int64_t{t.tv_sec} * kNsPerS + t.tv_nsec; }
+std::int64_t to_ns(const timespec& t) {
+  return std::int64_t{t.tv_sec} * kNsPerS + t.tv_nsec;
+}
 timespec to_timespec(std::int64_t ns) {
   timespec t;
   t.tv_sec = static_cast<time_t>(ns / kNsPerS);
@@ -50,7 +52,9 @@ RtLoop::RtLoop(const RealtimeConfig& config, LoopBody& body) : config_(config), 
   stats_.store(local_);
 }
 
-RtLoop::~RtLoop() { stop(); }
+RtLoop::~RtLoop() {
+  stop();
+}
 
 std::string RtLoop::start() {
   if (thread_.joinable()) return {};
@@ -103,7 +107,8 @@ std::string RtLoop::setup_realtime() {
 }
 
 void RtLoop::publish_stats() {
-  if (local_.wakeups > 0) local_.latency_avg_s = latency_sum_s_ / static_cast<double>(local_.wakeups);
+  if (local_.wakeups > 0)
+    local_.latency_avg_s = latency_sum_s_ / static_cast<double>(local_.wakeups);
   stats_.store(local_);
 }
 
@@ -114,8 +119,9 @@ void RtLoop::run() {
   const std::int64_t period_ns = static_cast<std::int64_t>(std::llround(config_.period_s * 1e9));
   const double bin_ns = config_.histogram_bin_s * 1e9;
   constexpr std::size_t kBins = sizeof(local_.bins) / sizeof(local_.bins[0]);
-  const std::uint64_t publish_every =
-      static_cast<std::uint64_t>(0.05 / config_.period_s) > 0 ? static_cast<std::uint64_t>(0.05 / config_.period_s) : 1;
+  const std::uint64_t publish_every = static_cast<std::uint64_t>(0.05 / config_.period_s) > 0
+                                          ? static_cast<std::uint64_t>(0.05 / config_.period_s)
+                                          : 1;
 
   if (hook_) hook_(true);
   std::int64_t deadline = now_ns() + period_ns;

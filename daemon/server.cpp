@@ -54,9 +54,9 @@ struct Client {
   std::string out;  // replies not yet written, from out_offset on
   std::size_t out_offset = 0;
   bool end_of_input = false;
-  bool overflow = false;     // a stop-only slot (the table was full when it came)
+  bool overflow = false;  // a stop-only slot (the table was full when it came)
   std::chrono::steady_clock::time_point since;  // accepted (overflow), or started draining
-  std::uint32_t events = 0;  // current epoll interest
+  std::uint32_t events = 0;                     // current epoll interest
   // Half-closed while it waits for a reply: it no longer holds a slot.
   bool draining() const { return end_of_input && session.waiting(); }
   std::size_t pending_output() const { return out.size() - out_offset; }
@@ -139,8 +139,8 @@ struct Server::Impl final : ClientTable {
       server.clients_.store(static_cast<int>(clients.size()));
       count(kAccepted);
       if (overflow)
-        log("command server: client connected (" + peer + ") in a stop-only slot: " +
-            std::to_string(server.config_.max_clients) +
+        log("command server: client connected (" + peer +
+            ") in a stop-only slot: " + std::to_string(server.config_.max_clients) +
             " clients already connected (server.max_clients)");
       else
         log("command server: client connected (" + peer + ")");
@@ -174,8 +174,10 @@ struct Server::Impl final : ClientTable {
     auto next = std::chrono::steady_clock::time_point::max();
     for (const auto& [fd, c] : clients) {
       if (!c->overflow) continue;
-      if (now - c->since >= linger) due.push_back(fd);
-      else next = std::min(next, c->since + linger);
+      if (now - c->since >= linger)
+        due.push_back(fd);
+      else
+        next = std::min(next, c->since + linger);
     }
     for (int fd : due) {
       auto it = clients.find(fd);

@@ -23,7 +23,9 @@ CommandError quoted_number(std::string_view what) {
                     std::string(what) + ": a quoted string where a number belongs (send it bare)");
 }
 
-char upper(char c) { return (c >= 'a' && c <= 'z') ? static_cast<char>(c - 'a' + 'A') : c; }
+char upper(char c) {
+  return (c >= 'a' && c <= 'z') ? static_cast<char>(c - 'a' + 'A') : c;
+}
 
 }  // namespace
 
@@ -96,7 +98,8 @@ const std::vector<Session::Command>& Session::commands() {
       {{"EOT:STEP", true, 0, 0, "", S::Axis}, &Session::eot_step_query},
       {{"EOT:CYCLes", false, 1, 1, "<n>", S::Axis}, &Session::eot_cycles},
       {{"EOT:CYCLes", true, 0, 0, "", S::Axis}, &Session::eot_cycles_query},
-      {{"REFerence[:STARt]", false, 0, 1, "[NEGative|POSitive|MARK]", S::Axis}, &Session::reference},
+      {{"REFerence[:STARt]", false, 0, 1, "[NEGative|POSitive|MARK]", S::Axis},
+       &Session::reference},
       {{"REFerence", true, 0, 0, "", S::Axis}, &Session::reference_query},
       {{"STATus:OPERation[:CONDition]", true, 0, 0, "", S::Axis}, &Session::operation},
       {{"STEP", false, 1, 4, "<n>[,<duty>,<freq_hz>[,<stroke_m>]]", S::Axis}, &Session::step},
@@ -108,7 +111,8 @@ const std::vector<Session::Command>& Session::commands() {
       {{"LIMit", false, 2, 2, "<lower_m>,<upper_m>", S::Axis}, &Session::limits},
       {{"LIMit", true, 0, 0, "", S::Axis}, &Session::limits_query},
       {{"STATus", true, 0, 0, "", S::Axis}, &Session::status},
-      {{"SWEEP", false, 4, 5, "<dir>,<freqs>,<duties>,<trials>[,<cycles>]", S::Axis}, &Session::sweep},
+      {{"SWEEP", false, 4, 5, "<dir>,<freqs>,<duties>,<trials>[,<cycles>]", S::Axis},
+       &Session::sweep},
       {{"SIMulation:PUSH", false, 1, 1, "<m>", S::Axis}, &Session::sim_push},
       {{"SIMulation:FAULt", false, 2, 2, "<name>,<value>", S::Axis}, &Session::sim_fault},
   };
@@ -198,10 +202,14 @@ void Session::push(CommandError error) {
   // execution errors (-200..-299) bit 4, device-dependent errors (-300..-399 and the device's
   // positive codes) bit 3, query errors (-400..-499) bit 2.
   const int c = error.code;
-  if (c <= -100 && c > -200) esr_ |= 1u << 5;
-  else if (c <= -200 && c > -300) esr_ |= 1u << 4;
-  else if ((c <= -300 && c > -400) || c > 0) esr_ |= 1u << 3;
-  else if (c <= -400 && c > -500) esr_ |= 1u << 2;
+  if (c <= -100 && c > -200)
+    esr_ |= 1u << 5;
+  else if (c <= -200 && c > -300)
+    esr_ |= 1u << 4;
+  else if ((c <= -300 && c > -400) || c > 0)
+    esr_ |= 1u << 3;
+  else if (c <= -400 && c > -500)
+    esr_ |= 1u << 2;
   errors_.push(std::move(error));
 }
 
@@ -255,9 +263,9 @@ CommandError Session::resolve(const ParsedLine& parsed, const Command*& command)
   if (axis_given_) {
     const int count = instrument_.axis_count();
     if (axis < 1 || axis > count)
-      return make_error(ec::kHeaderSuffixOutOfRange,
-                        "AXIS" + std::to_string(axis) + ": no such axis, allowed AXIS1 to AXIS" +
-                            std::to_string(count));
+      return make_error(ec::kHeaderSuffixOutOfRange, "AXIS" + std::to_string(axis) +
+                                                         ": no such axis, allowed AXIS1 to AXIS" +
+                                                         std::to_string(count));
     axis_ = axis - 1;
   }
   if (stop_only_ && command->handler != &Session::stop && command->handler != &Session::idn &&
@@ -364,9 +372,9 @@ int Session::operation_bits(int axis) {
 
 CommandError Session::stb(const Args&, std::string& reply) {
   int stb = 0;
-  if (!errors_.empty()) stb |= 1 << 2;        // error/event queue not empty
-  if (esr_ & ese_) stb |= 1 << 5;             // event status summary
-  bool operating = false;                      // operation summary: an axis moving or referencing
+  if (!errors_.empty()) stb |= 1 << 2;  // error/event queue not empty
+  if (esr_ & ese_) stb |= 1 << 5;       // event status summary
+  bool operating = false;               // operation summary: an axis moving or referencing
   for (int a = 0; a < instrument_.axis_count(); ++a)
     operating = operating || (operation_bits(a) & ((1 << 0) | (1 << 9))) != 0;
   if (operating) stb |= 1 << 7;
@@ -425,8 +433,9 @@ CommandError Session::reference(const Args& args, std::string&) {
     else if (header_matches("MARK", args[0]))
       method = ReferenceMethod::Mark;
     else
-      return make_error(ec::kDataOutOfRange, "REFerence: '" + std::string(args[0]) +
-                                                 "' is not allowed, allowed NEGative, POSitive, MARK");
+      return make_error(ec::kDataOutOfRange,
+                        "REFerence: '" + std::string(args[0]) +
+                            "' is not allowed, allowed NEGative, POSitive, MARK");
   }
   CommandError e = instrument_error(instrument_.reference(axis_, method));
   started_motion(e);

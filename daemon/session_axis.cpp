@@ -22,7 +22,8 @@ std::string fault_reason(const std::string& fault) {
     const char* words;
   } kReasons[] = {
       {"none", "none"},
-      {"invalid_sample", "the interferometer gave an invalid reading (beam lost, glitch or count continuity lost)"},
+      {"invalid_sample",
+       "the interferometer gave an invalid reading (beam lost, glitch or count continuity lost)"},
       {"stall", "the slider did not move although driven"},
       {"retry_limit", "the target was not reached within the allowed corrections"},
       {"driver", "the output device refused or failed a command"},
@@ -92,11 +93,13 @@ CommandError Session::step(const Args& args, std::string&) {
   std::int64_t cycles = 0;
   constexpr double kOmitted = std::numeric_limits<double>::quiet_NaN();
   double duty = kOmitted, freq = kOmitted, stroke = kOmitted;
-  if (CommandError e = integer_arg(args, 0, "STEP cycles", -1000000000, 1000000000, cycles); !e.ok())
+  if (CommandError e = integer_arg(args, 0, "STEP cycles", -1000000000, 1000000000, cycles);
+      !e.ok())
     return e;
   if (cycles == 0)
-    return make_error(ec::kDataOutOfRange, "STEP cycles: 0 is out of range, allowed a non-zero "
-                                           "integer in [-1000000000, 1000000000]");
+    return make_error(ec::kDataOutOfRange,
+                      "STEP cycles: 0 is out of range, allowed a non-zero "
+                      "integer in [-1000000000, 1000000000]");
   if (args.size() >= 3) {
     if (CommandError e = number_arg(args, 1, "STEP duty", duty); !e.ok()) return e;
     if (CommandError e = number_arg(args, 2, "STEP freq_hz", freq); !e.ok()) return e;
@@ -125,13 +128,15 @@ CommandError Session::region(const Args& args, std::string& reply) {
 CommandError Session::limit_lower(const Args& args, std::string&) {
   double lower = 0;
   if (CommandError e = number_arg(args, 0, "LIMit:LOWer", lower); !e.ok()) return e;
-  return instrument_error(instrument_.set_soft_limits(axis_, lower, instrument_.status(axis_).soft_upper_m));
+  return instrument_error(
+      instrument_.set_soft_limits(axis_, lower, instrument_.status(axis_).soft_upper_m));
 }
 
 CommandError Session::limit_upper(const Args& args, std::string&) {
   double upper = 0;
   if (CommandError e = number_arg(args, 0, "LIMit:UPPer", upper); !e.ok()) return e;
-  return instrument_error(instrument_.set_soft_limits(axis_, instrument_.status(axis_).soft_lower_m, upper));
+  return instrument_error(
+      instrument_.set_soft_limits(axis_, instrument_.status(axis_).soft_lower_m, upper));
 }
 
 CommandError Session::limit_lower_query(const Args&, std::string& reply) {
@@ -176,9 +181,13 @@ CommandError Session::status(const Args&, std::string& reply) {
           " last_error=" + std::to_string(errors_.last_code()) +
           " daemon_error=" + word(replace_controls(s.last_error)) + " axis=" + word(s.name) +
           " referenced=" + (s.referenced ? "1" : "0") + " device=" + word(s.device) +
-          " result=" + s.result + " eot=" + (s.eot < 0 ? "low" : s.eot > 0 ? "high" : "none") +
+          " result=" + s.result + " eot=" +
+          (s.eot < 0   ? "low"
+           : s.eot > 0 ? "high"
+                       : "none") +
           " in_position=" + (s.in_position ? "1" : "0") + " holding=" + (s.holding ? "1" : "0") +
-          " referencing=" + (s.referencing ? "1" : "0") + " fault_reason=" + word(fault_reason(s.fault));
+          " referencing=" + (s.referencing ? "1" : "0") +
+          " fault_reason=" + word(fault_reason(s.fault));
   return {};
 }
 
@@ -189,12 +198,13 @@ CommandError Session::sweep(const Args& args, std::string&) {
   if (CommandError e = list_arg(args, 1, "SWEEP freqs", freqs); !e.ok()) return e;
   if (CommandError e = list_arg(args, 2, "SWEEP duties", duties); !e.ok()) return e;
   std::int64_t trials = 0, cycles = 12;
-  if (CommandError e = integer_arg(args, 3, "SWEEP trials", 1, kMaxSweepTrials, trials); !e.ok()) return e;
+  if (CommandError e = integer_arg(args, 3, "SWEEP trials", 1, kMaxSweepTrials, trials); !e.ok())
+    return e;
   if (args.size() == 5)
     if (CommandError e = integer_arg(args, 4, "SWEEP cycles", 1, kMaxSweepCycles, cycles); !e.ok())
       return e;
-  CommandError e = instrument_error(instrument_.sweep(axis_, dir, freqs, duties, static_cast<int>(trials),
-                                                      static_cast<int>(cycles)));
+  CommandError e = instrument_error(instrument_.sweep(
+      axis_, dir, freqs, duties, static_cast<int>(trials), static_cast<int>(cycles)));
   started_motion(e);
   return e;
 }

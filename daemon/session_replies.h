@@ -17,8 +17,9 @@ inline CommandError instrument_error(CommandError e) {
 }
 
 inline CommandError untrusted_position(const std::string& name) {
-  return make_error(error_code::kDataCorruptOrStale,
-                    "axis " + name + ": no trustworthy position (no valid reading yet, beam or device lost)");
+  return make_error(
+      error_code::kDataCorruptOrStale,
+      "axis " + name + ": no trustworthy position (no valid reading yet, beam or device lost)");
 }
 
 }  // namespace idm::daemon::session_replies

@@ -57,10 +57,12 @@ void MotionSupervisor::tick(double now_s) {
   std::uint64_t ack = 0;
   if (commands_.pop(cmd)) {
     const bool motion = cmd.kind == AxisCommand::Kind::MoveAbsolute ||
-                        cmd.kind == AxisCommand::Kind::MoveRelative || cmd.kind == AxisCommand::Kind::Step ||
+                        cmd.kind == AxisCommand::Kind::MoveRelative ||
+                        cmd.kind == AxisCommand::Kind::Step ||
                         cmd.kind == AxisCommand::Kind::Reference;
     if ((stopping || park) && motion) {
-      acked_refusal_.store(static_cast<std::uint8_t>(control::Refusal::Busy), std::memory_order_relaxed);
+      acked_refusal_.store(static_cast<std::uint8_t>(control::Refusal::Busy),
+                           std::memory_order_relaxed);
       acked_target_m_.store(std::numeric_limits<double>::quiet_NaN(), std::memory_order_relaxed);
     } else {
       apply(cmd);
@@ -73,7 +75,8 @@ void MotionSupervisor::tick(double now_s) {
   // not have seen that segment's end yet: then it waits here).
   if (!trial_held_ && trials_.pop(held_trial_)) trial_held_ = true;
   if (trial_held_) {
-    const bool axis_ok = held_trial_.axis >= 0 && static_cast<std::size_t>(held_trial_.axis) < axes_.size();
+    const bool axis_ok =
+        held_trial_.axis >= 0 && static_cast<std::size_t>(held_trial_.axis) < axes_.size();
     if (stopping || park || !axis_ok) {
       TrialNotice n;
       n.kind = TrialNotice::Kind::Failed;

@@ -16,7 +16,9 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-void nap() { std::this_thread::sleep_for(std::chrono::microseconds(500)); }
+void nap() {
+  std::this_thread::sleep_for(std::chrono::microseconds(500));
+}
 
 model::Segment trial_segment(const SweepJob& job, double freq_hz, double duty) {
   return model::make_segment(freq_hz, duty, job.stroke_m, static_cast<std::uint64_t>(job.cycles),
@@ -46,7 +48,9 @@ SweepRunner::SweepRunner(MotionSupervisor& supervisor, std::vector<Axis*> axes)
   thread_ = drivers::StackThread(drivers::kRecorderStackBytes, [this] { main(); });
 }
 
-SweepRunner::~SweepRunner() { quit(); }
+SweepRunner::~SweepRunner() {
+  quit();
+}
 
 void SweepRunner::abort() {
   if (active_.load(std::memory_order_acquire) && !abort_.load(std::memory_order_acquire))
@@ -72,7 +76,8 @@ bool SweepRunner::submit(std::unique_ptr<SweepJob> job) {
   status_.state = "RUNNING";
   status_.axis = job->axis;
   status_.directory = job->dir;
-  status_.planned = job->freqs_hz.size() * job->duties.size() * static_cast<std::uint64_t>(job->trials);
+  status_.planned =
+      job->freqs_hz.size() * job->duties.size() * static_cast<std::uint64_t>(job->trials);
   active_.store(true, std::memory_order_release);
   pending_ = std::move(job);
   cv_.notify_all();
@@ -139,9 +144,9 @@ void SweepRunner::run(SweepJob& job) {
   std::string why;
   if (stopped)
     why = abort_.load(std::memory_order_acquire) ? "stopped by a client (STOP or *RST)"
-          : supervisor_.stopping()              ? "the daemon stopped"
-          : first_error.empty()                 ? "stopped"
-                                                : first_error;
+          : supervisor_.stopping()               ? "the daemon stopped"
+          : first_error.empty()                  ? "stopped"
+                                                 : first_error;
   try {
     job.writer->finish(stopped ? recording::SweepStatus::Stopped : recording::SweepStatus::Complete,
                        why);
@@ -150,10 +155,12 @@ void SweepRunner::run(SweepJob& job) {
   }
   std::ostringstream line;
   std::lock_guard<std::mutex> lock(mutex_);
-  status_.state = stopped ? "STOPPED" : (status_.failed > 0 && status_.written == 0 ? "FAILED" : "DONE");
-  line << "sweep " << job.dir << " (axis " << axes_[static_cast<std::size_t>(job.axis)]->config().name
-       << "): " << status_.written << " trials written, " << status_.failed << " failed"
-       << (stopped ? ", stopped" : "") << (first_error.empty() ? "" : " (first: " + first_error + ")");
+  status_.state =
+      stopped ? "STOPPED" : (status_.failed > 0 && status_.written == 0 ? "FAILED" : "DONE");
+  line << "sweep " << job.dir << " (axis "
+       << axes_[static_cast<std::size_t>(job.axis)]->config().name << "): " << status_.written
+       << " trials written, " << status_.failed << " failed" << (stopped ? ", stopped" : "")
+       << (first_error.empty() ? "" : " (first: " + first_error + ")");
   report_ = line.str();
 }
 
@@ -196,8 +203,9 @@ bool SweepRunner::capture_trial(SweepJob& job, const TrialRequest& req, std::uin
   out.info.cycles = static_cast<int>(req.segment.cycles);
   out.info.sample_rate_hz = job.stream_rate_hz;
   out.info.guide_pos_m = kNaN;
-  const double duration_s = (static_cast<double>(req.segment.cycles) + job.settle_cycles) / req.segment.freq_hz +
-                            job.rest_s;
+  const double duration_s =
+      (static_cast<double>(req.segment.cycles) + job.settle_cycles) / req.segment.freq_hz +
+      job.rest_s;
   const double deadline_s = drivers::monotonic_s() + duration_s + 30.0;
   drivers::CaptureRecord rec;
   TrialNotice notice;
@@ -206,7 +214,8 @@ bool SweepRunner::capture_trial(SweepJob& job, const TrialRequest& req, std::uin
       while (supervisor_.next_notice(notice)) {  // a failure while it played (the end mark follows)
       }
       if (drivers::monotonic_s() > deadline_s) {
-        why = "no end of the trial's samples within " + std::to_string(static_cast<int>(duration_s + 30)) + " s";
+        why = "no end of the trial's samples within " +
+              std::to_string(static_cast<int>(duration_s + 30)) + " s";
         return false;
       }
       nap();
@@ -252,7 +261,8 @@ bool SweepRunner::run_trial(SweepJob& job, const TrialRequest& req, std::string&
     failed(why);
     return false;
   }
-  if (!trial.complete || !trial.valid || trial.series.size() < 2 || std::isnan(trial.info.guide_pos_m)) {
+  if (!trial.complete || !trial.valid || trial.series.size() < 2 ||
+      std::isnan(trial.info.guide_pos_m)) {
     const bool stopped = abort_.load(std::memory_order_acquire) || supervisor_.stopping();
     if (stopped) return false;  // interrupted, not failed
     failed(!trial.valid ? "invalid interferometer samples" : "the trial did not play in full");

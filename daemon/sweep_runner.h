@@ -29,11 +29,11 @@ struct SweepJob {
   int trials = 0;
   int cycles = 0;
   double stroke_m = 0;
-  double sample_rate_hz = 0;   // the output clock; 0 for a parameter device
+  double sample_rate_hz = 0;  // the output clock; 0 for a parameter device
   double rest_s = 0;
   int settle_cycles = 0;
-  double span_m = 0;           // a trial farther than this from the sweep's start returns first
-  double stream_rate_hz = 0;   // the capture's rate (the trials' sample rate)
+  double span_m = 0;          // a trial farther than this from the sweep's start returns first
+  double stream_rate_hz = 0;  // the capture's rate (the trials' sample rate)
 };
 
 // The cells the job will play, with the values its trials carry (frequency and duty snapped to the
@@ -85,8 +85,8 @@ class SweepRunner {
   std::condition_variable cv_;
   std::unique_ptr<SweepJob> pending_;
   bool quit_ = false;
-  SweepStatus status_;      // mutex_
-  std::string report_;      // mutex_
+  SweepStatus status_;  // mutex_
+  std::string report_;  // mutex_
   std::atomic<bool> active_{false};
   std::atomic<bool> abort_{false};
   std::atomic<double> abort_time_s_{-1};

@@ -69,8 +69,8 @@ double air_refractive_index(const AirConditions& air, double lambda_vac_m) {
 
   const double standard = (8342.54 + 2406147.0 / (130.0 - s) + 15998.0 / (38.9 - s)) * 1e-8;
   const double with_co2 = standard * (1.0 + 0.534e-6 * (air.co2_ppm - 450.0));
-  const double density = p * (1.0 + 1e-8 * (0.601 - 0.00972 * t) * p) /
-                         (96095.43 * (1.0 + 0.003661 * t));
+  const double density =
+      p * (1.0 + 1e-8 * (0.601 - 0.00972 * t) * p) / (96095.43 * (1.0 + 0.003661 * t));
   const double water_vapour_pa =
       air.relative_humidity_pct / 100.0 * saturation_vapour_pressure_pa(t);
   const double water = water_vapour_pa * (3.7345 - 0.0401 * s) * 1e-10;
@@ -79,8 +79,8 @@ double air_refractive_index(const AirConditions& air, double lambda_vac_m) {
 
 double dead_path_corrected_m(double position_m, double dead_path_m, double air_index_at_zero,
                              double air_index_now) {
-  check_range(dead_path_m >= 0.0 && dead_path_m <= 100.0, "dead_path", "dead_path_m",
-              dead_path_m, "[0, 100] m");
+  check_range(dead_path_m >= 0.0 && dead_path_m <= 100.0, "dead_path", "dead_path_m", dead_path_m,
+              "[0, 100] m");
   check_range(air_index_at_zero >= 1.0 && air_index_at_zero <= 1.01, "dead_path",
               "air_index_at_zero", air_index_at_zero, "[1, 1.01]");
   check_range(air_index_now >= 1.0 && air_index_now <= 1.01, "dead_path", "air_index_now",

@@ -7,8 +7,8 @@
 //   (n - 1)_s  * 1e8 = 8342.54 + 2406147 / (130 - S) + 15998 / (38.9 - S)
 //                      (standard air: 15 C, 101325 Pa, dry, 450 ppm CO2)
 //   (n - 1)_x        = (n - 1)_s * (1 + 0.534e-6 * (x_co2_ppm - 450))
-//   (n - 1)_tp       = p * (n - 1)_x * (1 + 1e-8 * (0.601 - 0.00972 t) * p) / (96095.43 (1 + 0.003661 t))
-//   n_tpf - n_tp     = -f * (3.7345 - 0.0401 S) * 1e-10
+//   (n - 1)_tp       = p * (n - 1)_x * (1 + 1e-8 * (0.601 - 0.00972 t) * p) / (96095.43 (1 +
+//   0.003661 t)) n_tpf - n_tp     = -f * (3.7345 - 0.0401 S) * 1e-10
 // with p in Pa, t in C and f the water vapour partial pressure in Pa.
 #pragma once
 
@@ -19,10 +19,10 @@ namespace idm::drivers {
 inline constexpr double kHeNeVacuumWavelength_m = 632.991e-9;
 
 struct AirConditions {
-  double temperature_c = 20.0;           // -40 .. 60 C
-  double pressure_pa = 101325.0;         // 50e3 .. 120e3 Pa
-  double relative_humidity_pct = 50.0;   // 0 .. 100 %
-  double co2_ppm = 450.0;                // 0 .. 2000 ppm; 450 is the equation's standard air
+  double temperature_c = 20.0;          // -40 .. 60 C
+  double pressure_pa = 101325.0;        // 50e3 .. 120e3 Pa
+  double relative_humidity_pct = 50.0;  // 0 .. 100 %
+  double co2_ppm = 450.0;               // 0 .. 2000 ppm; 450 is the equation's standard air
 };
 
 // Throws InputError naming the field and the allowed range.

@@ -1,10 +1,10 @@
 // The one name -> factory table of the backends (`daq.driver: sim | modbus | usb`).
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <string>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
 
 #include "drivers/interfaces.h"
 

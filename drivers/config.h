@@ -3,10 +3,10 @@
 // helpers the backends share. Every error names the file, the line, the key and the range.
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <initializer_list>
 #include <string>
-
-#include <yaml-cpp/yaml.h>
 
 #include "drivers/air_index.h"
 #include "drivers/interfaces.h"
@@ -44,7 +44,9 @@ std::string parse_daq_driver(const YAML::Node& root, const std::string& file);
 namespace detail {
 
 // A key that is there with a value (not missing, not null).
-inline bool present(const YAML::Node& node) { return node.IsDefined() && !node.IsNull(); }
+inline bool present(const YAML::Node& node) {
+  return node.IsDefined() && !node.IsNull();
+}
 // root[key] when root is a map, else an undefined node.
 YAML::Node child(const YAML::Node& root, const char* key);
 

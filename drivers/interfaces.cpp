@@ -1,5 +1,4 @@
 #include "drivers/interfaces.h"
-#include "model/yaml_util.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,6 +7,7 @@
 #include "drivers/clock.h"
 #include "model/range.h"
 #include "model/stage.h"
+#include "model/yaml_util.h"
 
 namespace idm::drivers {
 
@@ -74,10 +74,11 @@ DriverStatus HardwareComponent::tagged(const char* call, DriverStatus status) co
 DriverStatus HardwareComponent::require_state(const char* call, bool allow_inactive) const {
   if (state_ == LifecycleState::Active) return DriverStatus::success();
   if (allow_inactive && state_ == LifecycleState::Inactive) return DriverStatus::success();
-  return tagged(call, DriverStatus::failure(
-                          DriverError::InvalidState,
-                          std::string("not allowed in state ") + lifecycle_state_name(state_) +
-                              (allow_inactive ? " (needs inactive or active)" : " (needs active)")));
+  return tagged(call,
+                DriverStatus::failure(
+                    DriverError::InvalidState,
+                    std::string("not allowed in state ") + lifecycle_state_name(state_) +
+                        (allow_inactive ? " (needs inactive or active)" : " (needs active)")));
 }
 
 DriverStatus HardwareComponent::configure() {
@@ -93,10 +94,10 @@ DriverStatus HardwareComponent::configure() {
 
 DriverStatus HardwareComponent::activate() {
   if (state_ != LifecycleState::Inactive)
-    return tagged("activate", DriverStatus::failure(DriverError::InvalidState,
-                                                    std::string("not allowed in state ") +
-                                                        lifecycle_state_name(state_) +
-                                                        " (needs inactive)"));
+    return tagged("activate",
+                  DriverStatus::failure(DriverError::InvalidState,
+                                        std::string("not allowed in state ") +
+                                            lifecycle_state_name(state_) + " (needs inactive)"));
   DriverStatus s = on_activate();
   if (s.ok()) state_ = LifecycleState::Active;
   return tagged("activate", std::move(s));
@@ -104,10 +105,10 @@ DriverStatus HardwareComponent::activate() {
 
 DriverStatus HardwareComponent::deactivate() {
   if (state_ != LifecycleState::Active)
-    return tagged("deactivate", DriverStatus::failure(DriverError::InvalidState,
-                                                      std::string("not allowed in state ") +
-                                                          lifecycle_state_name(state_) +
-                                                          " (needs active)"));
+    return tagged("deactivate",
+                  DriverStatus::failure(DriverError::InvalidState,
+                                        std::string("not allowed in state ") +
+                                            lifecycle_state_name(state_) + " (needs active)"));
   DriverStatus s = on_deactivate();
   if (s.ok()) state_ = LifecycleState::Inactive;
   return tagged("deactivate", std::move(s));
@@ -145,8 +146,8 @@ double OutputCapabilities::lsb_m() const {
 
 void validate(const OutputCapabilities& c, const std::string& where) {
   using model::check_range;
-  check_range(c.max_sample_rate_hz > 0 && c.max_sample_rate_hz <= 1e9, where,
-              "max_sample_rate_hz", c.max_sample_rate_hz, "(0, 1e9]");
+  check_range(c.max_sample_rate_hz > 0 && c.max_sample_rate_hz <= 1e9, where, "max_sample_rate_hz",
+              c.max_sample_rate_hz, "(0, 1e9]");
   check_range(c.max_burst_samples >= 2 && c.max_burst_samples <= (std::size_t{1} << 28), where,
               "max_burst_samples", static_cast<double>(c.max_burst_samples), "[2, 268435456]");
   check_range(c.resolution_bits >= 1 && c.resolution_bits <= 32, where, "resolution_bits",
@@ -177,20 +178,24 @@ DriverStatus WaveformOutput::write_burst(const double* xi_m, std::size_t n, doub
     return tagged(call, invalid(std::to_string(n) + " samples, allowed [2, " +
                                 std::to_string(c.max_burst_samples) + "]"));
   if (!(std::isfinite(rate_hz) && rate_hz > 0 && rate_hz <= c.max_sample_rate_hz))
-    return tagged(call, invalid("sample_rate_hz " + model::format_number(rate_hz) + " is out of range, allowed (0, " +
+    return tagged(call, invalid("sample_rate_hz " + model::format_number(rate_hz) +
+                                " is out of range, allowed (0, " +
                                 model::format_number(c.max_sample_rate_hz) + "]"));
   const double lo = c.min_elongation_m(), hi = c.max_elongation_m(), lsb = c.lsb_m();
   for (std::size_t k = 0; k < n; ++k) {
     if (!std::isfinite(xi_m[k]) || xi_m[k] < lo - 1e-3 * lsb || xi_m[k] > hi + 1e-3 * lsb)
-      return tagged(call, invalid("sample " + std::to_string(k) + ": " + model::format_number(xi_m[k]) +
-                                  " m is outside the output range [" + model::format_number(lo) + ", " + model::format_number(hi) +
-                                  "] m (" + model::format_number(c.min_voltage_v) + " .. " + model::format_number(c.max_voltage_v) +
-                                  " V at " + model::format_number(c.volts_per_m) + " V/m)"));
+      return tagged(
+          call, invalid("sample " + std::to_string(k) + ": " + model::format_number(xi_m[k]) +
+                        " m is outside the output range [" + model::format_number(lo) + ", " +
+                        model::format_number(hi) + "] m (" + model::format_number(c.min_voltage_v) +
+                        " .. " + model::format_number(c.max_voltage_v) + " V at " +
+                        model::format_number(c.volts_per_m) + " V/m)"));
   }
   if (std::fabs(xi_m[0]) > lsb || std::fabs(xi_m[n - 1]) > lsb)
-    return tagged(call, invalid("the burst must start and end at 0 (first " + model::format_number(xi_m[0]) +
-                                " m, last " + model::format_number(xi_m[n - 1]) + " m, one DAC step " + model::format_number(lsb) +
-                                " m)"));
+    return tagged(
+        call, invalid("the burst must start and end at 0 (first " + model::format_number(xi_m[0]) +
+                      " m, last " + model::format_number(xi_m[n - 1]) + " m, one DAC step " +
+                      model::format_number(lsb) + " m)"));
   return tagged(call, do_write_burst(xi_m, n, rate_hz));
 }
 
@@ -208,12 +213,13 @@ DriverStatus WaveformOutput::write_burst_parameters(const model::TriangleWave& w
     return tagged(call, invalid(e.what()));
   }
   if (wave.freq_hz > c.max_freq_hz)
-    return tagged(call, invalid("freq_hz " + model::format_number(wave.freq_hz) + " is out of range, allowed (0, " +
+    return tagged(call, invalid("freq_hz " + model::format_number(wave.freq_hz) +
+                                " is out of range, allowed (0, " +
                                 model::format_number(c.max_freq_hz) + "]"));
   if (wave.cycles < 1 || static_cast<std::uint64_t>(wave.cycles) > c.max_cycles)
-    return tagged(call, invalid("cycles " + std::to_string(wave.cycles) +
-                                " is out of range, allowed [1, " + std::to_string(c.max_cycles) +
-                                "]"));
+    return tagged(
+        call, invalid("cycles " + std::to_string(wave.cycles) + " is out of range, allowed [1, " +
+                      std::to_string(c.max_cycles) + "]"));
   if (wave.stroke_m > c.max_elongation_m() * (1 + 1e-12))
     return tagged(call, invalid("stroke_m " + model::format_number(wave.stroke_m) +
                                 " is outside the output range, allowed (0, " +
@@ -239,7 +245,8 @@ DriverStatus WaveformOutput::is_done(bool& done) {
 DriverStatus WaveformOutput::wait_done(double timeout_s) {
   if (DriverStatus s = require_state("wait_done", true); !s.ok()) return s;
   if (!(std::isfinite(timeout_s) && timeout_s >= 0))
-    return tagged("wait_done", invalid("timeout_s " + model::format_number(timeout_s) + " must be finite and >= 0"));
+    return tagged("wait_done", invalid("timeout_s " + model::format_number(timeout_s) +
+                                       " must be finite and >= 0"));
   return tagged("wait_done", do_wait_done(timeout_s));
 }
 
@@ -251,8 +258,9 @@ DriverStatus WaveformOutput::do_wait_done(double timeout_s) {
     if (done) return DriverStatus::success();
     const double now = monotonic_s();
     if (now >= deadline)
-      return DriverStatus::failure(DriverError::Timeout,
-                                   "the burst is not done after " + model::format_number(timeout_s) + " s");
+      return DriverStatus::failure(
+          DriverError::Timeout,
+          "the burst is not done after " + model::format_number(timeout_s) + " s");
     sleep_until_s(std::min(now + poll_interval_s(), deadline));
   }
 }
@@ -285,7 +293,9 @@ DriverStatus Interferometer::do_count_epoch(std::uint64_t&) {
 // ---- Device ----
 
 namespace {
-bool both(const Device& d) { return d.output && d.interferometer; }
+bool both(const Device& d) {
+  return d.output && d.interferometer;
+}
 DriverStatus missing(const Device& d) {
   return DriverStatus::failure(DriverError::InvalidState,
                                "device '" + d.driver + "' is missing an interface");

@@ -108,14 +108,14 @@ const char* output_mode_name(OutputMode mode);  // "samples", "parameters"
 
 struct OutputCapabilities {
   OutputMode mode = OutputMode::BufferedSamples;
-  double max_sample_rate_hz = 1e6;       // buffered: highest DAC clock
+  double max_sample_rate_hz = 1e6;           // buffered: highest DAC clock
   std::size_t max_burst_samples = 1u << 20;  // buffered: largest burst
-  unsigned resolution_bits = 16;         // DAC resolution
-  double min_voltage_v = -10.0;          // output range
+  unsigned resolution_bits = 16;             // DAC resolution
+  double min_voltage_v = -10.0;              // output range
   double max_voltage_v = 10.0;
-  double volts_per_m = 2.5e5;            // output volts per metre of actuator elongation
-  double max_freq_hz = 1e5;              // parameters: highest burst frequency
-  std::uint32_t max_cycles = 1000000;    // parameters: most cycles in one burst
+  double volts_per_m = 2.5e5;          // output volts per metre of actuator elongation
+  double max_freq_hz = 1e5;            // parameters: highest burst frequency
+  std::uint32_t max_cycles = 1000000;  // parameters: most cycles in one burst
 
   // The elongations the voltage range allows.
   double min_elongation_m() const { return min_voltage_v / volts_per_m; }
@@ -176,7 +176,7 @@ struct InterferometerCapabilities {
   // The words' format: width, optics, wavelength, air index, and sample_interval_s = the stream's
   // sample interval (a decoder for the stream is PositionDecoder(word)).
   PositionWordConfig word;
-  double stream_rate_hz = 1e5;           // rate of the burst stream
+  double stream_rate_hz = 1e5;             // rate of the burst stream
   std::size_t stream_capacity = 1u << 20;  // samples the device keeps until they are read
 };
 

@@ -38,8 +38,10 @@ void validate(const LinkConfig& c, const std::string& where) {
   };
   if (!(c.poll_interval_s >= 1e-5 && c.poll_interval_s <= 10))
     fail("poll_interval_s", c.poll_interval_s, "[1e-05, 10]");
-  if (!(c.io_period_s >= 1e-6 && c.io_period_s <= 0.1)) fail("io_period_s", c.io_period_s, "[1e-06, 0.1]");
-  if (c.stream_every < 1 || c.stream_every > 1000000) fail("stream_every", c.stream_every, "[1, 1e6]");
+  if (!(c.io_period_s >= 1e-6 && c.io_period_s <= 0.1))
+    fail("io_period_s", c.io_period_s, "[1e-06, 0.1]");
+  if (c.stream_every < 1 || c.stream_every > 1000000)
+    fail("stream_every", c.stream_every, "[1, 1e6]");
   if (!(c.reconnect_min_s >= 1e-3 && c.reconnect_min_s <= 60))
     fail("reconnect_min_s", c.reconnect_min_s, "[0.001, 60]");
   if (!(c.reconnect_max_s >= c.reconnect_min_s && c.reconnect_max_s <= 3600))
@@ -48,9 +50,12 @@ void validate(const LinkConfig& c, const std::string& where) {
 
 const char* link_state_name(LinkState s) {
   switch (s) {
-    case LinkState::Closed: return "closed";
-    case LinkState::Up: return "up";
-    case LinkState::Lost: return "lost";
+    case LinkState::Closed:
+      return "closed";
+    case LinkState::Up:
+      return "up";
+    case LinkState::Lost:
+      return "lost";
   }
   return "?";
 }
@@ -59,18 +64,18 @@ struct DeviceLink::Channel {
   Device device;
   std::unique_ptr<ChannelPort> port = std::make_unique<ChannelPort>();
   std::unique_ptr<PositionDecoder> latch_decoder, stream_decoder;
-  std::vector<double> samples;         // a clocked segment's samples (sized at open)
-  std::vector<TimedWord> stream;       // a slice of the stream
+  std::vector<double> samples;    // a clocked segment's samples (sized at open)
+  std::vector<TimedWord> stream;  // a slice of the stream
   bool playing = false;
-  model::OutputRequest request;        // the segment playing
-  double segment_start_s = 0;          // when it was started (the link's clock)
-  std::uint32_t streamed = 0;          // readings of the segment so far
-  bool capture_lost = false;           // a capture record found no room
+  model::OutputRequest request;  // the segment playing
+  double segment_start_s = 0;    // when it was started (the link's clock)
+  std::uint32_t streamed = 0;    // readings of the segment so far
+  bool capture_lost = false;     // a capture record found no room
   double next_poll_s = 0;
   bool has_epoch = false;
   std::uint64_t epoch = 0;
-  std::int64_t offset_counts = 0;      // added to the device's count (after a lost count)
-  std::int64_t last_count = 0;         // the last valid reading's count, offset included
+  std::int64_t offset_counts = 0;  // added to the device's count (after a lost count)
+  std::int64_t last_count = 0;     // the last valid reading's count, offset included
   bool has_count = false;
 };
 
@@ -90,11 +95,17 @@ DeviceLink::~DeviceLink() {
   close();
 }
 
-std::size_t DeviceLink::channel_count() const { return channels_.size(); }
+std::size_t DeviceLink::channel_count() const {
+  return channels_.size();
+}
 
-ChannelPort& DeviceLink::port(std::size_t ch) { return *channels_.at(ch).port; }
+ChannelPort& DeviceLink::port(std::size_t ch) {
+  return *channels_.at(ch).port;
+}
 
-Device& DeviceLink::device(std::size_t ch) { return channels_.at(ch).device; }
+Device& DeviceLink::device(std::size_t ch) {
+  return channels_.at(ch).device;
+}
 
 const OutputCapabilities& DeviceLink::output_capabilities(std::size_t ch) const {
   return channels_.at(ch).device.output->capabilities();
@@ -108,8 +119,8 @@ DriverStatus DeviceLink::open() {
   for (Channel& c : channels_) {
     if (DriverStatus s = c.device.configure(); !s.ok()) {
       close();
-      return DriverStatus::failure(s.error, "cannot open the " + c.device.driver + " device " +
-                                                name_ + ": " + s.message);
+      return DriverStatus::failure(
+          s.error, "cannot open the " + c.device.driver + " device " + name_ + ": " + s.message);
     }
     if (DriverStatus s = c.device.activate(); !s.ok()) {
       close();
@@ -187,14 +198,30 @@ void DeviceLink::apply_sim_actions() {
     sim::SimBackend& sim = *channels_[a.channel].device.sim;
     using K = SimAction::Kind;
     switch (a.kind) {
-      case K::Push: sim.push(a.value); break;
-      case K::BeamLost: sim.set_beam_lost(a.value != 0); break;
-      case K::Stalled: sim.set_slider_stalled(a.value != 0); break;
-      case K::Glitches: sim.set_glitch_probability(std::clamp(a.value, 0.0, 1.0), true); break;
-      case K::Disconnect: sim.disconnect(); break;
-      case K::Reconnect: sim.reconnect(); break;
-      case K::PowerCycle: sim.power_cycle(); break;
-      case K::Timeouts: sim.set_timeouts(a.value != 0); break;
+      case K::Push:
+        sim.push(a.value);
+        break;
+      case K::BeamLost:
+        sim.set_beam_lost(a.value != 0);
+        break;
+      case K::Stalled:
+        sim.set_slider_stalled(a.value != 0);
+        break;
+      case K::Glitches:
+        sim.set_glitch_probability(std::clamp(a.value, 0.0, 1.0), true);
+        break;
+      case K::Disconnect:
+        sim.disconnect();
+        break;
+      case K::Reconnect:
+        sim.reconnect();
+        break;
+      case K::PowerCycle:
+        sim.power_cycle();
+        break;
+      case K::Timeouts:
+        sim.set_timeouts(a.value != 0);
+        break;
     }
   }
 }
@@ -229,7 +256,8 @@ void DeviceLink::service_channel(Channel& c, double now_s) {
   model::OutputRequest r;
   while (c.port->requests.pop(r)) {
     if (r.kind == model::OutputRequest::Kind::Read) {
-      for (std::uint32_t i = 0; i < r.readings && state_.state != LinkState::Lost; ++i) latch(c, now_s);
+      for (std::uint32_t i = 0; i < r.readings && state_.state != LinkState::Lost; ++i)
+        latch(c, now_s);
       if (state_.state == LinkState::Lost) return;
       c.next_poll_s = now_s + config_.poll_interval_s;
     } else if (r.kind == model::OutputRequest::Kind::Stop) {
@@ -312,11 +340,12 @@ void DeviceLink::start_segment(Channel& c, const model::OutputRequest& r, double
 void DeviceLink::drain_stream(Channel& c, double now_s, bool final) {
   for (;;) {
     std::size_t n = 0;
-    const DriverStatus s = c.device.interferometer->read_stream(c.stream.data(), c.stream.size(), n);
+    const DriverStatus s =
+        c.device.interferometer->read_stream(c.stream.data(), c.stream.size(), n);
     for (std::size_t i = 0; i < n; ++i) {
       const PositionSample p = c.stream_decoder->decode(c.stream[i].word);
-      const double position = p.valid() ? p.position_m + c.offset_counts * c.stream_decoder->count_m()
-                                        : kNaN;
+      const double position =
+          p.valid() ? p.position_m + c.offset_counts * c.stream_decoder->count_m() : kNaN;
       if (c.request.record) {
         CaptureRecord rec;
         rec.t_s = c.stream[i].t_s;
@@ -490,6 +519,8 @@ void DeviceLink::set_message(const std::string& text) {
   ++state_.message_version;
 }
 
-void DeviceLink::publish() { health_.store(state_); }
+void DeviceLink::publish() {
+  health_.store(state_);
+}
 
 }  // namespace idm::drivers

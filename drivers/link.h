@@ -47,12 +47,12 @@ const char* link_state_name(LinkState state);  // "closed", "up", "lost"
 // Published by the link after every change (seqlock), read by any thread.
 struct LinkHealth {
   LinkState state = LinkState::Closed;
-  std::uint32_t losses = 0;             // times the device was lost
-  std::uint32_t reconnects = 0;         // times it came back
-  std::uint64_t readings_dropped = 0;   // readings the controller's queue had no room for
-  std::uint64_t message_version = 0;    // +1 whenever `message` changes
-  double since_s = 0;                   // when `state` last changed (the link's clock)
-  char message[232] = {};               // the last driver error ("" none), NUL terminated
+  std::uint32_t losses = 0;            // times the device was lost
+  std::uint32_t reconnects = 0;        // times it came back
+  std::uint64_t readings_dropped = 0;  // readings the controller's queue had no room for
+  std::uint64_t message_version = 0;   // +1 whenever `message` changes
+  double since_s = 0;                  // when `state` last changed (the link's clock)
+  char message[232] = {};              // the last driver error ("" none), NUL terminated
 };
 
 // One streamed sample of a recorded segment, for the recorder. t_s: seconds from the segment's

@@ -66,7 +66,8 @@ class SpscRing {
 template <typename T>
 class Seqlock {
   static_assert(std::is_trivially_copyable_v<T>, "a seqlock value is copied as plain data");
-  static constexpr std::size_t kWords = (sizeof(T) + sizeof(std::uint64_t) - 1) / sizeof(std::uint64_t);
+  static constexpr std::size_t kWords =
+      (sizeof(T) + sizeof(std::uint64_t) - 1) / sizeof(std::uint64_t);
 
  public:
   Seqlock() { store(T{}); }

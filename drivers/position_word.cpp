@@ -14,7 +14,9 @@ namespace {
 
 using model::check_range;
 
-unsigned width_bits(WordWidth width) { return static_cast<unsigned>(width); }
+unsigned width_bits(WordWidth width) {
+  return static_cast<unsigned>(width);
+}
 
 std::uint64_t count_mask(WordWidth width) {
   return (std::uint64_t{1} << width_bits(width)) - 1;
@@ -66,17 +68,16 @@ inline std::uint32_t step(std::uint64_t word, const UnwrapParams& p, UnwrapState
   const std::uint64_t raw = word & p.count_mask;
   std::uint32_t f = word_flags(word, p) | s.lost;
   const std::int64_t delta = sign_extend(raw - s.last_raw, p.sign_shift);
-  const std::uint64_t magnitude =
-      delta < 0 ? std::uint64_t{0} - static_cast<std::uint64_t>(delta)
-                : static_cast<std::uint64_t>(delta);
+  const std::uint64_t magnitude = delta < 0 ? std::uint64_t{0} - static_cast<std::uint64_t>(delta)
+                                            : static_cast<std::uint64_t>(delta);
   f |= static_cast<std::uint32_t>((f == 0) & (magnitude > s.allowance)) << 6;
   const bool ok = f == 0;
   s.count += ok ? delta : 0;
   s.last_raw = ok ? raw : s.last_raw;
   s.allowance = ok ? p.step_allowance : std::min(s.allowance + p.step_allowance, p.half_range);
   s.jumps = ok ? 0 : s.jumps + ((f >> 6) & 1u);
-  const bool lose = ((f & kSignalLost) != 0) | (s.jumps > p.max_jumps) |
-                    (s.allowance >= p.half_range);
+  const bool lose =
+      ((f & kSignalLost) != 0) | (s.jumps > p.max_jumps) | (s.allowance >= p.half_range);
   s.lost |= lose ? sample_status::kContinuityLost : 0u;
   return f;
 }
@@ -86,8 +87,8 @@ inline std::uint32_t step(std::uint64_t word, const UnwrapParams& p, UnwrapState
 std::string describe_sample_status(std::uint8_t status) {
   if (status == 0) return "valid";
   static constexpr const char* kNames[8] = {
-      "not_valid",     "measurement_signal_lost", "reference_signal_lost", "glitch_flagged",
-      "sample_overrun", "reserved_bits_set",      "jump_too_fast",         "continuity_lost"};
+      "not_valid",      "measurement_signal_lost", "reference_signal_lost", "glitch_flagged",
+      "sample_overrun", "reserved_bits_set",       "jump_too_fast",         "continuity_lost"};
   std::string out;
   for (unsigned bit = 0; bit < 8; ++bit) {
     if ((status >> bit) & 1u) {
@@ -107,8 +108,9 @@ double optics_divisor(Optics optics) {
     case Optics::Custom:
       break;
   }
-  throw model::InputError("optics: only single_beam_linear (64) and plane_mirror (128) have a "
-                          "fixed divisor; custom optics take interferometer.divisor");
+  throw model::InputError(
+      "optics: only single_beam_linear (64) and plane_mirror (128) have a "
+      "fixed divisor; custom optics take interferometer.divisor");
 }
 
 const char* optics_name(Optics optics) {
@@ -145,8 +147,9 @@ void validate(const PositionWordConfig& c, const std::string& where) {
   }
   if (c.optics != Optics::SingleBeamLinear && c.optics != Optics::PlaneMirror &&
       c.optics != Optics::Custom) {
-    throw model::InputError(where + ".optics: unknown optics (known: single_beam_linear, "
-                                    "plane_mirror, custom)");
+    throw model::InputError(where +
+                            ".optics: unknown optics (known: single_beam_linear, "
+                            "plane_mirror, custom)");
   }
   if (c.optics == Optics::Custom) {
     check_range(c.divisor > 0.0 && c.divisor <= 1e6, where, "divisor", c.divisor, "(0, 1e6]");
@@ -155,8 +158,8 @@ void validate(const PositionWordConfig& c, const std::string& where) {
               c.lambda_vac_m, "[100e-9, 20e-6]");
   check_range(c.air_index >= 1.0 && c.air_index <= 1.01, where, "air_index", c.air_index,
               "[1, 1.01]");
-  check_range(c.sample_interval_s > 0.0 && c.sample_interval_s <= 10.0, where,
-              "sample_interval_s", c.sample_interval_s, "(0, 10]");
+  check_range(c.sample_interval_s > 0.0 && c.sample_interval_s <= 10.0, where, "sample_interval_s",
+              c.sample_interval_s, "(0, 10]");
   check_range(c.max_velocity_m_s > 0.0 && c.max_velocity_m_s <= 100.0, where, "max_velocity_m_s",
               c.max_velocity_m_s, "(0, 100]");
   check_range(c.max_consecutive_jumps >= 1 && c.max_consecutive_jumps <= 1000000, where,
@@ -174,8 +177,7 @@ void validate(const PositionWordConfig& c, const std::string& where) {
   }
 }
 
-std::uint64_t encode_position_word(std::int64_t count, WordWidth width,
-                                   std::uint64_t status_bits) {
+std::uint64_t encode_position_word(std::int64_t count, WordWidth width, std::uint64_t status_bits) {
   if ((status_bits & ~position_word::kStatusBits) != 0) {
     std::ostringstream msg;
     msg << "encode_position_word: status bits 0x" << std::hex << status_bits
@@ -269,8 +271,9 @@ PositionSample PositionDecoder::decode(std::uint64_t word) {
 
 void PositionDecoder::decode(const std::uint64_t* words, std::size_t n, double* position_m,
                              std::uint8_t* status) {
-  const UnwrapParams p{count_mask_,           reserved_mask_,     sign_shift_,
-                       step_allowance_counts_, half_range_counts_, config_.max_consecutive_jumps};
+  const UnwrapParams p{count_mask_,        reserved_mask_,
+                       sign_shift_,        step_allowance_counts_,
+                       half_range_counts_, config_.max_consecutive_jumps};
   const double scale_m = count_m_;
   const double nan = std::numeric_limits<double>::quiet_NaN();
   std::size_t i = 0;

@@ -72,11 +72,11 @@ Optics parse_optics(const std::string& name, const std::string& where = "interfe
 struct PositionWordConfig {
   WordWidth width = WordWidth::Bits32;
   Optics optics = Optics::SingleBeamLinear;
-  double divisor = 64.0;                 // used only when optics == Custom
-  double lambda_vac_m = 632.991e-9;      // HeNe vacuum wavelength
-  double air_index = 1.0;                // n_air; 1 = uncompensated (see air_index.h)
-  double sample_interval_s = 1e-5;       // time between consecutive words
-  double max_velocity_m_s = 0.1;         // a faster jump between words is a glitch
+  double divisor = 64.0;                    // used only when optics == Custom
+  double lambda_vac_m = 632.991e-9;         // HeNe vacuum wavelength
+  double air_index = 1.0;                   // n_air; 1 = uncompensated (see air_index.h)
+  double sample_interval_s = 1e-5;          // time between consecutive words
+  double max_velocity_m_s = 0.1;            // a faster jump between words is a glitch
   std::uint32_t max_consecutive_jumps = 8;  // more too-fast jumps in a row: continuity lost
 
   double effective_divisor() const;
@@ -115,9 +115,9 @@ class PositionEncoder {
 };
 
 struct PositionSample {
-  std::int64_t count = 0;     // unwrapped count; the last valid one when this sample is invalid
-  double position_m = 0.0;    // count * count_m(); NaN when invalid
-  std::uint8_t status = 0;    // sample_status bits; 0 = valid
+  std::int64_t count = 0;   // unwrapped count; the last valid one when this sample is invalid
+  double position_m = 0.0;  // count * count_m(); NaN when invalid
+  std::uint8_t status = 0;  // sample_status bits; 0 = valid
 
   bool valid() const { return status == 0; }
 };
@@ -151,8 +151,7 @@ class PositionDecoder {
 
   // Decodes n consecutive words: position_m[i] (NaN when invalid) and status[i] (0 = valid).
   // Same results as calling decode() n times; no allocation, branch-light.
-  void decode(const std::uint64_t* words, std::size_t n, double* position_m,
-              std::uint8_t* status);
+  void decode(const std::uint64_t* words, std::size_t n, double* position_m, std::uint8_t* status);
 
   void set_air_index(double air_index);  // validated like the config
   double count_m() const { return count_m_; }

@@ -17,12 +17,15 @@ namespace idm::drivers {
 
 // Stack sizes of idmd's threads: each is far above what the thread uses (no recursion, no large
 // locals beyond the buffers noted), and small enough that locking them costs little.
-inline constexpr std::size_t kLoopStackBytes = std::size_t{512} * 1024;      // loop + 64 KiB prefault
-inline constexpr std::size_t kServerStackBytes = std::size_t{512} * 1024;    // 16 KiB read buffer, logging
-inline constexpr std::size_t kRecorderStackBytes = std::size_t{1024} * 1024; // dataset writing (I/O, formatting)
-inline constexpr std::size_t kSmallStackBytes = std::size_t{256} * 1024;     // watchdog, housekeeping
-inline constexpr std::size_t kIoStackBytes = std::size_t{1024} * 1024;       // a device's I/O thread (libmodbus,
-                                                                // libusb, error messages)
+inline constexpr std::size_t kLoopStackBytes = std::size_t{512} * 1024;  // loop + 64 KiB prefault
+inline constexpr std::size_t kServerStackBytes =
+    std::size_t{512} * 1024;  // 16 KiB read buffer, logging
+inline constexpr std::size_t kRecorderStackBytes =
+    std::size_t{1024} * 1024;  // dataset writing (I/O, formatting)
+inline constexpr std::size_t kSmallStackBytes = std::size_t{256} * 1024;  // watchdog, housekeeping
+inline constexpr std::size_t kIoStackBytes =
+    std::size_t{1024} * 1024;  // a device's I/O thread (libmodbus,
+                               // libusb, error messages)
 
 class StackThread {
  public:

@@ -5,16 +5,15 @@
 //   H_i W = Y_i,  H_i = [d(x - xi)_i, (x - xi)_i],  Y_i = -d2x_i            (eqs 32-33)
 // and W is estimated by weighted recursive least squares with a forgetting factor (eq 34):
 //   G = P H' / (lambda + H P H'),  W += G (Y - H W),  P = (P - G H P) / lambda.
-// The paper's differences are backward (x_i - x_{i-1}, x_i - 2x_{i-1} + x_{i-2}); they are biased by
-// O(omega Ts). `central` uses centred differences (bias O((omega Ts)^2)) in the same form.
+// The paper's differences are backward (x_i - x_{i-1}, x_i - 2x_{i-1} + x_{i-2}); they are biased
+// by O(omega Ts). `central` uses centred differences (bias O((omega Ts)^2)) in the same form.
 // Stencils that hold a corner of the command are skipped (eq 32 assumes a smooth command there).
 // P is kept symmetric after each update: without that the plain update of eq 34 drifts and, over
 // tens of thousands of samples with forgetting, diverges.
 #pragma once
 
-#include <vector>
-
 #include <Eigen/Dense>
+#include <vector>
 
 namespace idm::model {
 
@@ -42,8 +41,9 @@ enum class Differences { Backward, Central };
 
 // From samples at period ts_s of the command xi and the measured counter-mass position x (relative
 // to the held slider), counter mass m: runs eqs 32-34 and converts W to K and C.
-StiffnessEstimate identify_stiffness(const std::vector<double>& xi_m, const std::vector<double>& x_m,
-                                     double ts_s, double counter_mass_kg, double forgetting = 0.995,
+StiffnessEstimate identify_stiffness(const std::vector<double>& xi_m,
+                                     const std::vector<double>& x_m, double ts_s,
+                                     double counter_mass_kg, double forgetting = 0.995,
                                      Differences differences = Differences::Central);
 
 }  // namespace idm::model

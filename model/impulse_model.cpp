@@ -39,7 +39,8 @@ RegionBoundaries region_boundaries(double d) {
 Region region_closed_form(double beta, double duty) {
   const RegionBoundaries b = region_boundaries(duty);
   if (beta <= b.cutoff) return Region::Cutoff;
-  const bool first_cycle_rests = beta > b.stop_in_ext ? beta <= b.first_rest_a : beta <= b.first_rest_b;
+  const bool first_cycle_rests =
+      beta > b.stop_in_ext ? beta <= b.first_rest_a : beta <= b.first_rest_b;
   return first_cycle_rests ? Region::OneStep : Region::MultiStep;
 }
 
@@ -100,12 +101,12 @@ double steady_step_ideal_m(const StageParams& s, double freq_hz, double duty, do
   if (beta <= (1 - d) * d * d) return 0.0;
   const double T = 1.0 / freq_hz;
   // eq 21: -(m S / ((M+m)(1-d)) - mu g d^2 T^2)
-  const double step = -(s.mass_ratio() * stroke_m / (1 - d) - s.friction_decel_m_s2() * d * d * T * T);
+  const double step =
+      -(s.mass_ratio() * stroke_m / (1 - d) - s.friction_decel_m_s2() * d * d * T * T);
   return duty < 0.5 ? step : -step;
 }
 
-double steady_step_corrected_m(const StageParams& s, double freq_hz, double duty,
-                               double stroke_m) {
+double steady_step_corrected_m(const StageParams& s, double freq_hz, double duty, double stroke_m) {
   return s.step_correction * steady_step_ideal_m(s, freq_hz, duty, stroke_m);
 }
 
@@ -123,7 +124,8 @@ FirstCycleVelocities first_cycle_velocities(const StageParams& s, double freq_hz
     if (beta > (1 - d) * (1 - 2 * d)) v.end_of_cycle_m_s = (beta / (1 - d) - (1 - 2 * d)) * mu_g_T;
   } else {
     // eq 27
-    if (beta > (1 - d) * (1 - d) * d) v.end_of_cycle_m_s = (beta / ((1 - d) * d) - (1 - d)) * mu_g_T;
+    if (beta > (1 - d) * (1 - d) * d)
+      v.end_of_cycle_m_s = (beta / ((1 - d) * d) - (1 - d)) * mu_g_T;
   }
   return v;
 }

@@ -24,10 +24,10 @@ double impulse_ratio(const StageParams& stage, double freq_hz, double stroke_m);
 
 // The four boundaries of eqs 19/23, 26-29 for 0 < duty < 0.5.
 struct RegionBoundaries {
-  double cutoff;          // (1-d) d^2        eqs 19, 23
-  double stop_in_ext;     // d^2              eq 25: the slider stops inside the first extension
-  double first_rest_a;    // (1-d)(1-2d)      eq 26
-  double first_rest_b;    // (1-d)^2 d        eq 27
+  double cutoff;        // (1-d) d^2        eqs 19, 23
+  double stop_in_ext;   // d^2              eq 25: the slider stops inside the first extension
+  double first_rest_a;  // (1-d)(1-2d)      eq 26
+  double first_rest_b;  // (1-d)^2 d        eq 27
 };
 RegionBoundaries region_boundaries(double duty);
 

@@ -12,6 +12,8 @@
 //   kTable.markdown();                            // | key | unit | default | range | meaning |
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -20,8 +22,6 @@
 #include <type_traits>
 #include <utility>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
 
 #include "model/range.h"
 #include "model/stage.h"
@@ -32,9 +32,9 @@ namespace idm::model {
 template <typename S>
 struct Param {
   std::string name;
-  std::string unit;      // "m", "Hz", "s", "count", "1", "bool", "" (text)
-  std::string range;     // as the README and messages show it
-  std::string doc;       // one line
+  std::string unit;          // "m", "Hz", "s", "count", "1", "bool", "" (text)
+  std::string range;         // as the README and messages show it
+  std::string doc;           // one line
   std::string default_text;  // "" -> show(S{})
   std::function<void(S&, const YAML::Node&, const std::string& file, const std::string& key)> read;
   std::function<void(const S&, const std::string& key)> check;  // throws InputError
@@ -57,7 +57,8 @@ class ParamTable {
       const std::string name = kv.first.as<std::string>();
       const std::string key = section.empty() ? name : section + "." + name;
       const Param<S>* p = find(name);
-      if (p == nullptr) throw InputError(located(file, kv.first, key, "unknown key, allowed " + names()));
+      if (p == nullptr)
+        throw InputError(located(file, kv.first, key, "unknown key, allowed " + names()));
       if (!kv.second.IsDefined() || kv.second.IsNull())
         throw InputError(located(file, kv.first, key, "no value"));
       p->read(out, kv.second, file, key);
@@ -109,10 +110,12 @@ Param<S> real(const char* name, const char* unit, Range range, const char* doc, 
   p.unit = unit;
   p.range = range.text();
   p.doc = doc;
-  p.read = [range, get](S& s, const YAML::Node& v, const std::string& file, const std::string& key) {
+  p.read = [range, get](S& s, const YAML::Node& v, const std::string& file,
+                        const std::string& key) {
     const double x = read_double(v, file, key, -1e308, 1e308);
     if (!range.contains(x))
-      throw InputError(located(file, v, key, format_number(x) + " is out of range, allowed " + range.text()));
+      throw InputError(
+          located(file, v, key, format_number(x) + " is out of range, allowed " + range.text()));
     get(s) = x;
   };
   p.check = [range, get](const S& s, const std::string& key) {
@@ -129,7 +132,8 @@ Param<S> integer(const char* name, const char* unit, long lo, long hi, const cha
   p.unit = unit;
   p.range = "[" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
   p.doc = doc;
-  p.read = [lo, hi, get](S& s, const YAML::Node& v, const std::string& file, const std::string& key) {
+  p.read = [lo, hi, get](S& s, const YAML::Node& v, const std::string& file,
+                         const std::string& key) {
     using T = std::remove_reference_t<decltype(get(s))>;
     get(s) = static_cast<T>(read_integer(v, file, key, lo, hi));
   };
@@ -204,9 +208,10 @@ Param<S> choice(const char* name, std::vector<std::pair<std::string, T>> choices
 // A key read by its own function (a nested map, a pair of numbers): the range column says what
 // it takes.
 template <typename S>
-Param<S> custom(const char* name, const char* unit, const char* range, const char* default_text,
-                const char* doc,
-                std::function<void(S&, const YAML::Node&, const std::string&, const std::string&)> read) {
+Param<S> custom(
+    const char* name, const char* unit, const char* range, const char* default_text,
+    const char* doc,
+    std::function<void(S&, const YAML::Node&, const std::string&, const std::string&)> read) {
   Param<S> p;
   p.name = name;
   p.unit = unit;
@@ -241,11 +246,9 @@ std::vector<Param<S>> lifted(const ParamTable<Sub>& sub, Get get,
     p.range = q.range;
     p.doc = q.doc;
     p.default_text = q.default_text.empty() ? q.show(defaults) : q.default_text;
-    p.read = [r = q.read, get](S& s, const YAML::Node& v, const std::string& f, const std::string& k) {
-      r(get(s), v, f, k);
-    };
-    if (q.check)
-      p.check = [c = q.check, get](const S& s, const std::string& k) { c(get(s), k); };
+    p.read = [r = q.read, get](S& s, const YAML::Node& v, const std::string& f,
+                               const std::string& k) { r(get(s), v, f, k); };
+    if (q.check) p.check = [c = q.check, get](const S& s, const std::string& k) { c(get(s), k); };
     p.show = [sh = q.show, get](const S& s) { return sh(get(s)); };
     out.push_back(std::move(p));
   }

@@ -28,8 +28,8 @@ struct Range {
 // "WHERE.KEY" ("KEY" when where is empty).
 std::string qualified(const std::string& where, const std::string& key);
 
-[[noreturn]] void throw_out_of_range(const std::string& where, const std::string& key,
-                                     double value, const std::string& allowed);
+[[noreturn]] void throw_out_of_range(const std::string& where, const std::string& key, double value,
+                                     const std::string& allowed);
 
 // Throws unless `range` contains `value` (finite).
 inline void check_range(const std::string& where, const std::string& key, double value,

@@ -29,26 +29,35 @@ PlantKind parse_plant_name(const std::string& name) {
 
 const std::vector<EffectInfo>& effect_library() {
   static const std::vector<EffectInfo> library = {
-      {"amplifier", "finite bandwidth or slew rate between commanded and actual actuator length",
+      {"amplifier",
+       "finite bandwidth or slew rate between commanded and actual actuator length",
        {{"order", 2, 1, 2, "Butterworth order, 1 or 2"},
         {"cutoff_hz", 3000, 10, 1e6, "-3 dB frequency"},
         {"slew_rate_m_s", 0, 0, 100, "slew-rate limit of the actuator length, 0 = none"}}},
-      {"actuator_compliance", "actuator stiffness and damping: the mass-damper-spring model of eq 30",
+      {"actuator_compliance",
+       "actuator stiffness and damping: the mass-damper-spring model of eq 30",
        {{"stiffness_n_m", 5.7e6, 1e4, 1e12, "K"}, {"damping_n_s_m", 230, 0, 1e5, "C"}}},
-      {"hysteresis", "rate-independent hysteresis between command and actuator length",
+      {"hysteresis",
+       "rate-independent hysteresis between command and actuator length",
        {{"ratio", 0.15, 0, 0.5, "loop width over stroke"}}},
-      {"creep", "slow drift of the actuator length after a change",
+      {"creep",
+       "slow drift of the actuator length after a change",
        {{"per_decade", 0.01, 0, 0.1, "relative change per decade of time"}}},
-      {"stribeck", "velocity-dependent friction: static above kinetic, Stribeck curve",
+      {"stribeck",
+       "velocity-dependent friction: static above kinetic, Stribeck curve",
        {{"static_over_kinetic", 1.15, 1, 3, "mu_s / mu_k"},
         {"stribeck_velocity_m_s", 1e-3, 1e-6, 1, "Stribeck velocity"}}},
-      {"friction_spread", "friction that varies along the guide, trial to trial",
+      {"friction_spread",
+       "friction that varies along the guide, trial to trial",
        {{"relative_sd", 0.1, 0, 0.5, "relative standard deviation of mu along the guide"},
         {"correlation_m", 2e-3, 1e-6, 1, "correlation length along the guide"},
-        {"mean_shift", 0, -0.5, 0.5, "mean relative change of mu over the stretch of guide in use"}}},
-      {"tilt", "a gravity component along the axis (guide not level)",
+        {"mean_shift", 0, -0.5, 0.5,
+         "mean relative change of mu over the stretch of guide in use"}}},
+      {"tilt",
+       "a gravity component along the axis (guide not level)",
        {{"angle_deg", 1, -30, 30, "positive: the positive direction is uphill"}}},
-      {"quantization", "the DAC's finite resolution and update clock of the waveform",
+      {"quantization",
+       "the DAC's finite resolution and update clock of the waveform",
        {{"bits", 12, 1, 24, "DAC resolution"},
         {"update_rate_hz", 100e3, 100, 1e8, "DAC update clock"}}},
   };
@@ -63,7 +72,8 @@ const EffectInfo* find_info(const std::string& name) {
 }
 std::string known_effects() {
   std::string out;
-  for (const EffectInfo& e : effect_library()) out += (out.empty() ? "" : ", ") + std::string(e.name);
+  for (const EffectInfo& e : effect_library())
+    out += (out.empty() ? "" : ", ") + std::string(e.name);
   return out;
 }
 }  // namespace
@@ -79,14 +89,18 @@ EffectSpec complete_effect(const EffectSpec& spec, const std::string& where) {
       if (key == q.name) p = &q;
     if (!p) {
       std::string allowed;
-      for (const EffectParamInfo& q : info->params) allowed += (allowed.empty() ? "" : ", ") + std::string(q.name);
-      throw InputError(where + ": " + spec.name + "." + key + ": unknown parameter, allowed " + allowed);
+      for (const EffectParamInfo& q : info->params)
+        allowed += (allowed.empty() ? "" : ", ") + std::string(q.name);
+      throw InputError(where + ": " + spec.name + "." + key + ": unknown parameter, allowed " +
+                       allowed);
     }
     if (!std::isfinite(value) || value < p->lo || value > p->hi)
       throw InputError(where + ": " + spec.name + "." + key + ": " + model::format_number(value) +
-                       " is out of range, allowed [" + model::format_number(p->lo) + ", " + model::format_number(p->hi) + "]");
+                       " is out of range, allowed [" + model::format_number(p->lo) + ", " +
+                       model::format_number(p->hi) + "]");
     if ((key == "order" || key == "bits") && value != std::floor(value))
-      throw InputError(where + ": " + spec.name + "." + key + ": " + model::format_number(value) + " must be an integer");
+      throw InputError(where + ": " + spec.name + "." + key + ": " + model::format_number(value) +
+                       " must be an integer");
     out.params[key] = value;
   }
   for (const EffectParamInfo& q : info->params)
@@ -105,8 +119,7 @@ EffectSpec parse_effect_arg(const std::string& text) {
     while (std::getline(rest, item, ',')) {
       if (item.empty()) continue;
       const auto eq = item.find('=');
-      if (eq == std::string::npos)
-        throw InputError(where + ": '" + item + "' is not key=value");
+      if (eq == std::string::npos) throw InputError(where + ": '" + item + "' is not key=value");
       const std::string key = item.substr(0, eq), value = item.substr(eq + 1);
       double v = 0;
       try {
@@ -114,7 +127,8 @@ EffectSpec parse_effect_arg(const std::string& text) {
         v = std::stod(value, &used);
         if (used != value.size()) throw std::invalid_argument(value);
       } catch (const std::exception&) {
-        throw InputError(where + ": " + spec.name + "." + key + ": '" + value + "' is not a number");
+        throw InputError(where + ": " + spec.name + "." + key + ": '" + value +
+                         "' is not a number");
       }
       spec.params[key] = v;
     }
@@ -122,7 +136,9 @@ EffectSpec parse_effect_arg(const std::string& text) {
   return complete_effect(spec, where);
 }
 
-bool SimConfig::has(const std::string& effect) const { return find(effect) != nullptr; }
+bool SimConfig::has(const std::string& effect) const {
+  return find(effect) != nullptr;
+}
 
 const EffectSpec* SimConfig::find(const std::string& effect) const {
   for (const EffectSpec& e : effects)
@@ -133,16 +149,19 @@ const EffectSpec* SimConfig::find(const std::string& effect) const {
 const ParamTable<SimConfig>& sim_params() {
   using C = SimConfig;
   static const ParamTable<C> table({
-      choice<C, PlantKind>("plant",
-                           {{plant_name(PlantKind::Rigid), PlantKind::Rigid},
-                            {plant_name(PlantKind::Impulse), PlantKind::Impulse},
-                            {plant_name(PlantKind::MassDamperSpring), PlantKind::MassDamperSpring}},
-                           "rigid: the two-mass plant; impulse: the ideal model, no effects; mck: the actuator's K and C",
-                           [](auto& c) -> auto& { return c.plant; }),
+      choice<C, PlantKind>(
+          "plant",
+          {{plant_name(PlantKind::Rigid), PlantKind::Rigid},
+           {plant_name(PlantKind::Impulse), PlantKind::Impulse},
+           {plant_name(PlantKind::MassDamperSpring), PlantKind::MassDamperSpring}},
+          "rigid: the two-mass plant; impulse: the ideal model, no effects; mck: the actuator's K "
+          "and C",
+          [](auto& c) -> auto& { return c.plant; }),
       custom<C>("effects", "map", "NAME: {PARAM: value}, specs/gap-report.md", "none",
                 "unmodelled effects the simulated stage adds",
                 [](C& c, const YAML::Node& v, const std::string& file, const std::string& key) {
-                  if (!v.IsMap()) throw InputError(located(file, v, key, "expected a map NAME: {PARAM: value}"));
+                  if (!v.IsMap())
+                    throw InputError(located(file, v, key, "expected a map NAME: {PARAM: value}"));
                   for (const auto& e : v) {
                     EffectSpec spec;
                     spec.name = e.first.as<std::string>();
@@ -155,20 +174,27 @@ const ParamTable<SimConfig>& sim_params() {
                         spec.params[pk] = read_double(p.second, file, k + "." + pk, -1e300, 1e300);
                       }
                     }
-                    const std::string at = file + ":" + std::to_string(e.first.Mark().line + 1) + ": " + key;
+                    const std::string at =
+                        file + ":" + std::to_string(e.first.Mark().line + 1) + ": " + key;
                     c.effects.push_back(complete_effect(spec, at));
                   }
                 }),
-      integer<C>("seed", "", 0, 1L << 62, "the random streams' seed (noise, effects)",
-                 [](auto& c) -> auto& { return c.seed; }),
-      real<C>("noise_m", "m", {0, 1e-6}, "interferometer noise, rms, before quantization",
-              [](auto& c) -> auto& { return c.noise_m; }),
-      real<C>("internal_rate_hz", "Hz", {1e3, 1e8}, "the plant's rate when actuator effects smooth the command",
-              [](auto& c) -> auto& { return c.internal_rate_hz; }),
-      real<C>("start_position_m", "m", {-10, 10}, "where the slider rests when the device is first opened",
-              [](auto& c) -> auto& { return c.start_position_m; }),
-      custom<C>("end_stops_m", "m", "[low, high] in [-10, 10], low < high", "the ends of stage.travel_m",
-                "hard stops the slider cannot pass",
+      integer<C>(
+          "seed", "", 0, 1L << 62, "the random streams' seed (noise, effects)",
+          [](auto& c) -> auto& { return c.seed; }),
+      real<C>(
+          "noise_m", "m", {0, 1e-6}, "interferometer noise, rms, before quantization",
+          [](auto& c) -> auto& { return c.noise_m; }),
+      real<C>(
+          "internal_rate_hz", "Hz", {1e3, 1e8},
+          "the plant's rate when actuator effects smooth the command",
+          [](auto& c) -> auto& { return c.internal_rate_hz; }),
+      real<C>(
+          "start_position_m", "m", {-10, 10},
+          "where the slider rests when the device is first opened",
+          [](auto& c) -> auto& { return c.start_position_m; }),
+      custom<C>("end_stops_m", "m", "[low, high] in [-10, 10], low < high",
+                "the ends of stage.travel_m", "hard stops the slider cannot pass",
                 [](C& c, const YAML::Node& v, const std::string& file, const std::string& key) {
                   if (!v.IsSequence() || v.size() != 2)
                     throw InputError(located(file, v, key, "expected [low, high] in metres"));
@@ -177,8 +203,9 @@ const ParamTable<SimConfig>& sim_params() {
                   if (!(c.end_stop_low_m < c.end_stop_high_m))
                     throw InputError(located(file, v, key, "low must be below high"));
                 }),
-      with_default(real<C>("reference_mark_m", "m", {-10, 10}, "an index mark REFerence MARK finds",
-                           [](auto& c) -> auto& { return c.reference_mark_m; }),
+      with_default(real<C>(
+                       "reference_mark_m", "m", {-10, 10}, "an index mark REFerence MARK finds",
+                       [](auto& c) -> auto& { return c.reference_mark_m; }),
                    "none"),
   });
   return table;
@@ -189,7 +216,9 @@ SimConfig parse_sim_yaml(const YAML::Node& node, const std::string& file) {
   if (!node) return c;
   sim_params().read(node, file, "sim", c);
   if (c.plant == PlantKind::Impulse && !c.effects.empty())
-    throw InputError(file + ": sim.plant: the impulse plant is the ideal model and takes no effects; use rigid or mck");
+    throw InputError(
+        file +
+        ": sim.plant: the impulse plant is the ideal model and takes no effects; use rigid or mck");
   return c;
 }
 
@@ -208,10 +237,11 @@ FrictionLaw friction_law(const StageParams& stage, const SimConfig& config) {
     f.static_over_kinetic = e->params.at("static_over_kinetic");
     f.stribeck_velocity_m_s = e->params.at("stribeck_velocity_m_s");
   }
-  if (const EffectSpec* e = config.find("tilt")) f.tilt_rad = e->params.at("angle_deg") * M_PI / 180.0;
+  if (const EffectSpec* e = config.find("tilt"))
+    f.tilt_rad = e->params.at("angle_deg") * M_PI / 180.0;
   if (const EffectSpec* e = config.find("friction_spread"))
-    f.profile = GuideProfile(e->params.at("relative_sd"), e->params.at("correlation_m"), config.seed * 7919 + 17,
-                             e->params.at("mean_shift"));
+    f.profile = GuideProfile(e->params.at("relative_sd"), e->params.at("correlation_m"),
+                             config.seed * 7919 + 17, e->params.at("mean_shift"));
   return f;
 }
 
@@ -220,7 +250,8 @@ SimulatedStage::SimulatedStage(const StageParams& stage, const InterferometerPar
     : stage_(effective_stage(stage, config)), ifm_(ifm), config_(config) {
   validate(stage_);
   validate(ifm_);
-  const bool compliant = config.plant == PlantKind::MassDamperSpring || config.has("actuator_compliance");
+  const bool compliant =
+      config.plant == PlantKind::MassDamperSpring || config.has("actuator_compliance");
   plant_ = make_plant(compliant ? ActuatorKind::MassDamperSpring : ActuatorKind::Rigid, stage_,
                       friction_law(stage_, config));
   plant_->set_end_stops(config.end_stop_low_m, config.end_stop_high_m);

@@ -5,15 +5,15 @@
 // unless configured, with the names and parameters used everywhere in the project.
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <cstdint>
-#include <map>
 #include <limits>
+#include <map>
 #include <memory>
 #include <random>
 #include <string>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
 
 #include "model/effects/actuator_effect.h"
 #include "model/param_table.h"
@@ -54,13 +54,13 @@ struct SimConfig {
   PlantKind plant = PlantKind::Rigid;
   std::vector<EffectSpec> effects;  // completed (defaults filled)
   std::uint64_t seed = 1;
-  double noise_m = 0.0;             // interferometer noise, rms (before quantization)
-  double internal_rate_hz = 1e6;    // plant rate when actuator effects smooth the command
+  double noise_m = 0.0;           // interferometer noise, rms (before quantization)
+  double internal_rate_hz = 1e6;  // plant rate when actuator effects smooth the command
   // Where the simulated slider is and what bounds it (the daemon's simulated device):
-  double start_position_m = 0.0;    // at rest here when the device is first opened
-  double end_stop_low_m = std::numeric_limits<double>::quiet_NaN();   // hard stops (NaN: none)
+  double start_position_m = 0.0;  // at rest here when the device is first opened
+  double end_stop_low_m = std::numeric_limits<double>::quiet_NaN();  // hard stops (NaN: none)
   double end_stop_high_m = std::numeric_limits<double>::quiet_NaN();
-  double reference_mark_m = std::numeric_limits<double>::quiet_NaN(); // an index mark (NaN: none)
+  double reference_mark_m = std::numeric_limits<double>::quiet_NaN();  // an index mark (NaN: none)
   bool has(const std::string& effect) const;
   const EffectSpec* find(const std::string& effect) const;
 };
@@ -77,7 +77,8 @@ struct TrialSamples {
 
 class SimulatedStage {
  public:
-  SimulatedStage(const StageParams& stage, const InterferometerParams& ifm, const SimConfig& config);
+  SimulatedStage(const StageParams& stage, const InterferometerParams& ifm,
+                 const SimConfig& config);
   SimulatedStage(const SimulatedStage&) = delete;
   SimulatedStage& operator=(const SimulatedStage&) = delete;
   ~SimulatedStage() = default;

@@ -23,21 +23,53 @@ struct StageKey {
 };
 
 constexpr StageKey kStageKeys[] = {
-    {"slider_mass_kg", &StageParams::slider_mass_kg, {0.0, 1e3, true}, true, "kg",
+    {"slider_mass_kg",
+     &StageParams::slider_mass_kg,
+     {0.0, 1e3, true},
+     true,
+     "kg",
      "M, the slider (Table 1)"},
-    {"counter_mass_kg", &StageParams::counter_mass_kg, {0.0, 1e3, true}, true, "kg",
+    {"counter_mass_kg",
+     &StageParams::counter_mass_kg,
+     {0.0, 1e3, true},
+     true,
+     "kg",
      "m, the counter mass on the actuator's free end (Table 1)"},
-    {"friction_coefficient", &StageParams::friction_coefficient, {0.0, 2.0, true}, true, "1",
+    {"friction_coefficient",
+     &StageParams::friction_coefficient,
+     {0.0, 2.0, true},
+     true,
+     "1",
      "mu, kinetic (Coulomb) friction between slider and guide"},
-    {"gravity_m_s2", &StageParams::gravity_m_s2, {0.0, 100.0, true}, true, "m/s²",
+    {"gravity_m_s2",
+     &StageParams::gravity_m_s2,
+     {0.0, 100.0, true},
+     true,
+     "m/s²",
      "g, the normal load per mass"},
-    {"stroke_m", &StageParams::stroke_m, {0.0, 1e-3, true}, true, "m",
+    {"stroke_m",
+     &StageParams::stroke_m,
+     {0.0, 1e-3, true},
+     true,
+     "m",
      "S, the actuator's nominal stroke"},
-    {"step_correction", &StageParams::step_correction, {0.0, 1.0, true}, true, "1",
+    {"step_correction",
+     &StageParams::step_correction,
+     {0.0, 1.0, true},
+     true,
+     "1",
      "alpha of eq 22 (the shipped files give 1.0: the rigid plant is the ideal model)"},
-    {"stiffness_n_m", &StageParams::stiffness_n_m, {0.0, 1e12, true}, false, "N/m",
+    {"stiffness_n_m",
+     &StageParams::stiffness_n_m,
+     {0.0, 1e12, true},
+     false,
+     "N/m",
      "K of eq 30, the actuator (mck plant)"},
-    {"damping_n_s_m", &StageParams::damping_n_s_m, {0.0, 1e6, false}, false, "N s/m",
+    {"damping_n_s_m",
+     &StageParams::damping_n_s_m,
+     {0.0, 1e6, false},
+     false,
+     "N s/m",
      "C of eq 30, the actuator (mck plant)"},
 };
 
@@ -69,19 +101,19 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
       const YAML::Node value = stage[k.name];
       if (!value) {
         if (options.require_dataset_keys && k.required_in_dataset)
-          throw InputError(located(file, stage, std::string("stage.") + k.name,
-                                   "missing required key"));
+          throw InputError(
+              located(file, stage, std::string("stage.") + k.name, "missing required key"));
         continue;
       }
-      out.stage.*k.member =
-          read_double(value, file, std::string("stage.") + k.name, k.range.lo, k.range.hi, k.range.lo_open);
+      out.stage.*k.member = read_double(value, file, std::string("stage.") + k.name, k.range.lo,
+                                        k.range.hi, k.range.lo_open);
     }
     known.insert("travel_m");
     if (const YAML::Node travel = stage["travel_m"]) {
       const std::string key = "stage.travel_m";
       if (!travel.IsSequence() || travel.size() != 2)
-        throw InputError(located(file, travel, key,
-                                 "expected [lower, upper] in metres, e.g. [-5e-3, 5e-3]"));
+        throw InputError(
+            located(file, travel, key, "expected [lower, upper] in metres, e.g. [-5e-3, 5e-3]"));
       out.travel_lower_m = read_double(travel[0], file, key + "[0]", -10.0, 10.0);
       out.travel_upper_m = read_double(travel[1], file, key + "[1]", -10.0, 10.0);
       if (!(out.travel_lower_m < out.travel_upper_m))
@@ -102,8 +134,8 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
   if (ifm) {
     if (!ifm.IsMap()) throw InputError(located(file, ifm, "interferometer", "expected a map"));
     if (ifm["resolution_m"])
-      out.interferometer.resolution_m = read_double(
-          ifm["resolution_m"], file, "interferometer.resolution_m", 0.0, 1e-6, true);
+      out.interferometer.resolution_m =
+          read_double(ifm["resolution_m"], file, "interferometer.resolution_m", 0.0, 1e-6, true);
     if (ifm["noise_m"])
       out.interferometer.noise_m =
           read_double(ifm["noise_m"], file, "interferometer.noise_m", 0.0, 1e-6);
@@ -123,9 +155,10 @@ std::string stage_reference_rows() {
   for (const StageKey& k : kStageKeys)
     out += std::string("| ") + k.name + " | " + k.unit + " | " + format_number(defaults.*k.member) +
            " | " + k.range.text() + " | " + k.doc + " |\n";
-  out += "| travel_m | m | **required** by idmd | [lower, upper] in [-10, 10], lower < upper | the "
-         "stage's mechanical range; the soft limits default to it, and no move, STEP or LIM may "
-         "leave it |\n";
+  out +=
+      "| travel_m | m | **required** by idmd | [lower, upper] in [-10, 10], lower < upper | the "
+      "stage's mechanical range; the soft limits default to it, and no move, STEP or LIM may "
+      "leave it |\n";
   return out;
 }
 
@@ -134,7 +167,8 @@ std::string to_yaml(const StageFile& f) {
   out.precision(17);
   out << "stage:\n";
   for (const StageKey& k : kStageKeys) out << "  " << k.name << ": " << f.stage.*k.member << "\n";
-  if (f.has_travel()) out << "  travel_m: [" << f.travel_lower_m << ", " << f.travel_upper_m << "]\n";
+  if (f.has_travel())
+    out << "  travel_m: [" << f.travel_lower_m << ", " << f.travel_upper_m << "]\n";
   out << "interferometer:\n";
   out << "  resolution_m: " << f.interferometer.resolution_m << "\n";
   out << "  noise_m: " << f.interferometer.noise_m << "\n";

@@ -1,13 +1,13 @@
 // Stage parameters (the paper's Table 1 by default) and their YAML form.
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <cmath>
 #include <limits>
 #include <optional>
 #include <stdexcept>
 #include <string>
-
-#include <yaml-cpp/yaml.h>
 
 namespace idm::model {
 
@@ -19,14 +19,14 @@ class InputError : public std::runtime_error {
 
 // The mechanical stage (SI units).
 struct StageParams {
-  double slider_mass_kg = 0.16557;      // M
-  double counter_mass_kg = 0.05761;     // m
-  double friction_coefficient = 0.4;    // mu (kinetic, Coulomb)
-  double gravity_m_s2 = 9.8;            // g
-  double stroke_m = 20.35e-6;           // S, nominal actuator stroke
-  double step_correction = 0.35;        // alpha of eq 22
-  double stiffness_n_m = 5.7e6;         // K of eq 30 (actuator)
-  double damping_n_s_m = 230.0;         // C of eq 30 (actuator)
+  double slider_mass_kg = 0.16557;    // M
+  double counter_mass_kg = 0.05761;   // m
+  double friction_coefficient = 0.4;  // mu (kinetic, Coulomb)
+  double gravity_m_s2 = 9.8;          // g
+  double stroke_m = 20.35e-6;         // S, nominal actuator stroke
+  double step_correction = 0.35;      // alpha of eq 22
+  double stiffness_n_m = 5.7e6;       // K of eq 30 (actuator)
+  double damping_n_s_m = 230.0;       // C of eq 30 (actuator)
 
   double total_mass_kg() const { return slider_mass_kg + counter_mass_kg; }
   // m/(M+m): the slider's share of an actuator velocity jump (eqs 1-3).

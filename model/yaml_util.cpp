@@ -54,8 +54,8 @@ double read_double(const YAML::Node& node, const std::string& file, const std::s
   return value;
 }
 
-long read_integer(const YAML::Node& node, const std::string& file, const std::string& key,
-                  long lo, long hi) {
+long read_integer(const YAML::Node& node, const std::string& file, const std::string& key, long lo,
+                  long hi) {
   if (!node.IsScalar()) throw InputError(located(file, node, key, "expected an integer"));
   const std::string& text = node.Scalar();
   long value = 0;
@@ -135,8 +135,8 @@ YAML::Node load_yaml_text(const std::string& text, const std::string& name) {
   try {
     root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
-    throw InputError(name + ":" + std::to_string(e.mark.line + 1) + ": YAML syntax error: " +
-                     e.msg);
+    throw InputError(name + ":" + std::to_string(e.mark.line + 1) +
+                     ": YAML syntax error: " + e.msg);
   }
   require_unique_keys(root, name);
   return root;

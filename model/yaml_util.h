@@ -1,9 +1,9 @@
 // Checked reads of YAML scalars: every error names the file, the line, the key and the range.
 #pragma once
 
-#include <string>
-
 #include <yaml-cpp/yaml.h>
+
+#include <string>
 
 #include "model/range.h"
 
@@ -16,8 +16,8 @@ std::string located(const std::string& file, const YAML::Node& node, const std::
 // Reads a finite double within [lo, hi] (or (lo, hi] when lo_open). Throws InputError.
 double read_double(const YAML::Node& node, const std::string& file, const std::string& key,
                    double lo, double hi, bool lo_open = false);
-long read_integer(const YAML::Node& node, const std::string& file, const std::string& key,
-                  long lo, long hi);
+long read_integer(const YAML::Node& node, const std::string& file, const std::string& key, long lo,
+                  long hi);
 bool read_bool(const YAML::Node& node, const std::string& file, const std::string& key);
 std::string read_string(const YAML::Node& node, const std::string& file, const std::string& key);
 

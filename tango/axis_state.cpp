@@ -7,11 +7,16 @@ namespace idm::tango {
 
 const char* axis_state_name(AxisState s) {
   switch (s) {
-    case AxisState::On: return "ON";
-    case AxisState::Moving: return "MOVING";
-    case AxisState::Fault: return "FAULT";
-    case AxisState::Alarm: return "ALARM";
-    case AxisState::Disable: return "DISABLE";
+    case AxisState::On:
+      return "ON";
+    case AxisState::Moving:
+      return "MOVING";
+    case AxisState::Fault:
+      return "FAULT";
+    case AxisState::Alarm:
+      return "ALARM";
+    case AxisState::Disable:
+      return "DISABLE";
   }
   return "UNKNOWN";
 }

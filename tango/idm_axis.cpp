@@ -20,11 +20,16 @@ std::string number_text(double v) {
 
 Tango::DevState tango_state(AxisState s) {
   switch (s) {
-    case AxisState::On: return Tango::ON;
-    case AxisState::Moving: return Tango::MOVING;
-    case AxisState::Fault: return Tango::FAULT;
-    case AxisState::Alarm: return Tango::ALARM;
-    case AxisState::Disable: return Tango::DISABLE;
+    case AxisState::On:
+      return Tango::ON;
+    case AxisState::Moving:
+      return Tango::MOVING;
+    case AxisState::Fault:
+      return Tango::FAULT;
+    case AxisState::Alarm:
+      return Tango::ALARM;
+    case AxisState::Disable:
+      return Tango::DISABLE;
   }
   return Tango::UNKNOWN;
 }
@@ -156,7 +161,8 @@ void IdmAxis::refresh() {
     status_error_.clear();
   } catch (const client::DaemonError& e) {
     status_.reset();
-    status_error_ = std::string("idmd refused STAT? of axis ") + std::to_string(axis_) + ": " + e.what();
+    status_error_ =
+        std::string("idmd refused STAT? of axis ") + std::to_string(axis_) + ": " + e.what();
   } catch (const std::exception& e) {
     client_.reset();
     status_.reset();
@@ -274,7 +280,8 @@ void IdmAxis::read_Position(Tango::Attribute& att) {
     s = status_;
     error = status_error_;
   }
-  if (!config_error_.empty()) Tango::Except::throw_exception("IdmConfig", config_error_, "IdmAxis::read_Position");
+  if (!config_error_.empty())
+    Tango::Except::throw_exception("IdmConfig", config_error_, "IdmAxis::read_Position");
   if (!s) Tango::Except::throw_exception("IdmdUnreachable", error, "IdmAxis::read_Position");
   if (!s->position_valid) {
     // No position to trust (no valid reading, beam or device lost): never the last good one.
@@ -309,8 +316,9 @@ void IdmAxis::read_Referenced(Tango::Attribute& att) {
     s = status_;
     error = status_error_;
   }
-  if (!s) Tango::Except::throw_exception("IdmdUnreachable", error.empty() ? config_error_ : error,
-                                         "IdmAxis::read_Referenced");
+  if (!s)
+    Tango::Except::throw_exception("IdmdUnreachable", error.empty() ? config_error_ : error,
+                                   "IdmAxis::read_Referenced");
   referenced_ = s->referenced;
   att.set_value(&referenced_);
 }
@@ -338,7 +346,8 @@ void IdmAxis::write_Hold(Tango::WAttribute& att) {
 }
 
 void IdmAxis::read_StatusBits(Tango::Attribute& att) {
-  const std::uint64_t bits = client::parse_reply_count(query("STAT:OPER?", "IdmAxis::read_StatusBits"));
+  const std::uint64_t bits =
+      client::parse_reply_count(query("STAT:OPER?", "IdmAxis::read_StatusBits"));
   status_bits_ = static_cast<Tango::DevLong>(bits & 0x7fffffff);
   att.set_value(&status_bits_);
 }
@@ -419,8 +428,7 @@ class StatusBitsAttr : public Tango::Attr {
 
 class StopCmd : public Tango::Command {
  public:
-  StopCmd()
-      : Command("Stop", Tango::DEV_VOID, Tango::DEV_VOID, "", "", Tango::OPERATOR) {}
+  StopCmd() : Command("Stop", Tango::DEV_VOID, Tango::DEV_VOID, "", "", Tango::OPERATOR) {}
   CORBA::Any* execute(Tango::DeviceImpl* d, const CORBA::Any&) override {
     axis_of(d)->stop();
     return new CORBA::Any();
@@ -499,7 +507,8 @@ void IdmAxisClass::attribute_factory(std::vector<Tango::Attr*>& attrs) {
                                   "%.9e"));
   attrs.push_back(with_properties(new TargetAttr(), "m", "Target of the last move", "%.9e"));
   attrs.push_back(with_properties(new ReferencedAttr(), "", "The axis is referenced", ""));
-  attrs.push_back(with_properties(new WindowAttr(), "m", "In-position window (MOVE:WINDow)", "%.3e"));
+  attrs.push_back(
+      with_properties(new WindowAttr(), "m", "In-position window (MOVE:WINDow)", "%.3e"));
   attrs.push_back(with_properties(new HoldAttr(), "s",
                                   "Hold after the moves that follow (HOLD; 0 none, -1 until "
                                   "the next motion)",

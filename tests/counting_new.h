@@ -69,14 +69,30 @@ void* operator new(std::size_t n, std::align_val_t a, const std::nothrow_t&) noe
 void* operator new[](std::size_t n, std::align_val_t a, const std::nothrow_t&) noexcept {
   return idm::test_alloc::allocate(n, static_cast<std::size_t>(a));
 }
-void operator delete(void* p) noexcept { idm::test_alloc::release(p); }
-void operator delete[](void* p) noexcept { idm::test_alloc::release(p); }
-void operator delete(void* p, std::size_t) noexcept { idm::test_alloc::release(p); }
-void operator delete[](void* p, std::size_t) noexcept { idm::test_alloc::release(p); }
-void operator delete(void* p, const std::nothrow_t&) noexcept { idm::test_alloc::release(p); }
-void operator delete[](void* p, const std::nothrow_t&) noexcept { idm::test_alloc::release(p); }
-void operator delete(void* p, std::align_val_t) noexcept { idm::test_alloc::release(p); }
-void operator delete[](void* p, std::align_val_t) noexcept { idm::test_alloc::release(p); }
+void operator delete(void* p) noexcept {
+  idm::test_alloc::release(p);
+}
+void operator delete[](void* p) noexcept {
+  idm::test_alloc::release(p);
+}
+void operator delete(void* p, std::size_t) noexcept {
+  idm::test_alloc::release(p);
+}
+void operator delete[](void* p, std::size_t) noexcept {
+  idm::test_alloc::release(p);
+}
+void operator delete(void* p, const std::nothrow_t&) noexcept {
+  idm::test_alloc::release(p);
+}
+void operator delete[](void* p, const std::nothrow_t&) noexcept {
+  idm::test_alloc::release(p);
+}
+void operator delete(void* p, std::align_val_t) noexcept {
+  idm::test_alloc::release(p);
+}
+void operator delete[](void* p, std::align_val_t) noexcept {
+  idm::test_alloc::release(p);
+}
 void operator delete(void* p, std::size_t, std::align_val_t) noexcept {
   idm::test_alloc::release(p);
 }

@@ -1,12 +1,13 @@
 #include "tools/cli.h"
-#include "model/text_list.h"
-#include "model/yaml_util.h"
 
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <sstream>
 #include <string_view>
+
+#include "model/text_list.h"
+#include "model/yaml_util.h"
 
 namespace idm::tools {
 
@@ -54,7 +55,8 @@ std::vector<std::string> Flags::all(const std::string& name) const {
 double Flags::number(const std::string& name, double lo, double hi) const {
   const double v = parse_number(text(name), "--" + name);
   if (v < lo || v > hi)
-    throw InputError("--" + name + ": " + model::format_number(v) + " is out of range, allowed [" + model::format_number(lo) + ", " + model::format_number(hi) + "]");
+    throw InputError("--" + name + ": " + model::format_number(v) + " is out of range, allowed [" +
+                     model::format_number(lo) + ", " + model::format_number(hi) + "]");
   return v;
 }
 
@@ -64,7 +66,8 @@ double Flags::number_or(const std::string& name, double fallback, double lo, dou
 
 long Flags::integer(const std::string& name, long lo, long hi) const {
   const double v = number(name, static_cast<double>(lo), static_cast<double>(hi));
-  if (v != std::floor(v)) throw InputError("--" + name + ": " + model::format_number(v) + " is not an integer");
+  if (v != std::floor(v))
+    throw InputError("--" + name + ": " + model::format_number(v) + " is not an integer");
   return static_cast<long>(v);
 }
 
@@ -99,10 +102,12 @@ std::vector<double> parse_list(const std::string& text, const std::string& what)
                  stop = parse_number(std::string(parts[1]), what),
                  step = parse_number(std::string(parts[2]), what);
     switch (model::expand_range(start, stop, step, 1000000, out)) {
-      case model::RangeError::None: return out;
+      case model::RangeError::None:
+        return out;
       case model::RangeError::BadRange:
         throw InputError(what + ": '" + text + "' needs step > 0 and stop >= start");
-      case model::RangeError::TooMany: break;
+      case model::RangeError::TooMany:
+        break;
     }
     throw InputError(what + ": '" + text + "' has more than 1e6 values");
   }
@@ -131,8 +136,10 @@ int run_subcommands(const char* tool, const char* usage, std::initializer_list<S
       return 0;
     }
     std::string allowed;
-    for (const Subcommand& c : commands) allowed += (allowed.empty() ? "" : ", ") + std::string(c.name);
-    std::fprintf(stderr, "%s: unknown command '%s', allowed %s\n", tool, cmd.c_str(), allowed.c_str());
+    for (const Subcommand& c : commands)
+      allowed += (allowed.empty() ? "" : ", ") + std::string(c.name);
+    std::fprintf(stderr, "%s: unknown command '%s', allowed %s\n", tool, cmd.c_str(),
+                 allowed.c_str());
     return 2;
   } catch (const model::InputError& e) {
     std::fprintf(stderr, "%s %s: %s\n", tool, cmd.c_str(), e.what());

@@ -24,19 +24,25 @@ namespace {
 
 const char* kUsage =
     "usage: idm-model regions  [--stage FILE] --freq LIST --duty LIST [--stroke LIST]\n"
-    "       idm-model simulate [--stage FILE] [--plant impulse|rigid|mck] [--effect NAME:key=value,...]...\n"
-    "                          --freq F --duty D --cycles N --sample-rate R [--seed S] [--noise M]\n"
-    "       idm-model sweep    [--stage FILE] [--plant impulse|rigid|mck] [--effect ...]... --freq LIST\n"
-    "                          --duty LIST [--stroke LIST] --trials N --cycles N --sample-rate R --seed S\n"
+    "       idm-model simulate [--stage FILE] [--plant impulse|rigid|mck] [--effect "
+    "NAME:key=value,...]...\n"
+    "                          --freq F --duty D --cycles N --sample-rate R [--seed S] [--noise "
+    "M]\n"
+    "       idm-model sweep    [--stage FILE] [--plant impulse|rigid|mck] [--effect ...]... --freq "
+    "LIST\n"
+    "                          --duty LIST [--stroke LIST] --trials N --cycles N --sample-rate R "
+    "--seed S\n"
     "                          --out DIR [--noise M]\n"
-    "LIST is comma-separated or start:stop:step; effects: amplifier, actuator_compliance, hysteresis,\n"
+    "LIST is comma-separated or start:stop:step; effects: amplifier, actuator_compliance, "
+    "hysteresis,\n"
     "creep, stribeck, friction_spread, tilt, quantization (see model/README.md).\n";
 
 model::StageFile stage_of(const tools::Flags& f) {
   if (!f.has("stage")) return {};
   const std::string path = f.text("stage");
   if (!std::filesystem::exists(path)) throw InputError("--stage: " + path + ": no such file");
-  model::StageFile s = model::load_stage_file(path, {.strict = false, .require_dataset_keys = false});
+  model::StageFile s =
+      model::load_stage_file(path, {.strict = false, .require_dataset_keys = false});
   model::validate(s.stage, path + ": stage");
   return s;
 }
@@ -47,12 +53,15 @@ model::SimConfig sim_of(const tools::Flags& f) {
     try {
       c.plant = model::parse_plant_name(f.text("plant"));
     } catch (const InputError&) {
-      throw InputError("--plant: unknown plant '" + f.text("plant") + "', allowed impulse, rigid, mck");
+      throw InputError("--plant: unknown plant '" + f.text("plant") +
+                       "', allowed impulse, rigid, mck");
     }
   }
   for (const std::string& e : f.all("effect")) c.effects.push_back(model::parse_effect_arg(e));
   if (c.plant == model::PlantKind::Impulse && !c.effects.empty())
-    throw InputError("--effect: the impulse plant is the ideal model and takes no effects, use --plant rigid or mck");
+    throw InputError(
+        "--effect: the impulse plant is the ideal model and takes no effects, use --plant rigid or "
+        "mck");
   c.seed = static_cast<std::uint64_t>(f.integer_or("seed", 1, 0, 1L << 62));
   c.noise_m = f.number_or("noise", 0.0, 0.0, 1e-6);
   return c;
@@ -84,7 +93,8 @@ int regions(int argc, char** argv) {
     for (double fr : freqs)
       for (double d : duties) {
         const model::ImpulseCell c = model::impulse_cell(s.stage, fr, d, st);
-        std::printf("%.10g,%.10g,%.10g,%.10g,%s,%.10g\n", fr, d, st, c.beta, model::region_name(c.region),
+        std::printf("%.10g,%.10g,%.10g,%.10g,%s,%.10g\n", fr, d, st, c.beta,
+                    model::region_name(c.region),
                     c.region == model::Region::Cutoff ? 0.0 : c.step_m);
       }
   return 0;
@@ -92,7 +102,8 @@ int regions(int argc, char** argv) {
 
 int simulate(int argc, char** argv) {
   const tools::Flags f(argc, argv, 2,
-                       {"stage", "plant", "effect", "freq", "duty", "cycles", "sample-rate", "seed", "noise", "stroke"},
+                       {"stage", "plant", "effect", "freq", "duty", "cycles", "sample-rate", "seed",
+                        "noise", "stroke"},
                        {"effect"});
   const model::StageFile s = stage_of(f);
   const model::SimConfig c = sim_of(f);
@@ -131,11 +142,13 @@ int sweep(int argc, char** argv) {
   c.seed = plan.seed;
   for (double fr : plan.freqs_hz)
     for (double d : plan.duties)
-      for (double st : plan.strokes_m.empty() ? std::vector<double>{s.stage.stroke_m} : plan.strokes_m)
+      for (double st :
+           plan.strokes_m.empty() ? std::vector<double>{s.stage.stroke_m} : plan.strokes_m)
         check_wave(fr, d, st, plan.cycles);
   const std::string out = f.text("out");
   if (std::filesystem::exists(std::filesystem::path(out) / "sweep.csv"))
-    throw InputError("--out: " + out + " already holds a sweep (sweep.csv); choose a new directory");
+    throw InputError("--out: " + out +
+                     " already holds a sweep (sweep.csv); choose a new directory");
   const std::size_t n = analysis::run_simulated_sweep(s, c, plan, out);
   std::fprintf(stderr, "idm-model: wrote %zu trials to %s\n", n, out.c_str());
   return 0;
@@ -144,5 +157,7 @@ int sweep(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  return idm::tools::run_subcommands("idm-model", kUsage, {{"regions", regions}, {"simulate", simulate}, {"sweep", sweep}}, argc, argv);
+  return idm::tools::run_subcommands(
+      "idm-model", kUsage, {{"regions", regions}, {"simulate", simulate}, {"sweep", sweep}}, argc,
+      argv);
 }

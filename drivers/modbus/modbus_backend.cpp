@@ -16,7 +16,6 @@ using model::located;
 
 namespace {
 
-
 std::string hex16(std::uint16_t v) {
   std::ostringstream o;
   o << "0x" << std::hex << v;
@@ -34,22 +33,29 @@ const model::ParamTable<ModbusConfig>& modbus_params() {
   using C = ModbusConfig;
   static const model::ParamTable<C> table(model::join<C>({
       {
-          model::text<C>("host", "the device's address", [](auto& c) -> auto& { return c.host; },
-                         "a host name or address"),
-          model::integer<C>("port", "", 1, 65535, "its Modbus TCP port", [](auto& c) -> auto& { return c.port; }),
-          model::integer<C>("unit_id", "", 0, 255, "the unit of channel 0; channel k is unit_id + k (<= 247)",
-                            [](auto& c) -> auto& { return c.unit_id; }),
-          model::real<C>("timeout_s", "s", {1e-3, 60}, "response (and connect) timeout",
-                         [](auto& c) -> auto& { return c.timeout_s; }),
-          model::real<C>("poll_interval_s", "s", {1e-4, 10}, "a burst's status is polled this often",
-                         [](auto& c) -> auto& { return c.poll_interval_s; }),
+          model::text<C>(
+              "host", "the device's address", [](auto& c) -> auto& { return c.host; },
+              "a host name or address"),
+          model::integer<C>(
+              "port", "", 1, 65535, "its Modbus TCP port", [](auto& c) -> auto& { return c.port; }),
+          model::integer<C>(
+              "unit_id", "", 0, 255, "the unit of channel 0; channel k is unit_id + k (<= 247)",
+              [](auto& c) -> auto& { return c.unit_id; }),
+          model::real<C>(
+              "timeout_s", "s", {1e-3, 60}, "response (and connect) timeout",
+              [](auto& c) -> auto& { return c.timeout_s; }),
+          model::real<C>(
+              "poll_interval_s", "s", {1e-4, 10}, "a burst's status is polled this often",
+              [](auto& c) -> auto& { return c.poll_interval_s; }),
           model::custom<C>("registers", "map", "drivers/modbus/README.md", "(the default map)",
                            "the register map: addresses, formats, scales, word order",
-                           [](C& c, const YAML::Node& v, const std::string& file, const std::string&) {
+                           [](C& c, const YAML::Node& v, const std::string& file,
+                              const std::string&) {
                              c.registers = parse_register_map(v, file, c.interferometer.word.width);
                            }),
       },
-      model::lifted<C>(output_capability_params(), [](auto& c) -> auto& { return c.output; }),
+      model::lifted<C>(
+          output_capability_params(), [](auto& c) -> auto& { return c.output; }),
   }));
   return table;
 }
@@ -97,9 +103,9 @@ DriverStatus ModbusLink::open() {
   if (!ctx_) {
     ctx_ = modbus_new_tcp(config_.host.c_str(), config_.port);
     if (!ctx_)
-      return DriverStatus::failure(DriverError::NoDevice,
-                                   endpoint_ + ": cannot create a Modbus TCP context: " +
-                                       modbus_strerror(errno));
+      return DriverStatus::failure(
+          DriverError::NoDevice,
+          endpoint_ + ": cannot create a Modbus TCP context: " + modbus_strerror(errno));
     const double t = config_.timeout_s;
     const auto sec = static_cast<std::uint32_t>(std::floor(t));
     const auto usec = static_cast<std::uint32_t>(std::lround((t - sec) * 1e6));
@@ -123,9 +129,9 @@ DriverStatus ModbusLink::connect() {
     const int e = errno;
     modbus_close(ctx_);
     if (e == ETIMEDOUT || e == EINPROGRESS)
-      return DriverStatus::failure(DriverError::Timeout, "cannot connect to " + endpoint_ +
-                                                             ": no answer within " +
-                                                             model::format_number(config_.timeout_s) + " s");
+      return DriverStatus::failure(DriverError::Timeout,
+                                   "cannot connect to " + endpoint_ + ": no answer within " +
+                                       model::format_number(config_.timeout_s) + " s");
     return DriverStatus::failure(DriverError::NoDevice,
                                  "cannot connect to " + endpoint_ + ": " + modbus_strerror(e));
   }
@@ -145,8 +151,9 @@ DriverStatus ModbusLink::failure(const std::string& what, int e) {
                                  where + "exception response: " + modbus_strerror(e));
   drop();  // the stream of requests and answers can no longer be trusted
   if (e == ETIMEDOUT)
-    return DriverStatus::failure(DriverError::Timeout,
-                                 where + "no answer within " + model::format_number(config_.timeout_s) + " s");
+    return DriverStatus::failure(
+        DriverError::Timeout,
+        where + "no answer within " + model::format_number(config_.timeout_s) + " s");
   if (e >= EMBBADCRC && e <= EMBBADSLAVE)
     return DriverStatus::failure(DriverError::ProtocolError,
                                  where + "malformed answer: " + modbus_strerror(e));
@@ -162,8 +169,7 @@ DriverStatus ModbusLink::read_once(std::uint16_t address, std::size_t n, std::ui
     const auto at = static_cast<std::uint16_t>(address + done);
     const int got = modbus_read_registers(ctx_, at, static_cast<int>(k), out + done);
     if (got < 0) return failure(registers_text("read", at, k), errno);
-    if (static_cast<std::size_t>(got) != k)
-      return failure(registers_text("read", at, k), EMBMDATA);
+    if (static_cast<std::size_t>(got) != k) return failure(registers_text("read", at, k), EMBMDATA);
     done += k;
   }
   return DriverStatus::success();
@@ -220,9 +226,9 @@ DriverStatus ModbusOutput::on_shutdown() {
 DriverStatus ModbusOutput::read_status(std::uint16_t& status) {
   if (DriverStatus s = link_->read(link_->config().registers.status, 1, &status); !s.ok()) return s;
   if (status & status_bit::kFault)
-    return DriverStatus::failure(DriverError::DeviceError,
-                                 link_->endpoint() + ": the device reports a fault (status " +
-                                     hex16(status) + ")");
+    return DriverStatus::failure(
+        DriverError::DeviceError,
+        link_->endpoint() + ": the device reports a fault (status " + hex16(status) + ")");
   return DriverStatus::success();
 }
 
@@ -268,8 +274,10 @@ DriverStatus ModbusOutput::do_start() {
   if (DriverStatus s = read_status(status); !s.ok()) return s;
   if (status & status_bit::kParameterError)
     return DriverStatus::failure(DriverError::DeviceError,
-                                 link_->endpoint() + ": the device rejected the burst parameters "
-                                                     "(status " + hex16(status) + ")");
+                                 link_->endpoint() +
+                                     ": the device rejected the burst parameters "
+                                     "(status " +
+                                     hex16(status) + ")");
   return DriverStatus::success();
 }
 
@@ -290,7 +298,8 @@ DriverStatus ModbusOutput::do_is_done(bool& done) {
 ModbusInterferometer::ModbusInterferometer(std::shared_ptr<ModbusLink> link)
     : Interferometer("modbus interferometer (" + link->endpoint() + ")"),
       link_(std::move(link)),
-      record_registers_(RegisterMap::position_registers(link_->config().interferometer.word.width)) {
+      record_registers_(
+          RegisterMap::position_registers(link_->config().interferometer.word.width)) {
   caps_.word = link_->config().interferometer.word;
   caps_.stream_rate_hz = 1.0 / caps_.word.sample_interval_s;
   caps_.stream_capacity = link_->config().registers.capture_capacity;
@@ -301,13 +310,14 @@ DriverStatus ModbusInterferometer::on_configure() {
   if (DriverStatus s = link_->open(); !s.ok()) return s;
   const RegisterMap& m = link_->config().registers;
   std::uint16_t regs[2] = {0, 0};
-  DriverStatus s = link_->read(m.capture_rate_hz.address, register_count(m.capture_rate_hz.format), regs);
+  DriverStatus s =
+      link_->read(m.capture_rate_hz.address, register_count(m.capture_rate_hz.format), regs);
   if (s.ok()) {
     const double rate = decode_value(m.capture_rate_hz, m.word_order, regs);
     if (!(std::isfinite(rate) && rate > 0 && rate <= 1e8)) {
       s = DriverStatus::failure(DriverError::ProtocolError,
-                                link_->endpoint() + ": capture_rate_hz register reads " + model::format_number(rate) +
-                                    ", allowed (0, 1e8]");
+                                link_->endpoint() + ": capture_rate_hz register reads " +
+                                    model::format_number(rate) + ", allowed (0, 1e8]");
     } else {
       caps_.stream_rate_hz = rate;
       caps_.word.sample_interval_s = 1.0 / rate;
@@ -325,10 +335,12 @@ DriverStatus ModbusInterferometer::on_shutdown() {
 DriverStatus ModbusInterferometer::do_count_epoch(std::uint64_t& epoch) {
   const RegisterMap& m = link_->config().registers;
   if (m.boot_id < 0)
-    return DriverStatus::failure(DriverError::Unsupported,
-                                 "the register map has no boot_id: a reconnect may have lost the count");
+    return DriverStatus::failure(
+        DriverError::Unsupported,
+        "the register map has no boot_id: a reconnect may have lost the count");
   std::uint16_t id = 0;
-  if (DriverStatus s = link_->read(static_cast<std::uint16_t>(m.boot_id), 1, &id); !s.ok()) return s;
+  if (DriverStatus s = link_->read(static_cast<std::uint16_t>(m.boot_id), 1, &id); !s.ok())
+    return s;
   epoch = id;
   return DriverStatus::success();
 }
@@ -349,9 +361,9 @@ DriverStatus ModbusInterferometer::do_read_stream(TimedWord* out, std::size_t ca
   if (DriverStatus s = link_->read(m.burst_id, 1, &id); !s.ok()) return s;
   std::uint16_t count_regs[2] = {0, 0};
   if (DriverStatus s = link_->read(m.capture_count, 2, count_regs); !s.ok()) return s;
-  const std::uint32_t count =
-      m.word_order == WordOrder::HighFirst ? (std::uint32_t{count_regs[0]} << 16) | count_regs[1]
-                                           : (std::uint32_t{count_regs[1]} << 16) | count_regs[0];
+  const std::uint32_t count = m.word_order == WordOrder::HighFirst
+                                  ? (std::uint32_t{count_regs[0]} << 16) | count_regs[1]
+                                  : (std::uint32_t{count_regs[1]} << 16) | count_regs[0];
   if (count > m.capture_capacity)
     return DriverStatus::failure(DriverError::ProtocolError,
                                  link_->endpoint() + ": capture_count reads " +
@@ -369,8 +381,8 @@ DriverStatus ModbusInterferometer::do_read_stream(TimedWord* out, std::size_t ca
     if (DriverStatus s = link_->read(at, k * record_registers_, buffer_.data()); !s.ok()) return s;
     for (std::size_t i = 0; i < k; ++i) {
       out[n].t_s = static_cast<double>(next_record_ + i) / caps_.stream_rate_hz;
-      out[n].word = decode_position(buffer_.data() + i * record_registers_, caps_.word.width,
-                                    m.word_order);
+      out[n].word =
+          decode_position(buffer_.data() + i * record_registers_, caps_.word.width, m.word_order);
       ++n;
     }
     next_record_ += static_cast<std::uint32_t>(k);

@@ -10,12 +10,12 @@
 // STOP) reconnect and retry once at once when the connection was found dropped, START never.
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
 
 #include "drivers/config.h"
 #include "drivers/interfaces.h"
@@ -29,10 +29,10 @@ struct ModbusConfig {
   std::string host = "127.0.0.1";
   int port = 502;
   int unit_id = 1;                // of channel 0; channel k of a card is unit unit_id + k
-  double timeout_s = 0.5;        // response (and connect) timeout
-  double poll_interval_s = 2e-3; // wait_done polls the status this often
+  double timeout_s = 0.5;         // response (and connect) timeout
+  double poll_interval_s = 2e-3;  // wait_done polls the status this often
   RegisterMap registers;
-  OutputCapabilities output;     // mode is always parameters
+  OutputCapabilities output;  // mode is always parameters
   InterferometerConfig interferometer;
 };
 

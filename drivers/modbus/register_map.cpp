@@ -33,7 +33,9 @@ const char* value_format_name(ValueFormat format) {
   return "?";
 }
 
-std::size_t register_count(ValueFormat format) { return format == ValueFormat::U16 ? 1 : 2; }
+std::size_t register_count(ValueFormat format) {
+  return format == ValueFormat::U16 ? 1 : 2;
+}
 
 std::size_t RegisterMap::register_span(WordWidth width) const {
   return std::size_t{capture_base} + std::size_t{capture_capacity} * position_registers(width);
@@ -47,18 +49,19 @@ struct Span {
 };
 
 std::vector<Span> spans(const RegisterMap& m, WordWidth width) {
-  std::vector<Span> out = {{"command", m.command, 1},
-          {"status", m.status, 1},
-          {"burst_id", m.burst_id, 1},
-          {"freq_hz", m.freq_hz.address, register_count(m.freq_hz.format)},
-          {"duty", m.duty.address, register_count(m.duty.format)},
-          {"stroke_m", m.stroke_m.address, register_count(m.stroke_m.format)},
-          {"cycles", m.cycles.address, register_count(m.cycles.format)},
-          {"position", m.position, RegisterMap::position_registers(width)},
-          {"capture_count", m.capture_count, 2},
-          {"capture_rate_hz", m.capture_rate_hz.address, register_count(m.capture_rate_hz.format)},
-          {"capture_base", m.capture_base,
-           std::size_t{m.capture_capacity} * RegisterMap::position_registers(width)}};
+  std::vector<Span> out = {
+      {"command", m.command, 1},
+      {"status", m.status, 1},
+      {"burst_id", m.burst_id, 1},
+      {"freq_hz", m.freq_hz.address, register_count(m.freq_hz.format)},
+      {"duty", m.duty.address, register_count(m.duty.format)},
+      {"stroke_m", m.stroke_m.address, register_count(m.stroke_m.format)},
+      {"cycles", m.cycles.address, register_count(m.cycles.format)},
+      {"position", m.position, RegisterMap::position_registers(width)},
+      {"capture_count", m.capture_count, 2},
+      {"capture_rate_hz", m.capture_rate_hz.address, register_count(m.capture_rate_hz.format)},
+      {"capture_base", m.capture_base,
+       std::size_t{m.capture_capacity} * RegisterMap::position_registers(width)}};
   if (m.boot_id >= 0) out.push_back({"boot_id", static_cast<std::size_t>(m.boot_id), 1});
   return out;
 }
@@ -84,9 +87,8 @@ void validate(const RegisterMap& m, WordWidth width, const std::string& where) {
   if (m.register_span(width) > 65536)
     throw InputError(where + ".capture_base: the capture area (" +
                      std::to_string(m.capture_capacity) + " records of " +
-                     std::to_string(RegisterMap::position_registers(width)) +
-                     " registers from " + std::to_string(m.capture_base) +
-                     ") leaves the 16-bit address space");
+                     std::to_string(RegisterMap::position_registers(width)) + " registers from " +
+                     std::to_string(m.capture_base) + ") leaves the 16-bit address space");
   const std::vector<Span> s = spans(m, width);
   for (std::size_t i = 0; i < s.size(); ++i) {
     if (s[i].first + s[i].count > 65536)
@@ -121,11 +123,13 @@ RegisterMap parse_register_map(const YAML::Node& node, const std::string& file, 
     const std::string k = w + "." + key;
     detail::check_keys(v, file, k, {"address", "format", "scale"});
     if (v["address"])
-      out.address = static_cast<std::uint16_t>(model::read_integer(v["address"], file, k + ".address", 0, 65535));
+      out.address = static_cast<std::uint16_t>(
+          model::read_integer(v["address"], file, k + ".address", 0, 65535));
     if (const YAML::Node f = v["format"]) {
       const std::string name = model::read_string(f, file, k + ".format");
       bool found = false;
-      for (ValueFormat vf : {ValueFormat::U16, ValueFormat::U32, ValueFormat::I32, ValueFormat::Float32})
+      for (ValueFormat vf :
+           {ValueFormat::U16, ValueFormat::U32, ValueFormat::I32, ValueFormat::Float32})
         if (name == value_format_name(vf)) out.format = vf, found = true;
       if (!found)
         throw InputError(located(file, f, k + ".format",
@@ -135,10 +139,13 @@ RegisterMap parse_register_map(const YAML::Node& node, const std::string& file, 
   };
   if (const YAML::Node v = node["word_order"]) {
     const std::string o = model::read_string(v, file, w + ".word_order");
-    if (o == "high_first") m.word_order = WordOrder::HighFirst;
-    else if (o == "low_first") m.word_order = WordOrder::LowFirst;
-    else throw InputError(located(file, v, w + ".word_order",
-                                  "unknown word order '" + o + "', allowed high_first, low_first"));
+    if (o == "high_first")
+      m.word_order = WordOrder::HighFirst;
+    else if (o == "low_first")
+      m.word_order = WordOrder::LowFirst;
+    else
+      throw InputError(located(file, v, w + ".word_order",
+                               "unknown word order '" + o + "', allowed high_first, low_first"));
   }
   address("command", m.command);
   address("status", m.status);
@@ -232,7 +239,8 @@ void encode_position(std::uint64_t word, WordWidth width, WordOrder order, std::
     return;
   }
   const std::uint16_t top = static_cast<std::uint16_t>((word >> 32) & 0xFu);
-  const std::uint16_t mid = static_cast<std::uint16_t>(word >> 16), low = static_cast<std::uint16_t>(word);
+  const std::uint16_t mid = static_cast<std::uint16_t>(word >> 16),
+                      low = static_cast<std::uint16_t>(word);
   regs[0] = order == WordOrder::HighFirst ? top : low;
   regs[1] = mid;
   regs[2] = order == WordOrder::HighFirst ? low : top;

@@ -5,11 +5,11 @@
 // No libmodbus here: plain functions over uint16_t arrays.
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <cstddef>
 #include <cstdint>
 #include <string>
-
-#include <yaml-cpp/yaml.h>
 
 #include "drivers/position_word.h"
 #include "model/waveform.h"
@@ -19,9 +19,9 @@ namespace idm::drivers::modbus {
 enum class WordOrder : std::uint8_t { HighFirst, LowFirst };
 enum class ValueFormat : std::uint8_t { U16, U32, I32, Float32 };
 
-const char* word_order_name(WordOrder order);    // "high_first", "low_first"
+const char* word_order_name(WordOrder order);       // "high_first", "low_first"
 const char* value_format_name(ValueFormat format);  // "u16", "u32", "i32", "float32"
-std::size_t register_count(ValueFormat format);  // 1 or 2
+std::size_t register_count(ValueFormat format);     // 1 or 2
 
 // A scaled value: register value = SI value * scale (rounded to the nearest integer for the
 // integer formats).
@@ -49,20 +49,20 @@ inline constexpr std::uint16_t kCaptureOverrun = 1u << 4;  // the capture buffer
 struct RegisterMap {
   WordOrder word_order = WordOrder::HighFirst;
   // Holding registers (function codes 3, 6, 16).
-  std::uint16_t command = 0;                              // u16, write: 1 START, 2 STOP
-  std::uint16_t status = 1;                               // u16, read: status_bit
-  std::uint16_t burst_id = 2;                             // u16: +1 at every START
+  std::uint16_t command = 0;   // u16, write: 1 START, 2 STOP
+  std::uint16_t status = 1;    // u16, read: status_bit
+  std::uint16_t burst_id = 2;  // u16: +1 at every START
   // u16 that changes whenever the device restarts (and so its position count): the same value
   // before and after a reconnect means the count went on. -1: the map has none.
   int boot_id = 3;
-  ScaledField freq_hz{4, ValueFormat::U32, 1e3};          // mHz
-  ScaledField duty{6, ValueFormat::U32, 1e6};             // parts per million
-  ScaledField stroke_m{8, ValueFormat::U32, 1e12};        // pm
+  ScaledField freq_hz{4, ValueFormat::U32, 1e3};    // mHz
+  ScaledField duty{6, ValueFormat::U32, 1e6};       // parts per million
+  ScaledField stroke_m{8, ValueFormat::U32, 1e12};  // pm
   ScaledField cycles{10, ValueFormat::U32, 1.0};
-  std::uint16_t position = 16;         // the latched word: count (2 or 3 registers), status
-  std::uint16_t capture_count = 24;    // u32: samples captured since the last START
+  std::uint16_t position = 16;       // the latched word: count (2 or 3 registers), status
+  std::uint16_t capture_count = 24;  // u32: samples captured since the last START
   ScaledField capture_rate_hz{26, ValueFormat::U32, 1.0};
-  std::uint16_t capture_base = 1024;   // capture records, each like `position`
+  std::uint16_t capture_base = 1024;      // capture records, each like `position`
   std::uint16_t capture_capacity = 8192;  // records
 
   // Registers of one position record: 2 count registers (32-bit words) or 3 (36-bit), then one

@@ -19,7 +19,6 @@ using model::read_string;
 
 namespace {
 
-
 model::InterferometerParams sensor_of(const SimDeviceConfig& c) {
   // The model's sensor quantizes to one count of the codec, so the encoder's rounding of the
   // reading is exact.
@@ -56,20 +55,27 @@ const char* clock_mode_name(ClockMode mode) {
 const model::ParamTable<SimFaults>& sim_fault_params() {
   using F = SimFaults;
   static const model::ParamTable<F> table({
-      model::boolean<F>("beam_lost", "every word carries measurement-signal-lost",
-                        [](auto& f) -> auto& { return f.beam_lost; }),
-      model::real<F>("glitch_probability", "1", {0, 1}, "per word: a wild count (off by 2^20 .. 2^24 counts)",
-                     [](auto& f) -> auto& { return f.glitch_probability; }),
-      model::boolean<F>("glitch_flagged", "a glitch word carries the board's glitch bit",
-                        [](auto& f) -> auto& { return f.glitch_flagged; }),
-      model::boolean<F>("slider_stalled", "the slider is held (it does not move)",
-                        [](auto& f) -> auto& { return f.slider_stalled; }),
-      model::real<F>("friction_scale", "1", {0, 100, true}, "kinetic friction coefficient times this",
-                     [](auto& f) -> auto& { return f.friction_scale; }),
-      model::boolean<F>("disconnected", "every call fails (Disconnected) until reconnect",
-                        [](auto& f) -> auto& { return f.disconnected; }),
-      model::boolean<F>("timeouts", "latch and read_stream time out",
-                        [](auto& f) -> auto& { return f.timeouts; }),
+      model::boolean<F>(
+          "beam_lost", "every word carries measurement-signal-lost",
+          [](auto& f) -> auto& { return f.beam_lost; }),
+      model::real<F>(
+          "glitch_probability", "1", {0, 1}, "per word: a wild count (off by 2^20 .. 2^24 counts)",
+          [](auto& f) -> auto& { return f.glitch_probability; }),
+      model::boolean<F>(
+          "glitch_flagged", "a glitch word carries the board's glitch bit",
+          [](auto& f) -> auto& { return f.glitch_flagged; }),
+      model::boolean<F>(
+          "slider_stalled", "the slider is held (it does not move)",
+          [](auto& f) -> auto& { return f.slider_stalled; }),
+      model::real<F>(
+          "friction_scale", "1", {0, 100, true}, "kinetic friction coefficient times this",
+          [](auto& f) -> auto& { return f.friction_scale; }),
+      model::boolean<F>(
+          "disconnected", "every call fails (Disconnected) until reconnect",
+          [](auto& f) -> auto& { return f.disconnected; }),
+      model::boolean<F>(
+          "timeouts", "latch and read_stream time out",
+          [](auto& f) -> auto& { return f.timeouts; }),
   });
   return table;
 }
@@ -78,28 +84,38 @@ const model::ParamTable<SimDeviceConfig>& sim_device_params() {
   using C = SimDeviceConfig;
   static const model::ParamTable<C> table(model::join<C>({
       {
-          model::choice<C, ClockMode>("clock", {{"synthetic", ClockMode::Synthetic}, {"wall", ClockMode::Wall}},
-                                      "synthetic: time advances as the device is driven; wall: real time",
-                                      [](auto& c) -> auto& { return c.clock; }),
-          model::choice<C, OutputMode>("output",
-                                       {{"samples", OutputMode::BufferedSamples},
-                                        {"parameters", OutputMode::BurstParameters}},
-                                       "the output it reports: buffered DAC samples or burst parameters",
-                                       [](auto& c) -> auto& { return c.output.mode; }),
-          model::real<C>("stream_rate_hz", "Hz", {0, 1e8, true}, "the burst stream's sample rate",
-                         [](auto& c) -> auto& { return c.stream_rate_hz; }),
-          model::integer<C>("stream_capacity", "count", 1, 1L << 28, "samples the stream buffer holds",
-                            [](auto& c) -> auto& { return c.stream_capacity; }),
-          model::real<C>("settle_s", "s", {0, 10}, "the plant runs (and the stream records) this long after a burst's last sample",
-                         [](auto& c) -> auto& { return c.settle_s; }),
-          model::real<C>("stop_ramp_s", "s", {0, 1, true}, "a stop ramps the output to zero over this time",
-                         [](auto& c) -> auto& { return c.stop_ramp_s; }),
-          model::real<C>("timeout_s", "s", {0, 60}, "an injected timeout waits this long (wall clock only)",
-                         [](auto& c) -> auto& { return c.timeout_s; }),
-          model::nested<C>("faults", "injected faults (daq.sim.faults below)", sim_fault_params(),
-                           [](auto& c) -> auto& { return c.faults; }),
+          model::choice<C, ClockMode>(
+              "clock", {{"synthetic", ClockMode::Synthetic}, {"wall", ClockMode::Wall}},
+              "synthetic: time advances as the device is driven; wall: real time",
+              [](auto& c) -> auto& { return c.clock; }),
+          model::choice<C, OutputMode>(
+              "output",
+              {{"samples", OutputMode::BufferedSamples},
+               {"parameters", OutputMode::BurstParameters}},
+              "the output it reports: buffered DAC samples or burst parameters",
+              [](auto& c) -> auto& { return c.output.mode; }),
+          model::real<C>(
+              "stream_rate_hz", "Hz", {0, 1e8, true}, "the burst stream's sample rate",
+              [](auto& c) -> auto& { return c.stream_rate_hz; }),
+          model::integer<C>(
+              "stream_capacity", "count", 1, 1L << 28, "samples the stream buffer holds",
+              [](auto& c) -> auto& { return c.stream_capacity; }),
+          model::real<C>(
+              "settle_s", "s", {0, 10},
+              "the plant runs (and the stream records) this long after a burst's last sample",
+              [](auto& c) -> auto& { return c.settle_s; }),
+          model::real<C>(
+              "stop_ramp_s", "s", {0, 1, true}, "a stop ramps the output to zero over this time",
+              [](auto& c) -> auto& { return c.stop_ramp_s; }),
+          model::real<C>(
+              "timeout_s", "s", {0, 60}, "an injected timeout waits this long (wall clock only)",
+              [](auto& c) -> auto& { return c.timeout_s; }),
+          model::nested<C>(
+              "faults", "injected faults (daq.sim.faults below)", sim_fault_params(),
+              [](auto& c) -> auto& { return c.faults; }),
       },
-      model::lifted<C>(output_capability_params(), [](auto& c) -> auto& { return c.output; }),
+      model::lifted<C>(
+          output_capability_params(), [](auto& c) -> auto& { return c.output; }),
   }));
   return table;
 }
@@ -146,8 +162,8 @@ SimBackend::SimBackend(const SimDeviceConfig& config)
 }
 
 void SimBackend::set_glitch_probability(double probability, bool flagged) {
-  model::check_range(probability >= 0 && probability <= 1, "sim", "glitch_probability",
-                      probability, "[0, 1]");
+  model::check_range(probability >= 0 && probability <= 1, "sim", "glitch_probability", probability,
+                     "[0, 1]");
   faults_.glitch_probability = probability;
   faults_.glitch_flagged = flagged;
 }
@@ -269,7 +285,8 @@ void SimBackend::advance_plant_to(double target_s) {
     if (running_) {
       if (next_breakpoint_ < burst_t_s_.size())
         t_next = std::min(t_next, t0_s_ + burst_t_s_[next_breakpoint_]);
-      t_next = std::min(t_next, t0_s_ + static_cast<double>(next_capture_) / config_.stream_rate_hz);
+      t_next =
+          std::min(t_next, t0_s_ + static_cast<double>(next_capture_) / config_.stream_rate_hz);
       t_next = std::min(t_next, end_s_);
     }
     const double xi = running_ ? command_at(t_next) : xi_cmd_m_;
@@ -399,8 +416,9 @@ DriverStatus SimBackend::wait_done(double timeout_s) {
   sync();
   if (running_)
     return DriverStatus::failure(DriverError::Timeout,
-                                 "the burst is not done after " + model::format_number(timeout_s) + " s (it ends " +
-                                     model::format_number(end_s_ - t_s_) + " s later)");
+                                 "the burst is not done after " + model::format_number(timeout_s) +
+                                     " s (it ends " + model::format_number(end_s_ - t_s_) +
+                                     " s later)");
   return DriverStatus::success();
 }
 
@@ -430,8 +448,8 @@ DriverStatus SimBackend::read_stream(TimedWord* out, std::size_t capacity, std::
 // ---- the two interfaces ----
 
 SimOutput::SimOutput(std::shared_ptr<SimBackend> backend)
-    : WaveformOutput(std::string("sim waveform output (") + clock_mode_name(backend->config().clock) +
-                     " clock)"),
+    : WaveformOutput(std::string("sim waveform output (") +
+                     clock_mode_name(backend->config().clock) + " clock)"),
       backend_(std::move(backend)) {}
 
 DriverStatus SimOutput::on_shutdown() {

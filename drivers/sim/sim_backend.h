@@ -13,13 +13,13 @@
 // slider, a friction jump, a disconnected device, timeouts. Not thread-safe (one caller thread).
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <cstdint>
 #include <memory>
 #include <random>
 #include <string>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
 
 #include "drivers/config.h"
 #include "drivers/interfaces.h"
@@ -31,27 +31,27 @@ enum class ClockMode : std::uint8_t { Synthetic, Wall };
 const char* clock_mode_name(ClockMode mode);  // "synthetic", "wall"
 
 struct SimFaults {
-  bool beam_lost = false;            // every word carries measurement-signal-lost
-  double glitch_probability = 0.0;   // per word: a wild count (off by 2^20 .. 2^24 counts)
-  bool glitch_flagged = true;        // a glitch word carries the board's glitch bit
-  bool slider_stalled = false;       // the slider is held (plant().set_slider_held)
-  double friction_scale = 1.0;       // kinetic friction coefficient times this
-  bool disconnected = false;         // every call fails (Disconnected) until reconnect
-  bool timeouts = false;             // latch and read_stream time out
+  bool beam_lost = false;           // every word carries measurement-signal-lost
+  double glitch_probability = 0.0;  // per word: a wild count (off by 2^20 .. 2^24 counts)
+  bool glitch_flagged = true;       // a glitch word carries the board's glitch bit
+  bool slider_stalled = false;      // the slider is held (plant().set_slider_held)
+  double friction_scale = 1.0;      // kinetic friction coefficient times this
+  bool disconnected = false;        // every call fails (Disconnected) until reconnect
+  bool timeouts = false;            // latch and read_stream time out
 };
 
 struct SimDeviceConfig {
   model::StageParams stage;
-  model::SimConfig sim;             // plant, effects, seed, noise_m (the `sim:` section)
+  model::SimConfig sim;  // plant, effects, seed, noise_m (the `sim:` section)
   InterferometerConfig interferometer;
   ClockMode clock = ClockMode::Synthetic;
-  OutputCapabilities output;        // mode and limits the simulated output reports
-  double stream_rate_hz = 1e5;      // burst stream sample rate
+  OutputCapabilities output;    // mode and limits the simulated output reports
+  double stream_rate_hz = 1e5;  // burst stream sample rate
   std::size_t stream_capacity = 1u << 20;
-  double settle_s = 2e-3;           // the plant runs (and the stream records) this long after
-                                    // the burst's last sample before the burst is done
-  double stop_ramp_s = 1e-4;        // stop(): the output ramps to zero over this time
-  double timeout_s = 0.1;           // an injected timeout waits this long (wall clock only)
+  double settle_s = 2e-3;     // the plant runs (and the stream records) this long after
+                              // the burst's last sample before the burst is done
+  double stop_ramp_s = 1e-4;  // stop(): the output ramps to zero over this time
+  double timeout_s = 0.1;     // an injected timeout waits this long (wall clock only)
   SimFaults faults;
 };
 
@@ -132,8 +132,8 @@ class SimBackend {
   void close();
   DriverStatus check_connected() const;
   DriverStatus check_timeout();
-  void sync();                         // wall clock: catch up with CLOCK_MONOTONIC
-  void advance_to(double t_s);         // the plant, then the crosstalk of what it moved
+  void sync();                  // wall clock: catch up with CLOCK_MONOTONIC
+  void advance_to(double t_s);  // the plant, then the crosstalk of what it moved
   void advance_plant_to(double t_s);
   double command_at(double t_s) const;
   void capture(double t_rel_s);
@@ -156,13 +156,13 @@ class SimBackend {
   SimFaults faults_;
   std::mt19937_64 fault_rng_;
 
-  int users_ = 0;            // open interfaces
-  bool powered_ = false;     // opened since construction or the last power cycle
+  int users_ = 0;         // open interfaces
+  bool powered_ = false;  // opened since construction or the last power cycle
   std::uint64_t count_epoch_ = 1;
   std::shared_ptr<class SimCrosstalk> crosstalk_;
-  double epoch_s_ = 0.0;     // CLOCK_MONOTONIC at open (wall clock)
-  double t_s_ = 0.0;         // simulated time
-  double xi_cmd_m_ = 0.0;    // output now
+  double epoch_s_ = 0.0;   // CLOCK_MONOTONIC at open (wall clock)
+  double t_s_ = 0.0;       // simulated time
+  double xi_cmd_m_ = 0.0;  // output now
 
   // The loaded burst as breakpoints of a piecewise-linear command, times from the burst start.
   std::vector<double> burst_t_s_, burst_xi_m_;

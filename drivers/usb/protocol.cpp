@@ -10,7 +10,9 @@ namespace {
 
 // ---- little-endian primitives ----
 
-void put_u8(std::vector<std::uint8_t>& out, std::uint8_t v) { out.push_back(v); }
+void put_u8(std::vector<std::uint8_t>& out, std::uint8_t v) {
+  out.push_back(v);
+}
 
 void put_u16(std::vector<std::uint8_t>& out, std::uint16_t v) {
   out.push_back(static_cast<std::uint8_t>(v & 0xFFu));
@@ -99,9 +101,9 @@ CodecStatus check_header_fields(const PacketHeader& h, std::size_t samples) {
                                                  " is not allowed in a " + type_name(h.type) +
                                                  " packet");
   if ((h.flags & ~flag_mask(h.type)) != 0)
-    return fail(CodecError::ReservedNotZero,
-                "flags " + hex(h.flags) + " set reserved bits (allowed mask " +
-                    hex(flag_mask(h.type)) + ")");
+    return fail(CodecError::ReservedNotZero, "flags " + hex(h.flags) +
+                                                 " set reserved bits (allowed mask " +
+                                                 hex(flag_mask(h.type)) + ")");
   if (samples > max_samples(h.format))
     return fail(CodecError::TooLarge, std::to_string(samples) + " samples, at most " +
                                           std::to_string(max_samples(h.format)) +
@@ -139,8 +141,8 @@ CodecStatus check_packet(std::span<const std::uint8_t> bytes, PacketType expecte
   const std::uint32_t computed = crc32(bytes.first(crc_at));
   if (stored != computed)
     return fail(CodecError::CrcMismatch, "packet sequence " + std::to_string(header.sequence) +
-                                             ": stored CRC-32 " + hex(stored, 8) +
-                                             ", computed " + hex(computed, 8));
+                                             ": stored CRC-32 " + hex(stored, 8) + ", computed " +
+                                             hex(computed, 8));
   return {};
 }
 
@@ -189,15 +191,13 @@ CodecStatus check_info(const BridgeInfo& i) {
                 "bridge speaks protocol version " + std::to_string(i.protocol_version) +
                     ", this host speaks " + std::to_string(kProtocolVersion));
   if (i.dac_bits < 1 || i.dac_bits > 32)
-    return fail(CodecError::BadValue,
-                "dac_bits " + std::to_string(i.dac_bits) + ", allowed 1..32");
+    return fail(CodecError::BadValue, "dac_bits " + std::to_string(i.dac_bits) + ", allowed 1..32");
   if (i.position_word_bits != 32 && i.position_word_bits != 36)
-    return fail(CodecError::BadValue, "position_word_bits " +
-                                          std::to_string(i.position_word_bits) +
+    return fail(CodecError::BadValue, "position_word_bits " + std::to_string(i.position_word_bits) +
                                           ", allowed 32 or 36");
-  for (auto [value, field] : {std::pair{i.tick_hz, "tick_hz"},
-                              std::pair{i.max_dac_rate_hz, "max_dac_rate_hz"},
-                              std::pair{i.max_position_rate_hz, "max_position_rate_hz"}}) {
+  for (auto [value, field] :
+       {std::pair{i.tick_hz, "tick_hz"}, std::pair{i.max_dac_rate_hz, "max_dac_rate_hz"},
+        std::pair{i.max_position_rate_hz, "max_position_rate_hz"}}) {
     CodecStatus s = check_at_least_one(value, field);
     if (!s.ok()) return s;
   }
@@ -208,30 +208,48 @@ CodecStatus check_info(const BridgeInfo& i) {
 
 const char* codec_error_name(CodecError error) {
   switch (error) {
-    case CodecError::None: return "none";
-    case CodecError::Truncated: return "truncated";
-    case CodecError::BadMagic: return "bad magic";
-    case CodecError::UnsupportedVersion: return "unsupported version";
-    case CodecError::UnknownPacketType: return "unknown packet type";
-    case CodecError::WrongPacketType: return "wrong packet type";
-    case CodecError::BadSampleFormat: return "bad sample format";
-    case CodecError::ReservedNotZero: return "reserved not zero";
-    case CodecError::LengthExceedsBuffer: return "length exceeds buffer";
-    case CodecError::TooLarge: return "too large";
-    case CodecError::CrcMismatch: return "CRC mismatch";
-    case CodecError::SequenceGap: return "sequence gap";
-    case CodecError::SequenceRepeat: return "sequence repeat";
-    case CodecError::BadLength: return "bad length";
-    case CodecError::BadValue: return "bad value";
+    case CodecError::None:
+      return "none";
+    case CodecError::Truncated:
+      return "truncated";
+    case CodecError::BadMagic:
+      return "bad magic";
+    case CodecError::UnsupportedVersion:
+      return "unsupported version";
+    case CodecError::UnknownPacketType:
+      return "unknown packet type";
+    case CodecError::WrongPacketType:
+      return "wrong packet type";
+    case CodecError::BadSampleFormat:
+      return "bad sample format";
+    case CodecError::ReservedNotZero:
+      return "reserved not zero";
+    case CodecError::LengthExceedsBuffer:
+      return "length exceeds buffer";
+    case CodecError::TooLarge:
+      return "too large";
+    case CodecError::CrcMismatch:
+      return "CRC mismatch";
+    case CodecError::SequenceGap:
+      return "sequence gap";
+    case CodecError::SequenceRepeat:
+      return "sequence repeat";
+    case CodecError::BadLength:
+      return "bad length";
+    case CodecError::BadValue:
+      return "bad value";
   }
   return "unknown error";
 }
 
 std::size_t sample_bytes(SampleFormat format) {
   switch (format) {
-    case SampleFormat::DacInt16: return 2;
-    case SampleFormat::DacInt32: return 4;
-    case SampleFormat::PositionRecord: return 16;
+    case SampleFormat::DacInt16:
+      return 2;
+    case SampleFormat::DacInt32:
+      return 4;
+    case SampleFormat::PositionRecord:
+      return 16;
   }
   return 0;
 }
@@ -261,8 +279,8 @@ CodecStatus encode_waveform_block(const WaveformBlock& block, std::vector<std::u
       const std::int32_t code = block.dac_codes[i];
       if (code < std::numeric_limits<std::int16_t>::min() ||
           code > std::numeric_limits<std::int16_t>::max())
-        return fail(CodecError::BadValue, "dac_codes[" + std::to_string(i) + "] = " +
-                                              std::to_string(code) +
+        return fail(CodecError::BadValue, "dac_codes[" + std::to_string(i) +
+                                              "] = " + std::to_string(code) +
                                               " does not fit int16 (-32768..32767)");
     }
   }
@@ -328,8 +346,8 @@ CodecStatus decode_header(std::span<const std::uint8_t> bytes, PacketHeader& hea
   CodecStatus status = check_header_fields(h, h.sample_count);
   if (!status.ok()) return status;
   if (reserved != 0)
-    return fail(CodecError::ReservedNotZero, "header bytes 14..15 are " + hex(reserved, 4) +
-                                                 ", must be 0");
+    return fail(CodecError::ReservedNotZero,
+                "header bytes 14..15 are " + hex(reserved, 4) + ", must be 0");
   if (h.packet_bytes() > bytes.size())
     return fail(CodecError::LengthExceedsBuffer,
                 std::to_string(h.sample_count) + " samples make a " +
@@ -390,9 +408,8 @@ CodecStatus SequenceTracker::check(std::uint32_t sequence) {
   }
   if (ahead < 0x80000000u) {
     lost_packets_ += ahead;
-    CodecStatus s = fail(CodecError::SequenceGap, "expected sequence " +
-                                                      std::to_string(expected_) + ", got " +
-                                                      std::to_string(sequence) + " (" +
+    CodecStatus s = fail(CodecError::SequenceGap, "expected sequence " + std::to_string(expected_) +
+                                                      ", got " + std::to_string(sequence) + " (" +
                                                       std::to_string(ahead) + " packets lost)");
     expected_ = sequence + 1;
     return s;

@@ -93,9 +93,9 @@ struct PacketHeader {
 
 struct WaveformBlock {
   std::uint32_t sequence = 0;
-  std::uint8_t flags = 0;                         // packet_flag::kWaveformMask bits
-  SampleFormat format = SampleFormat::DacInt16;   // DacInt16 or DacInt32
-  std::vector<std::int32_t> dac_codes;            // in range of the format
+  std::uint8_t flags = 0;                        // packet_flag::kWaveformMask bits
+  SampleFormat format = SampleFormat::DacInt16;  // DacInt16 or DacInt32
+  std::vector<std::int32_t> dac_codes;           // in range of the format
 };
 
 struct PositionRecord {
@@ -173,14 +173,20 @@ inline constexpr std::size_t kInfoBytes = 20;
 inline constexpr std::size_t kLatchBytes = 16;
 
 struct BridgeConfig {
-  std::uint32_t dac_sample_rate_hz = 100000;      // >= 1
-  std::uint32_t burst_samples = 0;                // DAC samples in the burst, >= 1
-  std::uint32_t position_sample_rate_hz = 100000; // >= 1
-  std::uint32_t tail_samples = 0;                 // position samples latched after the burst
+  std::uint32_t dac_sample_rate_hz = 100000;         // >= 1
+  std::uint32_t burst_samples = 0;                   // DAC samples in the burst, >= 1
+  std::uint32_t position_sample_rate_hz = 100000;    // >= 1
+  std::uint32_t tail_samples = 0;                    // position samples latched after the burst
   SampleFormat dac_format = SampleFormat::DacInt16;  // DacInt16 or DacInt32
 };
 
-enum class BridgeState : std::uint8_t { Idle = 0, Configured = 1, Running = 2, Finished = 3, Fault = 4 };
+enum class BridgeState : std::uint8_t {
+  Idle = 0,
+  Configured = 1,
+  Running = 2,
+  Finished = 3,
+  Fault = 4
+};
 
 namespace fault_flag {
 inline constexpr std::uint16_t kUnderrun = 1u << 0;          // DAC buffer ran dry mid-burst
@@ -204,12 +210,12 @@ struct BridgeStatus {
 
 struct BridgeInfo {
   std::uint8_t protocol_version = kProtocolVersion;
-  std::uint8_t dac_bits = 16;               // 1..32
-  std::uint8_t position_word_bits = 32;     // 32 or 36
-  std::uint32_t tick_hz = 0;                // >= 1
-  std::uint32_t max_dac_rate_hz = 0;        // >= 1
+  std::uint8_t dac_bits = 16;            // 1..32
+  std::uint8_t position_word_bits = 32;  // 32 or 36
+  std::uint32_t tick_hz = 0;             // >= 1
+  std::uint32_t max_dac_rate_hz = 0;     // >= 1
   std::uint32_t buffer_capacity_samples = 0;
-  std::uint32_t max_position_rate_hz = 0;   // >= 1
+  std::uint32_t max_position_rate_hz = 0;  // >= 1
 };
 
 // Encoders append exactly k*Bytes bytes to `out` (nothing, and BadValue, on an out-of-range field).

@@ -50,15 +50,19 @@ const model::ParamTable<UsbTransportConfig>& usb_transport_params() {
     };
   };
   static const model::ParamTable<C> table({
-      model::custom<C>("vendor_id", "", "[0, 0xffff], e.g. 0x1209", "0x1209", "the bridge's USB vendor id",
-                       id(&C::vendor_id)),
-      model::custom<C>("product_id", "", "[0, 0xffff], e.g. 0x4944", "0x4944", "the bridge's USB product id",
-                       id(&C::product_id)),
-      model::text<C>("serial", "its serial number; \"\": the only matching device",
-                     [](auto& c) -> auto& { return c.serial; }),
-      model::integer<C>("interface_number", "", 0, 255, "the USB interface it claims",
-                        [](auto& c) -> auto& { return c.interface_number; }),
-      model::real<C>("timeout_s", "s", {1e-3, 60}, "per transfer", [](auto& c) -> auto& { return c.timeout_s; }),
+      model::custom<C>("vendor_id", "", "[0, 0xffff], e.g. 0x1209", "0x1209",
+                       "the bridge's USB vendor id", id(&C::vendor_id)),
+      model::custom<C>("product_id", "", "[0, 0xffff], e.g. 0x4944", "0x4944",
+                       "the bridge's USB product id", id(&C::product_id)),
+      model::text<C>(
+          "serial", "its serial number; \"\": the only matching device",
+          [](auto& c) -> auto& { return c.serial; }),
+      model::integer<C>(
+          "interface_number", "", 0, 255, "the USB interface it claims",
+          [](auto& c) -> auto& { return c.interface_number; }),
+      model::real<C>(
+          "timeout_s", "s", {1e-3, 60}, "per transfer",
+          [](auto& c) -> auto& { return c.timeout_s; }),
   });
   return table;
 }
@@ -81,9 +85,9 @@ DriverStatus usb_status(int code, const std::string& what, const std::string& de
   const std::string head = what + ": ";
   switch (code) {
     case LIBUSB_ERROR_NO_DEVICE:
-      return DriverStatus::failure(DriverError::Disconnected,
-                                   head + "the USB device " + device + " is gone (unplugged?) (" +
-                                       name + ")");
+      return DriverStatus::failure(
+          DriverError::Disconnected,
+          head + "the USB device " + device + " is gone (unplugged?) (" + name + ")");
     case LIBUSB_ERROR_ACCESS:
       return DriverStatus::failure(
           DriverError::PermissionDenied,
@@ -91,13 +95,14 @@ DriverStatus usb_status(int code, const std::string& what, const std::string& de
               ": give the daemon's user access with a udev rule (see drivers/usb/README.md) (" +
               name + ")");
     case LIBUSB_ERROR_TIMEOUT:
-      return DriverStatus::failure(DriverError::Timeout,
-                                   head + "the USB device " + device + " did not answer in time (" +
-                                       name + ")");
+      return DriverStatus::failure(
+          DriverError::Timeout,
+          head + "the USB device " + device + " did not answer in time (" + name + ")");
     case LIBUSB_ERROR_NOT_FOUND:
-      return DriverStatus::failure(DriverError::NoDevice,
-                                   head + "the USB device " + device + " or its interface was not "
-                                                                       "found (" + name + ")");
+      return DriverStatus::failure(DriverError::NoDevice, head + "the USB device " + device +
+                                                              " or its interface was not "
+                                                              "found (" +
+                                                              name + ")");
     case LIBUSB_ERROR_BUSY:
       return DriverStatus::failure(DriverError::DeviceError,
                                    head + "the interface of " + device +
@@ -106,11 +111,12 @@ DriverStatus usb_status(int code, const std::string& what, const std::string& de
       return DriverStatus::failure(DriverError::DeviceError,
                                    head + "the bridge " + device +
                                        " stalled the request (unknown request, wrong length, or "
-                                       "not allowed in its state) (" + name + ")");
-    case LIBUSB_ERROR_OVERFLOW:
-      return DriverStatus::failure(DriverError::ProtocolError,
-                                   head + "the bridge " + device + " sent more data than asked (" +
+                                       "not allowed in its state) (" +
                                        name + ")");
+    case LIBUSB_ERROR_OVERFLOW:
+      return DriverStatus::failure(
+          DriverError::ProtocolError,
+          head + "the bridge " + device + " sent more data than asked (" + name + ")");
     default:
       return DriverStatus::failure(DriverError::DeviceError,
                                    head + "USB error on " + device + ": " +
@@ -126,7 +132,8 @@ CodecStatus build_waveform_blocks(std::span<const std::int32_t> codes, SampleFor
   if (per_packet == 0) return {CodecError::BadSampleFormat, "waveform format is not a DAC format"};
   WaveformBlock block;
   block.format = format;
-  const std::size_t packets = std::max<std::size_t>(1, (codes.size() + per_packet - 1) / per_packet);
+  const std::size_t packets =
+      std::max<std::size_t>(1, (codes.size() + per_packet - 1) / per_packet);
   for (std::size_t p = 0; p < packets; ++p) {
     const std::size_t begin = p * per_packet;
     const std::size_t end = std::min(codes.size(), begin + per_packet);
@@ -224,7 +231,8 @@ DriverStatus UsbTransport::open() {
     if (d.iSerialNumber != 0) {
       unsigned char text[256] = {0};
       const int len = libusb_get_string_descriptor_ascii(h, d.iSerialNumber, text, sizeof text);
-      if (len > 0) serial.assign(reinterpret_cast<const char*>(text), static_cast<std::size_t>(len));
+      if (len > 0)
+        serial.assign(reinterpret_cast<const char*>(text), static_cast<std::size_t>(len));
     }
     if (!config_.serial.empty() && serial != config_.serial) {
       serials_seen += (serials_seen.empty() ? "" : ", ") + (serial.empty() ? "(none)" : serial);
@@ -237,14 +245,16 @@ DriverStatus UsbTransport::open() {
   if (!handle_) {
     if (open_error != 0) return usb_status(open_error, "open", device_);
     std::string msg = "open: no USB device " + device_;
-    if (matching > 0 && !serials_seen.empty()) msg += " (found serials: " + serials_seen + ")";
-    else msg += " (" + std::to_string(n) + " USB devices present, none with that id)";
+    if (matching > 0 && !serials_seen.empty())
+      msg += " (found serials: " + serials_seen + ")";
+    else
+      msg += " (" + std::to_string(n) + " USB devices present, none with that id)";
     return DriverStatus::failure(DriverError::NoDevice, msg);
   }
   libusb_set_auto_detach_kernel_driver(handle_, 1);
   if (const int rc = libusb_claim_interface(handle_, config_.interface_number); rc != 0) {
-    DriverStatus s = usb_status(rc, "open: claiming interface " +
-                                        std::to_string(config_.interface_number), device_);
+    DriverStatus s = usb_status(
+        rc, "open: claiming interface " + std::to_string(config_.interface_number), device_);
     libusb_close(handle_);
     handle_ = nullptr;
     return s;
@@ -266,7 +276,8 @@ void UsbTransport::close() {
   handle_ = nullptr;
 }
 
-DriverStatus UsbTransport::control(Request request, std::span<std::uint8_t> data, const char* what) {
+DriverStatus UsbTransport::control(Request request, std::span<std::uint8_t> data,
+                                   const char* what) {
   if (!handle_) return not_open(what);
   const ControlSetup setup =
       control_setup(request, static_cast<std::uint16_t>(config_.interface_number));
@@ -274,9 +285,9 @@ DriverStatus UsbTransport::control(Request request, std::span<std::uint8_t> data
     return DriverStatus::failure(DriverError::InvalidArgument,
                                  std::string(what) + ": " + std::to_string(data.size()) +
                                      " bytes for a request of " + std::to_string(setup.length));
-  const int rc = libusb_control_transfer(handle_, setup.request_type, setup.request, setup.value,
-                                         setup.index, data.empty() ? nullptr : data.data(),
-                                         setup.length, timeout_ms());
+  const int rc =
+      libusb_control_transfer(handle_, setup.request_type, setup.request, setup.value, setup.index,
+                              data.empty() ? nullptr : data.data(), setup.length, timeout_ms());
   if (rc < 0) return transfer_failed(rc, what);
   if (static_cast<std::size_t>(rc) != data.size())
     return DriverStatus::failure(DriverError::ProtocolError,
@@ -285,9 +296,13 @@ DriverStatus UsbTransport::control(Request request, std::span<std::uint8_t> data
   return DriverStatus::success();
 }
 
-DriverStatus UsbTransport::start() { return control(Request::Start, {}, "start"); }
+DriverStatus UsbTransport::start() {
+  return control(Request::Start, {}, "start");
+}
 
-DriverStatus UsbTransport::stop() { return control(Request::Stop, {}, "stop"); }
+DriverStatus UsbTransport::stop() {
+  return control(Request::Stop, {}, "stop");
+}
 
 DriverStatus UsbTransport::configure(const BridgeConfig& config) {
   std::vector<std::uint8_t> bytes;
@@ -361,8 +376,8 @@ DriverStatus UsbTransport::receive_positions(std::vector<PositionRecord>& record
                                       static_cast<int>(in_buffer_.size()), &got, timeout_ms());
   if (rc != 0) return transfer_failed(rc, "receive_positions: bulk IN");
   const CodecStatus c = parse_position_transfer(
-      std::span<const std::uint8_t>(in_buffer_.data(), static_cast<std::size_t>(got)),
-      in_sequence_, records, info);
+      std::span<const std::uint8_t>(in_buffer_.data(), static_cast<std::size_t>(got)), in_sequence_,
+      records, info);
   if (!c.ok()) return codec_failure(c, "receive_positions");
   return DriverStatus::success();
 }

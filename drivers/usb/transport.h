@@ -9,16 +9,16 @@
 // into position records with sequence checks.
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <cstdint>
 #include <span>
 #include <string>
 #include <vector>
 
-#include <yaml-cpp/yaml.h>
-
 #include "drivers/interfaces.h"
-#include "model/param_table.h"
 #include "drivers/usb/protocol.h"
+#include "model/param_table.h"
 
 struct libusb_context;
 struct libusb_device_handle;
@@ -32,7 +32,7 @@ struct UsbTransportConfig {
   int interface_number = 0;
   std::uint8_t endpoint_out = 0x01;
   std::uint8_t endpoint_in = 0x81;
-  double timeout_s = 0.5;             // per transfer
+  double timeout_s = 0.5;  // per transfer
 };
 
 // `daq.usb:` of root: vendor_id, product_id (integers or "0x1209" strings), serial,

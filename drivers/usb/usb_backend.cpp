@@ -4,8 +4,8 @@
 #include <cmath>
 #include <sstream>
 
-#include "model/range.h"
 #include "drivers/clock.h"
+#include "model/range.h"
 #include "model/yaml_util.h"
 
 namespace idm::drivers::usb {
@@ -15,9 +15,8 @@ using model::located;
 
 namespace {
 
-
 std::string fault_names(std::uint16_t flags) {
-  static constexpr const char* kNames[] = {"underrun",      "position_overflow", "crc_error",
+  static constexpr const char* kNames[] = {"underrun",       "position_overflow", "crc_error",
                                            "sequence_error", "bad_config",        "axis_error"};
   std::string out;
   for (unsigned bit = 0; bit < 6; ++bit)
@@ -30,14 +29,18 @@ std::string fault_names(std::uint16_t flags) {
 const model::ParamTable<UsbDeviceConfig>& usb_device_params() {
   using C = UsbDeviceConfig;
   static const model::ParamTable<C> table(model::join<C>({
-      model::lifted<C>(usb_transport_params(), [](auto& c) -> auto& { return c.transport; }),
+      model::lifted<C>(
+          usb_transport_params(), [](auto& c) -> auto& { return c.transport; }),
       {
-          model::real<C>("position_rate_hz", "Hz", {1, 1e8}, "the bridge's position latch rate during a burst",
-                         [](auto& c) -> auto& { return c.position_rate_hz; }),
-          model::real<C>("tail_s", "s", {0, 10}, "positions latched after a burst's last sample",
-                         [](auto& c) -> auto& { return c.tail_s; }),
+          model::real<C>(
+              "position_rate_hz", "Hz", {1, 1e8}, "the bridge's position latch rate during a burst",
+              [](auto& c) -> auto& { return c.position_rate_hz; }),
+          model::real<C>(
+              "tail_s", "s", {0, 10}, "positions latched after a burst's last sample",
+              [](auto& c) -> auto& { return c.tail_s; }),
       },
-      model::lifted<C>(output_capability_params(), [](auto& c) -> auto& { return c.output; }),
+      model::lifted<C>(
+          output_capability_params(), [](auto& c) -> auto& { return c.output; }),
   }));
   return table;
 }
@@ -46,9 +49,11 @@ UsbDeviceConfig parse_usb_device_yaml(const YAML::Node& root, const std::string&
   UsbDeviceConfig c;
   c.interferometer = parse_interferometer_yaml(root, file);
   const YAML::Node node = detail::child(detail::child(root, "daq"), "usb");
-  if (const YAML::Node ch = detail::child(root, "channel"); detail::present(ch) && ch.as<std::string>() != "0")
-    throw InputError(located(file, ch, "channel", "the USB bridge has one channel (0); give each "
-                                                  "axis on USB its own device"));
+  if (const YAML::Node ch = detail::child(root, "channel");
+      detail::present(ch) && ch.as<std::string>() != "0")
+    throw InputError(located(file, ch, "channel",
+                             "the USB bridge has one channel (0); give each "
+                             "axis on USB its own device"));
   usb_device_params().read(node, file, "daq.usb", c);
   try {
     validate(c.output, "daq.usb");
@@ -119,8 +124,9 @@ DriverStatus UsbOutput::on_shutdown() {
 
 DriverStatus UsbOutput::do_write_burst(const double* xi_m, std::size_t n, double rate_hz) {
   if (std::fabs(rate_hz - std::round(rate_hz)) > 1e-9 * rate_hz)
-    return DriverStatus::failure(DriverError::InvalidArgument,
-                                 "the bridge's DAC clock takes whole hertz, not " + model::format_number(rate_hz));
+    return DriverStatus::failure(
+        DriverError::InvalidArgument,
+        "the bridge's DAC clock takes whole hertz, not " + model::format_number(rate_hz));
   codes_.resize(n);
   for (std::size_t k = 0; k < n; ++k) codes_[k] = dac_code(xi_m[k], caps_);
   rate_hz_ = rate_hz;
@@ -181,10 +187,10 @@ DriverStatus UsbInterferometer::on_configure() {
                                   "-bit words but interferometer.word_bits is " +
                                   std::to_string(static_cast<unsigned>(caps_.word.width)));
   else if (caps_.stream_rate_hz > info.max_position_rate_hz)
-    s = DriverStatus::failure(DriverError::InvalidArgument,
-                              "daq.usb.position_rate_hz " + model::format_number(caps_.stream_rate_hz) +
-                                  " exceeds the bridge's " +
-                                  std::to_string(info.max_position_rate_hz) + " Hz");
+    s = DriverStatus::failure(
+        DriverError::InvalidArgument,
+        "daq.usb.position_rate_hz " + model::format_number(caps_.stream_rate_hz) +
+            " exceeds the bridge's " + std::to_string(info.max_position_rate_hz) + " Hz");
   if (!s.ok()) shared_->close();
   return s;
 }

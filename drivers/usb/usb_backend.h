@@ -5,12 +5,12 @@
 // bridge whose firmware stalls it gives `unsupported`).
 #pragma once
 
+#include <yaml-cpp/yaml.h>
+
 #include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
 
 #include "drivers/config.h"
 #include "drivers/interfaces.h"
@@ -20,10 +20,10 @@ namespace idm::drivers::usb {
 
 struct UsbDeviceConfig {
   UsbTransportConfig transport;
-  OutputCapabilities output;          // buffered samples; limits narrowed by GET_INFO at configure
+  OutputCapabilities output;  // buffered samples; limits narrowed by GET_INFO at configure
   InterferometerConfig interferometer;
-  double position_rate_hz = 1e5;      // the bridge's position latch rate during a burst
-  double tail_s = 2e-3;               // positions latched after the burst's last sample
+  double position_rate_hz = 1e5;  // the bridge's position latch rate during a burst
+  double tail_s = 2e-3;           // positions latched after the burst's last sample
 };
 
 // The keys of `daq.usb:` (the transport's, the bridge's and the output capability keys).

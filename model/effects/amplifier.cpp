@@ -27,8 +27,7 @@ double rate_limit(double y0, double a0, double a1, double rate, double h) {
 }  // namespace
 
 void Amplifier::Params::validate(const std::string& where) const {
-  if (order != 1 && order != 2)
-    throw_out_of_range(where, "order", order, "an integer in [1, 2]");
+  if (order != 1 && order != 2) throw_out_of_range(where, "order", order, "an integer in [1, 2]");
   check_range(where, "cutoff_hz", cutoff_hz, Range{0.0, 1e6, true});
   check_range(where, "slew_rate_m_s", slew_rate_m_s, Range{0.0, 1e3, false});
 }

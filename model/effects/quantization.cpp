@@ -12,8 +12,7 @@ constexpr double kEdgeTolerance = 1e-9;  // clock periods
 }  // namespace
 
 void Quantization::Params::validate(const std::string& where) const {
-  if (bits < 1 || bits > 24)
-    throw_out_of_range(where, "bits", bits, "an integer in [1, 24]");
+  if (bits < 1 || bits > 24) throw_out_of_range(where, "bits", bits, "an integer in [1, 24]");
   check_range(where, "update_rate_hz", update_rate_hz, Range{0.0, 1e9, true});
   check_range(where, "full_scale_m", full_scale_m, Range{0.0, 1e-2, true});
 }

@@ -107,13 +107,13 @@ TEST(Replies, LoopSweepRegionAndLists) {
   ASSERT_EQ(v.size(), 3u);
   EXPECT_TRUE(std::isnan(v[2]));
   EXPECT_THROW(parse_number_list("1,,2"), ReplyError);
-  EXPECT_EQ(operation_bit_words(0x103), (std::vector<std::string>{"moving", "in position",
-                                                                  "position valid"}));
+  EXPECT_EQ(operation_bit_words(0x103),
+            (std::vector<std::string>{"moving", "in position", "position valid"}));
 }
 
 TEST(Replies, ClientTable) {
-  const ClientTable t =
-      parse_client_table("connected=5 slots=3 max_clients=16 stop_only=1 overflow_slots=4 draining=1");
+  const ClientTable t = parse_client_table(
+      "connected=5 slots=3 max_clients=16 stop_only=1 overflow_slots=4 draining=1");
   EXPECT_EQ(t.connected, 5u);
   EXPECT_EQ(t.slots, 3u);
   EXPECT_EQ(t.max_clients, 16u);
@@ -121,11 +121,14 @@ TEST(Replies, ClientTable) {
   EXPECT_EQ(t.overflow_slots, 4u);
   EXPECT_EQ(t.draining, 1u);
   // Parts that do not add up, a missing field, a negative count.
-  EXPECT_THROW(parse_client_table("connected=5 slots=3 max_clients=16 stop_only=0 overflow_slots=4 draining=1"),
+  EXPECT_THROW(parse_client_table(
+                   "connected=5 slots=3 max_clients=16 stop_only=0 overflow_slots=4 draining=1"),
                ReplyError);
-  EXPECT_THROW(parse_client_table("connected=1 slots=1 max_clients=16 stop_only=0 overflow_slots=4"),
-               ReplyError);
-  EXPECT_THROW(parse_client_table("connected=1 slots=-1 max_clients=16 stop_only=2 overflow_slots=4 draining=0"),
+  EXPECT_THROW(
+      parse_client_table("connected=1 slots=1 max_clients=16 stop_only=0 overflow_slots=4"),
+      ReplyError);
+  EXPECT_THROW(parse_client_table(
+                   "connected=1 slots=-1 max_clients=16 stop_only=2 overflow_slots=4 draining=0"),
                ReplyError);
 }
 
@@ -135,8 +138,8 @@ TEST(Address, HostPortForms) {
   EXPECT_EQ(parse_host_port("[::1]:7").host, "::1");
   EXPECT_EQ(parse_host_port("[::1]:7").text(), "[::1]:7");
   EXPECT_EQ(parse_host_port("127.0.0.1:0", 8080, true).port, 0);
-  for (const char* bad : {"", ":5025", "h:", "h:0", "h:65536", "h:5x", "::1:5025", "[::1",
-                          "[::1]x", "h h:1", "h/x:1", "h:123456"})
+  for (const char* bad : {"", ":5025", "h:", "h:0", "h:65536", "h:5x", "::1:5025", "[::1", "[::1]x",
+                          "h h:1", "h/x:1", "h:123456"})
     EXPECT_THROW(parse_host_port(bad), AddressError) << bad;
 }
 
@@ -207,8 +210,8 @@ TEST_F(ClientOnFake, NoDaemonIsARuntimeError) {
 }
 
 TEST(TangoState, MappingOfTheDaemonsStatus) {
-  using idm::tango::AxisState;
   using idm::tango::axis_state;
+  using idm::tango::AxisState;
   AxisStatus s = parse_status(kStatus);
   EXPECT_EQ(axis_state(s), AxisState::On);
   AxisStatus moving = s;

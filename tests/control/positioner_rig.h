@@ -52,6 +52,8 @@ inline drivers::sim::SimDeviceConfig realistic_device(std::uint64_t seed) {
   return c;
 }
 // The map for it: alpha 0.763 (what one 200-cycle burst at 200 Hz / duty 0.1 measures there).
-inline RegionMapConfig realistic_map_config() { return rig_map_config(0.7628); }
+inline RegionMapConfig realistic_map_config() {
+  return rig_map_config(0.7628);
+}
 
 }  // namespace idm::control::test_rig

@@ -43,7 +43,8 @@ const RegionCell& cell_near(const RegionMap& map, int sign, double step_m) {
   for (std::size_t i : map.usable_cells()) {
     const RegionCell& c = map.cells()[i];
     if (c.direction() != sign) continue;
-    if (best == nullptr || std::fabs(std::fabs(c.step_m) - step_m) < std::fabs(std::fabs(best->step_m) - step_m))
+    if (best == nullptr ||
+        std::fabs(std::fabs(c.step_m) - step_m) < std::fabs(std::fabs(best->step_m) - step_m))
       best = &c;
   }
   return *best;
@@ -64,8 +65,10 @@ TEST(Calibration, RlsRecoversAlphaAndMuFromExactBursts) {
     const double T = 1 / c.freq_hz;
     const double a = nominal.mass_ratio() * c.stroke_m / (1 - d);
     const double b = nominal.gravity_m_s2 * d * d * T * T;
-    const double transient = c.direction() * (c.single_burst_m - c.step_m) / nominal.step_correction;
-    return c.direction() * (alpha * (static_cast<double>(n) * a + transient) - alpha * mu * static_cast<double>(n) * b);
+    const double transient =
+        c.direction() * (c.single_burst_m - c.step_m) / nominal.step_correction;
+    return c.direction() * (alpha * (static_cast<double>(n) * a + transient) -
+                            alpha * mu * static_cast<double>(n) * b);
   };
   const double steps[] = {2e-6, 1e-6, 3e-7, 1e-7, 3e-8, 1.5e-8};
   for (int round = 0; round < 8; ++round) {
@@ -130,14 +133,18 @@ TEST(Calibration, SecondOfTwoIdenticalMovesNeedsFewerCorrections) {
   Calibration cal(ideal_map().config().stage);
   const TwoRounds with = two_identical_rounds(&cal);
   EXPECT_LT(with.chunks[1], with.chunks[0]);
-  EXPECT_LT(with.chunks[1] * 10, without.chunks[1] * 9) << "at least 10 % fewer chunks than without";
+  EXPECT_LT(with.chunks[1] * 10, without.chunks[1] * 9)
+      << "at least 10 % fewer chunks than without";
   // The tries at the last half count depend on the finest steps, not on what was learned: a few.
   EXPECT_LE(with.corrections[1], 6u);
   EXPECT_GT(cal.total_updates(), 10u);
-  std::printf("corrections without calibration %u, %u; with %u, %u; chunks %llu, %llu / %llu, %llu\n",
-              without.corrections[0], without.corrections[1], with.corrections[0], with.corrections[1],
-              static_cast<unsigned long long>(without.chunks[0]), static_cast<unsigned long long>(without.chunks[1]),
-              static_cast<unsigned long long>(with.chunks[0]), static_cast<unsigned long long>(with.chunks[1]));
+  std::printf(
+      "corrections without calibration %u, %u; with %u, %u; chunks %llu, %llu / %llu, %llu\n",
+      without.corrections[0], without.corrections[1], with.corrections[0], with.corrections[1],
+      static_cast<unsigned long long>(without.chunks[0]),
+      static_cast<unsigned long long>(without.chunks[1]),
+      static_cast<unsigned long long>(with.chunks[0]),
+      static_cast<unsigned long long>(with.chunks[1]));
 }
 
 TEST(Calibration, FileRoundTrip) {
@@ -183,7 +190,7 @@ TEST(Calibration, CorruptFileIsReportedAndIgnored) {
   };
   // One digit changed: the checksum catches it (names the line of the checksum).
   std::string flipped = good;
-  flipped[flipped.find("0.5")+2] = '7';
+  flipped[flipped.find("0.5") + 2] = '7';
   expect_ignored(flipped, "checksum mismatch");
   expect_ignored(good.substr(0, good.size() / 2), "truncated");
   expect_ignored("garbage\n", ":1: not a calibration file");
@@ -199,7 +206,8 @@ TEST(Calibration, CorruptFileIsReportedAndIgnored) {
   std::string text = Calibration::serialize(bad);
   const std::size_t at = text.find("estimate one-step negative 3 ");
   ASSERT_NE(at, std::string::npos);
-  text.replace(at, std::string("estimate one-step negative 3 0.5").size(), "estimate one-step negative 3 -0.5");
+  text.replace(at, std::string("estimate one-step negative 3 0.5").size(),
+               "estimate one-step negative 3 -0.5");
   // Re-sign it so only the value is wrong.
   text = text.substr(0, text.find("checksum"));
   {
@@ -242,7 +250,8 @@ TEST(Calibration, SaveToAnUnwritablePlaceThrowsNamingTheFile) {
     cal.save("/nonexistent-dir/idm.cal");
     FAIL();
   } catch (const std::system_error& e) {
-    EXPECT_NE(std::string(e.what()).find("/nonexistent-dir/idm.cal"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("/nonexistent-dir/idm.cal"), std::string::npos)
+        << e.what();
   }
 }
 

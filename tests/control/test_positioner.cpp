@@ -2,9 +2,8 @@
 // invalid samples), stop, soft limits, open-loop steps, and no allocation in the loop.
 #include <gtest/gtest.h>
 
-#include <cstdio>
-
 #include <cmath>
+#include <cstdio>
 #include <random>
 
 #include "positioner_rig.h"
@@ -37,9 +36,9 @@ TEST(Positioner, ConvergesOnTheIdealPlantBothDirections) {
     const double target = p.status().position_m + distance;
     ASSERT_EQ(p.move_absolute(target), Refusal::None);
     EXPECT_EQ(p.status().state, MotionState::Moving);
-    ASSERT_EQ(rig.run(), MotionState::Idle) << "move " << i << " fault "
-                                            << motion_fault_name(p.status().fault) << " "
-                                            << drivers::describe_sample_status(p.invalid_sample_status());
+    ASSERT_EQ(rig.run(), MotionState::Idle)
+        << "move " << i << " fault " << motion_fault_name(p.status().fault) << " "
+        << drivers::describe_sample_status(p.invalid_sample_status());
     EXPECT_LE(std::fabs(p.status().position_m - target), 0.5 * count) << "move " << i;
     // The reading is the true position quantized to one count (no noise here).
     EXPECT_LE(std::fabs(rig.sim->true_position_m() - target), count) << "move " << i;
@@ -256,7 +255,8 @@ TEST(Positioner, OpenLoopStepMovesByTheNominalSteps) {
   // 200 Hz, duty 0.9 (positive), full stroke: one-step on the ideal plant.
   ASSERT_EQ(p.step_open_loop(50, 0.9, 200, 20.35e-6), Refusal::None);
   ASSERT_EQ(rig.run(), MotionState::Idle);
-  const double step = model::steady_step_corrected_m(ideal_map().config().stage, 200, 0.9, 20.35e-6);
+  const double step =
+      model::steady_step_corrected_m(ideal_map().config().stage, 200, 0.9, 20.35e-6);
   const double moved = rig.sim->true_position_m() - start;
   EXPECT_GT(step, 0);
   EXPECT_NEAR(moved, 50 * step, 2 * std::fabs(step));
@@ -508,9 +508,10 @@ TEST(PositionerRealistic, CalibrationMakesTheSecondRoundCheaper) {
     }
   }
   std::printf("realistic plant: chunks %llu -> %llu, cycles %llu -> %llu, corrections %u -> %u\n",
-              static_cast<unsigned long long>(chunks[0]), static_cast<unsigned long long>(chunks[1]),
-              static_cast<unsigned long long>(cycles[0]), static_cast<unsigned long long>(cycles[1]),
-              corrections[0], corrections[1]);
+              static_cast<unsigned long long>(chunks[0]),
+              static_cast<unsigned long long>(chunks[1]),
+              static_cast<unsigned long long>(cycles[0]),
+              static_cast<unsigned long long>(cycles[1]), corrections[0], corrections[1]);
   // Chunks are the reads-and-corrections of a move (the motor record's retries count only the
   // final chunks played whole, which a rung with a learned scatter plays more often).
   EXPECT_LT(chunks[1] * 10, chunks[0] * 8) << "at least 20 % fewer chunks";

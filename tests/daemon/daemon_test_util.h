@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 #include <unistd.h>
+#include <yaml-cpp/yaml.h>
 
 #include <chrono>
 #include <cstdio>
@@ -14,14 +15,14 @@
 #include <string>
 #include <thread>
 
-#include <yaml-cpp/yaml.h>
-
 #include "daemon/config.h"
 #include "model/yaml_util.h"
 
 namespace idm::daemon::test {
 
-inline YAML::Node yaml(const std::string& text) { return YAML::Load(text); }
+inline YAML::Node yaml(const std::string& text) {
+  return YAML::Load(text);
+}
 
 // Expects parse_daemon_config to fail with a message containing every one of `parts`.
 inline void expect_config_error(const std::string& text, std::initializer_list<const char*> parts) {
@@ -30,7 +31,8 @@ inline void expect_config_error(const std::string& text, std::initializer_list<c
     ADD_FAILURE() << "accepted:\n" << text;
   } catch (const model::InputError& e) {
     const std::string what = e.what();
-    for (const char* p : parts) EXPECT_NE(what.find(p), std::string::npos) << what << " lacks " << p;
+    for (const char* p : parts)
+      EXPECT_NE(what.find(p), std::string::npos) << what << " lacks " << p;
   }
 }
 
@@ -38,13 +40,18 @@ inline void expect_config_error(const std::string& text, std::initializer_list<c
 inline std::string sim_config(const std::string& clock = "wall", const std::string& extra = "") {
   return "stage:\n  step_correction: 1.0\n  travel_m: [-5e-3, 5e-3]\n"
          "interferometer:\n  max_velocity_m_s: 1\n"
-         "daq:\n  driver: sim\n  sim:\n    clock: " + clock + "\n"
-         "sim:\n  plant: " + std::string(std::getenv("IDM_TEST_PLANT") ? std::getenv("IDM_TEST_PLANT") : "rigid") + "\n  seed: 3\n"
-         "control:\n  freq_step_hz: 20\n  duty_step: 0.005\n  stroke_count: 4\n  min_stroke_m: 0.1e-6\n  max_freq_hz: 2000\n"
+         "daq:\n  driver: sim\n  sim:\n    clock: " +
+         clock +
+         "\n"
+         "sim:\n  plant: " +
+         std::string(std::getenv("IDM_TEST_PLANT") ? std::getenv("IDM_TEST_PLANT") : "rigid") +
+         "\n  seed: 3\n"
+         "control:\n  freq_step_hz: 20\n  duty_step: 0.005\n  stroke_count: 4\n  min_stroke_m: "
+         "0.1e-6\n  max_freq_hz: 2000\n"
          "realtime:\n  period_s: 2e-4\n  sched_fifo: false\n  lock_memory: false\n"
          "server:\n  unix_socket: \"\"\n"
-         "recording:\n  data_dir: " + (std::filesystem::temp_directory_path() / "idmd-test-data").string() + "\n" +
-         extra;
+         "recording:\n  data_dir: " +
+         (std::filesystem::temp_directory_path() / "idmd-test-data").string() + "\n" + extra;
 }
 
 inline std::filesystem::path write_config(const std::string& name, const std::string& text) {

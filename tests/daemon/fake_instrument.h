@@ -144,8 +144,9 @@ class FakeInstrument : public Instrument {
   CommandError step(int axis, std::int64_t cycles, double duty, double freq_hz,
                     double stroke_m) override {
     std::lock_guard l(m_);
-    return motion_locked(axis, "step(" + std::to_string(cycles) + "," + format_value(duty) + "," +
-                                   format_value(freq_hz) + "," + format_value(stroke_m) + ")",
+    return motion_locked(axis,
+                         "step(" + std::to_string(cycles) + "," + format_value(duty) + "," +
+                             format_value(freq_hz) + "," + format_value(stroke_m) + ")",
                          at(axis).position_m);
   }
   CommandError stop() override {
@@ -187,15 +188,17 @@ class FakeInstrument : public Instrument {
     for (double x : freqs_hz) f += (f.empty() ? "" : ";") + format_value(x);
     for (double x : duties) d += (d.empty() ? "" : ";") + format_value(x);
     std::lock_guard l(m_);
-    return motion_locked(axis, "sweep(" + dir + "," + f + "," + d + "," + std::to_string(trials) +
-                                   "," + std::to_string(cycles) + ")",
+    return motion_locked(axis,
+                         "sweep(" + dir + "," + f + "," + d + "," + std::to_string(trials) + "," +
+                             std::to_string(cycles) + ")",
                          at(axis).position_m);
   }
   CommandError set_motion_setting(int axis, MotionSetting which, double value) override {
     std::lock_guard l(m_);
-    calls_.push_back(prefix(axis) + "set_motion_setting(" + std::to_string(static_cast<int>(which)) + "," +
-                     format_value(value) + ")");
-    if (static_cast<std::size_t>(which) < std::size(settings_)) settings_[static_cast<std::size_t>(which)] = value;
+    calls_.push_back(prefix(axis) + "set_motion_setting(" +
+                     std::to_string(static_cast<int>(which)) + "," + format_value(value) + ")");
+    if (static_cast<std::size_t>(which) < std::size(settings_))
+      settings_[static_cast<std::size_t>(which)] = value;
     return {};
   }
   double motion_setting(int, MotionSetting which) override {
@@ -245,7 +248,9 @@ class FakeInstrument : public Instrument {
       throw std::out_of_range("FakeInstrument: no axis " + std::to_string(axis));
     return statuses_[static_cast<std::size_t>(axis)];
   }
-  static std::string prefix(int axis) { return axis == 0 ? "" : "axis" + std::to_string(axis + 1) + ":"; }
+  static std::string prefix(int axis) {
+    return axis == 0 ? "" : "axis" + std::to_string(axis + 1) + ":";
+  }
   CommandError motion_locked(int axis, const std::string& call, double target) {
     calls_.push_back(prefix(axis) + call);
     if (!refusal_.ok()) return refusal_;

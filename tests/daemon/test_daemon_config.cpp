@@ -62,23 +62,27 @@ TEST(DaemonConfig, AKeyThatIsNoPlainNameAndEndlessNestingNameTheFileAndLine) {
 }
 
 TEST(DaemonConfig, DefaultsWhenSectionsAreMissing) {
-  const DaemonConfig c =
-      parse_daemon_config(yaml("stage:\n  travel_m: [-2e-3, 3e-3]\ndaq:\n  driver: sim\n"), "t.yaml");
+  const DaemonConfig c = parse_daemon_config(
+      yaml("stage:\n  travel_m: [-2e-3, 3e-3]\ndaq:\n  driver: sim\n"), "t.yaml");
   EXPECT_EQ(c.server.tcp_address, "127.0.0.1");
   EXPECT_EQ(c.realtime.priority, 80);
   // The soft limits default to the travel.
   EXPECT_DOUBLE_EQ(c.axes[0].control.positioner.soft_lower_m, -2e-3);
   EXPECT_DOUBLE_EQ(c.axes[0].control.positioner.soft_upper_m, 3e-3);
-  EXPECT_DOUBLE_EQ(c.axes[0].control.planner.resolution_m, c.axes[0].stage.interferometer.resolution_m);
+  EXPECT_DOUBLE_EQ(c.axes[0].control.planner.resolution_m,
+                   c.axes[0].stage.interferometer.resolution_m);
 }
 
 TEST(DaemonConfig, UnknownSectionNamesKeyAndLine) {
-  expect_config_error("daq:\n  driver: sim\nservr:\n  tcp_port: 1\n", {"t.yaml:3", "servr", "unknown section"});
+  expect_config_error("daq:\n  driver: sim\nservr:\n  tcp_port: 1\n",
+                      {"t.yaml:3", "servr", "unknown section"});
 }
 
 TEST(DaemonConfig, UnknownKeyNamesKeyAndLine) {
-  expect_config_error("server:\n  tcp_port: 5025\n  tcp_prot: 1\n", {"t.yaml:3", "server.tcp_prot", "allowed"});
-  expect_config_error("control:\n  calibration:\n    forget: 1\n", {"t.yaml:3", "control.calibration.forget"});
+  expect_config_error("server:\n  tcp_port: 5025\n  tcp_prot: 1\n",
+                      {"t.yaml:3", "server.tcp_prot", "allowed"});
+  expect_config_error("control:\n  calibration:\n    forget: 1\n",
+                      {"t.yaml:3", "control.calibration.forget"});
   expect_config_error("stage:\n  mass: 1\n", {"t.yaml:2", "stage.mass"});
   expect_config_error("daq:\n  sim:\n    clok: wall\n", {"t.yaml:3", "daq.sim.clok"});
 }
@@ -93,47 +97,62 @@ TEST(DaemonConfig, OutOfRangeNamesKeyLineAndRange) {
   expect_config_error("realtime:\n  priority: 100\n", {"t.yaml:2", "realtime.priority", "[1, 99]"});
   expect_config_error("server:\n  tcp_port: 70000\n", {"t.yaml:2", "server.tcp_port", "65535"});
   expect_config_error("control:\n  max_retries: -1\n", {"t.yaml:2", "control.max_retries"});
-  expect_config_error("stage:\n  friction_coefficient: 5\n", {"t.yaml:2", "stage.friction_coefficient"});
+  expect_config_error("stage:\n  friction_coefficient: 5\n",
+                      {"t.yaml:2", "stage.friction_coefficient"});
   expect_config_error("\n\nrealtime:\n  period_s: 1\n", {"t.yaml:4", "realtime.period_s"});
   expect_config_error("logging:\n  level: loud\n", {"t.yaml:2", "logging.level", "allowed"});
-  expect_config_error("control:\n  min_freq_hz: 500\n  max_freq_hz: 100\n", {"control.min_freq_hz"});
+  expect_config_error("control:\n  min_freq_hz: 500\n  max_freq_hz: 100\n",
+                      {"control.min_freq_hz"});
 }
 
 TEST(DaemonConfig, TheTravelIsRequiredAndBoundsTheSoftLimits) {
-  expect_config_error("daq:\n  driver: sim\n", {"stage.travel_m", "missing", "travel_m: [-5e-3, 5e-3]"});
-  expect_config_error("stage:\n  travel_m: [1e-3, -1e-3]\n", {"t.yaml:2", "stage.travel_m", "lower must be below upper"});
-  expect_config_error("stage:\n  travel_m: 5e-3\n", {"t.yaml:2", "stage.travel_m", "[lower, upper]"});
-  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_upper_m: 2e-3\n",
-                      {"t.yaml:4", "control.soft_upper_m", "outside the stage's travel [-0.001, 0.001]"});
+  expect_config_error("daq:\n  driver: sim\n",
+                      {"stage.travel_m", "missing", "travel_m: [-5e-3, 5e-3]"});
+  expect_config_error("stage:\n  travel_m: [1e-3, -1e-3]\n",
+                      {"t.yaml:2", "stage.travel_m", "lower must be below upper"});
+  expect_config_error("stage:\n  travel_m: 5e-3\n",
+                      {"t.yaml:2", "stage.travel_m", "[lower, upper]"});
+  expect_config_error(
+      "stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_upper_m: 2e-3\n",
+      {"t.yaml:4", "control.soft_upper_m", "outside the stage's travel [-0.001, 0.001]"});
   expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: -2e-3\n",
                       {"control.soft_lower_m", "outside"});
-  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: 5e-4\n  soft_upper_m: 5e-4\n",
-                      {"control.soft_lower_m", "must be below soft_upper_m"});
+  expect_config_error(
+      "stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: 5e-4\n  soft_upper_m: 5e-4\n",
+      {"control.soft_lower_m", "must be below soft_upper_m"});
 }
 
 TEST(DaemonConfig, ADuplicateKeyIsRefusedNamingBothLines) {
-  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  max_retries: 3\n  settle_s: 0.01\n  max_retries: 30\n",
-                      {"t.yaml:6", "control.max_retries", "duplicate key", "line 4"});
-  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\nserver:\n  tcp_port: 1\nserver:\n  tcp_port: 2\n",
-                      {"t.yaml:5", "server", "also at line 3"});
+  expect_config_error(
+      "stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  max_retries: 3\n  settle_s: 0.01\n  "
+      "max_retries: 30\n",
+      {"t.yaml:6", "control.max_retries", "duplicate key", "line 4"});
+  expect_config_error(
+      "stage:\n  travel_m: [-1e-3, 1e-3]\nserver:\n  tcp_port: 1\nserver:\n  tcp_port: 2\n",
+      {"t.yaml:5", "server", "also at line 3"});
   // Through the file loader too (idmd --check-config, SIGHUP).
-  const auto file = std::filesystem::temp_directory_path() / ("idmd-dup-" + std::to_string(::getpid()) + ".yaml");
+  const auto file =
+      std::filesystem::temp_directory_path() / ("idmd-dup-" + std::to_string(::getpid()) + ".yaml");
   { std::ofstream(file) << "stage:\n  stroke_m: 2e-5\n  stroke_m: 3e-5\n"; }
   try {
     load_daemon_config(file.string());
     ADD_FAILURE() << "a duplicate key was accepted";
   } catch (const InputError& e) {
-    EXPECT_NE(std::string(e.what()).find(":3: stage.stroke_m: duplicate key: also at line 2"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(":3: stage.stroke_m: duplicate key: also at line 2"),
+              std::string::npos)
+        << e.what();
   }
   std::filesystem::remove(file);
 }
 
 TEST(DaemonConfig, AChunkThatCannotFitTheCaptureIsRefusedAtStart) {
   // 0.1 s at the simulated device's 100 kHz stream is 10001 records; it holds 8192.
-  const std::string text = sim_config("synthetic", "") ;
+  const std::string text = sim_config("synthetic", "");
   std::string bad = text;
-  bad.replace(bad.find("    clock: synthetic\n"), 21, "    clock: synthetic\n    stream_capacity: 8192\n");
-  bad.replace(bad.find("  max_freq_hz: 2000\n"), 20, "  max_freq_hz: 2000\n  max_chunk_s: 0.1\n  min_freq_hz: 20\n");
+  bad.replace(bad.find("    clock: synthetic\n"), 21,
+              "    clock: synthetic\n    stream_capacity: 8192\n");
+  bad.replace(bad.find("  max_freq_hz: 2000\n"), 20,
+              "  max_freq_hz: 2000\n  max_chunk_s: 0.1\n  min_freq_hz: 20\n");
   Daemon daemon(parse_daemon_config(yaml(bad), "t.yaml"));
   try {
     daemon.start();
@@ -164,6 +183,5 @@ TEST(DaemonConfig, DeviceLimitsNarrowToTheOutput) {
   EXPECT_LE(lim.max_freq_hz, 2e4 / 4);
   EXPECT_DOUBLE_EQ(lim.max_stroke_m, 8e-6);
 }
-
 
 }  // namespace

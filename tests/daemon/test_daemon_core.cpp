@@ -21,8 +21,8 @@
 #include "control/calibration.h"
 #include "daemon/config.h"
 #include "daemon/daemon.h"
-#include "drivers/lockfree.h"
 #include "daemon/rt_loop.h"
+#include "drivers/lockfree.h"
 #include "model/yaml_util.h"
 #include "recording/dataset.h"
 #include "tests/counting_new.h"  // counts allocations on the loop thread
@@ -34,7 +34,9 @@ using namespace idm::daemon;
 using idm::model::InputError;
 using namespace idm::daemon::test;
 
-void count_on_this_thread(bool entering) { idm::test_alloc::t_counting = entering; }
+void count_on_this_thread(bool entering) {
+  idm::test_alloc::t_counting = entering;
+}
 
 TEST(AllocationHook, CountsOnTheFlaggedThreadOnly) {
   idm::test_alloc::allocations = 0;
@@ -99,7 +101,9 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingOnModbusEvenThroughALossAndReconnect
   const std::string text =
       "stage:\n  step_correction: 1.0\n  travel_m: [-5e-3, 5e-3]\n"
       "interferometer:\n  max_velocity_m_s: 1\n"
-      "daq:\n  driver: modbus\n  modbus:\n    port: " + std::to_string(port) + "\n    timeout_s: 0.2\n"
+      "daq:\n  driver: modbus\n  modbus:\n    port: " +
+      std::to_string(port) +
+      "\n    timeout_s: 0.2\n"
       "control:\n  freq_step_hz: 50\n  stroke_count: 3\n  min_freq_hz: 20\n  max_chunk_s: 0.05\n"
       "realtime:\n  period_s: 1e-3\n  sched_fifo: false\n  lock_memory: false\n"
       "server:\n  unix_socket: \"\"\n";
@@ -114,7 +118,8 @@ TEST_F(DaemonSim, LoopThreadAllocatesNothingOnModbusEvenThroughALossAndReconnect
   kill(pid, SIGSTOP);
   ASSERT_TRUE(wait_for([&] { return d->status(0).fault == "device_lost"; }, 10));
   kill(pid, SIGCONT);
-  ASSERT_TRUE(wait_for([&] { return d->status(0).state == "IDLE" && d->status(0).position_valid; }, 10));
+  ASSERT_TRUE(
+      wait_for([&] { return d->status(0).state == "IDLE" && d->status(0).position_valid; }, 10));
   ASSERT_TRUE(d->move_relative(0, -10e-6).ok());
   ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
   d->shutdown();
@@ -152,7 +157,8 @@ TEST_F(DaemonSim, StepUsesEveryArgumentOrRefusesIt) {
   const double nan = std::nan("");
   const auto refused = [&](std::int64_t n, double duty, double f, double s, const char* names) {
     const CommandError e = d->step(0, n, duty, f, s);
-    EXPECT_EQ(e.code, error_code::kDataOutOfRange) << n << "," << duty << "," << f << "," << s << ": " << e.text;
+    EXPECT_EQ(e.code, error_code::kDataOutOfRange)
+        << n << "," << duty << "," << f << "," << s << ": " << e.text;
     EXPECT_NE(e.text.find(names), std::string::npos) << e.text;
   };
   refused(10, 1.5, 200, nan, "STEP duty: 1.5");
@@ -198,7 +204,8 @@ TEST_F(DaemonSim, TheTravelBoundsMovesLimitsAndResetKeepsLimitsSetByClients) {
   EXPECT_EQ(d->status(0).bursts, 0u);
   e = d->set_soft_limits(0, -1e-3, 1e3);
   EXPECT_EQ(e.code, error_code::kDataOutOfRange);
-  EXPECT_NE(e.text.find("upper limit 1000 m lies outside the stage's travel"), std::string::npos) << e.text;
+  EXPECT_NE(e.text.find("upper limit 1000 m lies outside the stage's travel"), std::string::npos)
+      << e.text;
   e = d->set_soft_limits(0, 1e-6, 1e-6);
   EXPECT_EQ(e.code, error_code::kDataOutOfRange);
   EXPECT_NE(e.text.find("must be below the upper limit"), std::string::npos) << e.text;
@@ -234,9 +241,10 @@ TEST_F(DaemonSim, SweepsStayInsideTheDataDirectoryAndNeverOverwrite) {
   auto d = make(text);
   d->start();
   ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
-  for (const std::string& dir : {std::string("../outside/x"), outside.string() + "/x",
-                                std::string("link/x"), std::string("link"), std::string("old"),
-                                std::string("a/../../outside"), std::string("./x"), std::string("a//b")}) {
+  for (const std::string& dir :
+       {std::string("../outside/x"), outside.string() + "/x", std::string("link/x"),
+        std::string("link"), std::string("old"), std::string("a/../../outside"), std::string("./x"),
+        std::string("a//b")}) {
     const CommandError e = d->sweep(0, dir, {500}, {0.1}, 1, 2);
     EXPECT_EQ(e.code, error_code::kDataOutOfRange) << dir << ": " << e.text;
   }
@@ -348,7 +356,8 @@ TEST_F(DaemonSim, MissingDeviceIsANoHardwareStartError) {
 }
 
 TEST_F(DaemonSim, ReloadAppliesNewControlSettings) {
-  const auto file = std::filesystem::temp_directory_path() / ("idmd-reload-" + std::to_string(::getpid()) + ".yaml");
+  const auto file = std::filesystem::temp_directory_path() /
+                    ("idmd-reload-" + std::to_string(::getpid()) + ".yaml");
   {
     std::FILE* f = std::fopen(file.c_str(), "w");
     const std::string text = sim_config("wall");
@@ -394,8 +403,8 @@ std::string with_calibration_file(const std::string& path) {
 }
 
 TEST_F(DaemonSim, CalibrationIsSavedAfterTheMoveThatChangedIt) {
-  const auto cal = std::filesystem::temp_directory_path() /
-                   ("idmd-cal-" + std::to_string(::getpid()) + ".txt");
+  const auto cal =
+      std::filesystem::temp_directory_path() / ("idmd-cal-" + std::to_string(::getpid()) + ".txt");
   std::filesystem::remove(cal);
   auto d = make(with_calibration_file(cal.string()));
   d->start();
@@ -405,7 +414,8 @@ TEST_F(DaemonSim, CalibrationIsSavedAfterTheMoveThatChangedIt) {
   // Saved by the housekeeping thread while the daemon runs, not only at shutdown.
   ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(cal); }, 10))
       << "no calibration file after a move";
-  idm::control::Calibration loaded(d->config().axes[0].stage.stage, d->config().axes[0].control.calibration);
+  idm::control::Calibration loaded(d->config().axes[0].stage.stage,
+                                   d->config().axes[0].control.calibration);
   std::string error;
   ASSERT_TRUE(loaded.load(cal.string(), error)) << error;
   EXPECT_GT(loaded.total_updates(), 0u);
@@ -424,10 +434,12 @@ TEST_F(DaemonSim, AFailedCalibrationSaveIsLoggedOnceWithTheFileAndReason) {
   for (double step : {5e-6, -5e-6}) {
     ASSERT_TRUE(d->move_relative(0, step).ok());
     ASSERT_TRUE(wait_for([&] { return d->motion_done(); }, 60));
-    ASSERT_TRUE(wait_for([&] {
-      for (auto& n : d->take_notes()) notes.push_back(n.text);
-      return !notes.empty();
-    }, 10));
+    ASSERT_TRUE(wait_for(
+        [&] {
+          for (auto& n : d->take_notes()) notes.push_back(n.text);
+          return !notes.empty();
+        },
+        10));
   }
   d->shutdown();
   for (auto& n : d->take_notes()) notes.push_back(n.text);
@@ -437,8 +449,7 @@ TEST_F(DaemonSim, AFailedCalibrationSaveIsLoggedOnceWithTheFileAndReason) {
 }
 
 TEST_F(DaemonSim, StatusCarriesTheLastFailedSaveUntilReset) {
-  const auto file = write_config(
-      "lasterr", with_calibration_file("/nonexistent-idmd-dir/cal.txt"));
+  const auto file = write_config("lasterr", with_calibration_file("/nonexistent-idmd-dir/cal.txt"));
   Daemon d(load_daemon_config(file.string()));
   d.start();
   ASSERT_TRUE(wait_for([&] { return d.status(0).position_valid; }, 10));

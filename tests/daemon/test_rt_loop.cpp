@@ -72,7 +72,8 @@ TEST(Seqlock, ReadersNeverSeeATornValue) {
   EXPECT_GT(reads, 0);
 }
 
-// ---- the loop ------------------------------------------------------------------------------------
+// ---- the loop
+// ------------------------------------------------------------------------------------
 
 struct CountingBody : LoopBody {
   std::atomic<std::uint64_t> n{0};

@@ -303,7 +303,8 @@ TEST_F(ServerTest, SystClientsCountsTheTableAsItIsNow) {
     ASSERT_TRUE(waiter.send("MOVE:ABS 2e-6\n*OPC?\n"));
     ASSERT_TRUE(eventually([&] { return fake_.motion_calls() == 1; }));
     shutdown(waiter.fd(), SHUT_WR);  // half-closed, owed its *OPC? reply: draining, no slot
-    EXPECT_TRUE(eventually([&] { return a.ask("SYST:CLI:TABL?").find(" draining=1") != std::string::npos; }));
+    EXPECT_TRUE(eventually(
+        [&] { return a.ask("SYST:CLI:TABL?").find(" draining=1") != std::string::npos; }));
     LineClient b = tcp();
     EXPECT_EQ(b.ask("*IDN?"), "idm,idmd,0,test");
     LineClient extra = tcp();  // the table is full (a, b): a stop-only slot

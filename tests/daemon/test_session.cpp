@@ -105,7 +105,8 @@ INSTANTIATE_TEST_SUITE_P(
             {"STAT?", "STATUS?", "status?"},
             "",
             "state=IDLE done=1 position=0 position_valid=1 target=0 fault=none lower=-0.001 "
-            "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none axis=x referenced=0 device=up "
+            "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none axis=x "
+            "referenced=0 device=up "
             "result=NONE eot=none in_position=0 holding=0 referencing=0 fault_reason=none"},
         CommandCase{
             {"SWEEP /tmp/s,100:300:100,0.1;0.2,3", "sweep \"/tmp/s\", 100:300:100, 0.1;0.2, 3"},

@@ -27,8 +27,8 @@ TEST(AirIndex, ReferenceValues) {
   // 633 nm HeNe, 20 C, 101325 Pa, 50 % RH.
   EXPECT_NEAR(air_refractive_index(AirConditions{20.0, 101325.0, 50.0, 450.0}, 632.991e-9),
               1.000271374, 2e-9);
-  EXPECT_NEAR(air_refractive_index(AirConditions{20.0, 101325.0, 50.0, 450.0}, 633e-9),
-              1.000271374, 2e-9);
+  EXPECT_NEAR(air_refractive_index(AirConditions{20.0, 101325.0, 50.0, 450.0}, 633e-9), 1.000271374,
+              2e-9);
   // Standard air of the equation: 15 C, 101325 Pa, dry, 450 ppm CO2.
   EXPECT_NEAR(air_refractive_index(AirConditions{15.0, 101325.0, 0.0, 450.0}), 1.000276529, 2e-9);
   // The defaults are the first case.
@@ -65,7 +65,7 @@ TEST(AirIndex, DependsOnConditionsTheRightWay) {
 }
 
 TEST(AirIndex, SaturationVapourPressure) {
-  EXPECT_NEAR(saturation_vapour_pressure_pa(20.0), 2339.2, 0.2);    // IAPWS
+  EXPECT_NEAR(saturation_vapour_pressure_pa(20.0), 2339.2, 0.2);  // IAPWS
   EXPECT_NEAR(saturation_vapour_pressure_pa(0.0), 611.2, 0.1);
   EXPECT_NEAR(saturation_vapour_pressure_pa(60.0), 19946.0, 5.0);
   EXPECT_NEAR(saturation_vapour_pressure_pa(-10.0), 259.87, 0.05);  // over ice
@@ -119,7 +119,7 @@ TEST(AirIndex, DeadPathCorrection) {
   const double n_now = air_refractive_index(AirConditions{21.0, 101325.0, 50.0, 450.0});
   // Optical path change since zeroing (when the reflector was at x = 0), in metres of vacuum path.
   const double optical_m = n_now * (dead_path_m + x_m) - n_zero * dead_path_m;
-  const double measured_m = optical_m / n_now;  // what the decoder gives with count_m at n_now
+  const double measured_m = optical_m / n_now;     // what the decoder gives with count_m at n_now
   EXPECT_GT(std::fabs(measured_m - x_m), 150e-9);  // ~0.19 um of apparent travel
   EXPECT_NEAR(dead_path_corrected_m(measured_m, dead_path_m, n_zero, n_now), x_m, 1e-15);
   // No change in air: nothing to correct.
@@ -140,6 +140,5 @@ TEST(AirIndex, DeadPathCorrection) {
   const auto counts = static_cast<std::int64_t>(std::llround(optical_m / vacuum_count_m));
   const PositionSample s = d.decode(encode_position_word(12345 + counts, WordWidth::Bits36));
   ASSERT_TRUE(s.valid());
-  EXPECT_NEAR(dead_path_corrected_m(s.position_m, dead_path_m, n_zero, n_now), x_m,
-              d.count_m());
+  EXPECT_NEAR(dead_path_corrected_m(s.position_m, dead_path_m, n_zero, n_now), x_m, d.count_m());
 }

@@ -2,7 +2,6 @@
 // loopback: bursts, an independent client (mbpoll), timeouts, exception responses, reconnects.
 // Every idm-simdev is a child process on a free port, killed when its test ends.
 #include <gtest/gtest.h>
-
 #include <poll.h>
 #include <signal.h>
 #include <sys/prctl.h>
@@ -97,7 +96,9 @@ Device modbus_device(int port, const std::string& extra = "") {
   return make_backend_from_config(YAML::Load(yaml), "test.yaml");
 }
 
-double count_m() { return PositionWordConfig{}.count_m(); }
+double count_m() {
+  return PositionWordConfig{}.count_m();
+}
 
 // Position of a raw word in metres (count field only; the caller checks the status).
 double position_m(std::uint64_t word) {
@@ -115,8 +116,7 @@ double predicted_travel_m(const TriangleWave& w, double settle_s) {
 // text it printed in `output`.
 std::vector<long> mbpoll_read(int port, int address, int n, std::string& output) {
   const std::string cmd = "mbpoll -m tcp -p " + std::to_string(port) + " -a 1 -0 -t 4 -1 -o 1 -r " +
-                          std::to_string(address) + " -c " + std::to_string(n) +
-                          " 127.0.0.1 2>&1";
+                          std::to_string(address) + " -c " + std::to_string(n) + " 127.0.0.1 2>&1";
   std::vector<long> values;
   output.clear();
   FILE* p = popen(cmd.c_str(), "r");
@@ -132,7 +132,9 @@ std::vector<long> mbpoll_read(int port, int address, int n, std::string& output)
   return values;
 }
 
-bool mbpoll_available() { return std::system("command -v mbpoll > /dev/null 2>&1") == 0; }
+bool mbpoll_available() {
+  return std::system("command -v mbpoll > /dev/null 2>&1") == 0;
+}
 
 }  // namespace
 
@@ -173,10 +175,9 @@ TEST(ModbusRegisterMap, ValuesRoundTripInEveryFormatAndWordOrder) {
 TEST(ModbusRegisterMap, EveryFiniteFloat32EncodesBack) {
   const mb::ScaledField f{0, mb::ValueFormat::Float32, 1.0};
   for (mb::WordOrder order : {mb::WordOrder::HighFirst, mb::WordOrder::LowFirst}) {
-    const std::uint16_t largest[2] = {order == mb::WordOrder::HighFirst ? std::uint16_t{0x7f7f}
-                                                                         : std::uint16_t{0xffff},
-                                      order == mb::WordOrder::HighFirst ? std::uint16_t{0xffff}
-                                                                         : std::uint16_t{0x7f7f}};
+    const std::uint16_t largest[2] = {
+        order == mb::WordOrder::HighFirst ? std::uint16_t{0x7f7f} : std::uint16_t{0xffff},
+        order == mb::WordOrder::HighFirst ? std::uint16_t{0xffff} : std::uint16_t{0x7f7f}};
     const double value = mb::decode_value(f, order, largest);
     EXPECT_EQ(value, static_cast<double>(std::numeric_limits<float>::max()));
     std::uint16_t again[2] = {};
@@ -199,8 +200,8 @@ TEST(ModbusRegisterMap, EveryFiniteFloat32EncodesBack) {
 TEST(ModbusRegisterMap, PositionRecordsCarryCountAndStatus) {
   for (WordWidth width : {WordWidth::Bits32, WordWidth::Bits36}) {
     for (mb::WordOrder order : {mb::WordOrder::HighFirst, mb::WordOrder::LowFirst}) {
-      const std::uint64_t word = encode_position_word(
-          -123456789, width, position_word::kValid | position_word::kGlitch);
+      const std::uint64_t word =
+          encode_position_word(-123456789, width, position_word::kValid | position_word::kGlitch);
       std::uint16_t r[4] = {0, 0, 0, 0};
       mb::encode_position(word, width, order, r);
       EXPECT_EQ(mb::decode_position(r, width, order), word);
@@ -232,8 +233,9 @@ TEST(ModbusConfig, MapAndKeysAreCheckedWithFileAndLine) {
     }
     return std::string();
   };
-  EXPECT_NE(error("daq:\n  modbus:\n    prot: 5\n").find("dev.yaml:3: daq.modbus.prot: unknown key"),
-            std::string::npos);
+  EXPECT_NE(
+      error("daq:\n  modbus:\n    prot: 5\n").find("dev.yaml:3: daq.modbus.prot: unknown key"),
+      std::string::npos);
   EXPECT_NE(error("daq:\n  modbus:\n    registers:\n      status: 4\n").find("overlaps"),
             std::string::npos);
   EXPECT_NE(error("daq:\n  modbus:\n    registers:\n      duty: {format: double}\n")
@@ -243,8 +245,9 @@ TEST(ModbusConfig, MapAndKeysAreCheckedWithFileAndLine) {
                 .find("16-bit address space"),
             std::string::npos);
   const mb::ModbusConfig c = mb::parse_modbus_yaml(
-      YAML::Load("daq:\n  modbus:\n    host: 10.0.0.2\n    port: 1502\n    registers:\n"
-                 "      word_order: low_first\n      freq_hz: {address: 40, format: float32, scale: 1}\n"),
+      YAML::Load(
+          "daq:\n  modbus:\n    host: 10.0.0.2\n    port: 1502\n    registers:\n"
+          "      word_order: low_first\n      freq_hz: {address: 40, format: float32, scale: 1}\n"),
       "dev.yaml");
   EXPECT_EQ(c.host, "10.0.0.2");
   EXPECT_EQ(c.port, 1502);
@@ -374,7 +377,8 @@ TEST(ModbusSimdev, StopEndsALongBurst) {
   Device d = modbus_device(server.port());
   ASSERT_TRUE(d.configure().ok());
   ASSERT_TRUE(d.activate().ok());
-  ASSERT_TRUE(d.output->write_burst_parameters(TriangleWave{100, 0.1, 20e-6, 10000}).ok());  // 100 s
+  ASSERT_TRUE(
+      d.output->write_burst_parameters(TriangleWave{100, 0.1, 20e-6, 10000}).ok());  // 100 s
   ASSERT_TRUE(d.output->start().ok());
   bool done = true;
   ASSERT_TRUE(d.output->is_done(done).ok());

@@ -35,7 +35,8 @@ std::string error_of(const PositionWordConfig& c) {
 }
 
 // Decodes counts (encoded as valid words) one by one and returns the decoded counts.
-std::vector<std::int64_t> decode_counts(PositionDecoder& d, const std::vector<std::int64_t>& counts) {
+std::vector<std::int64_t> decode_counts(PositionDecoder& d,
+                                        const std::vector<std::int64_t>& counts) {
   const PositionEncoder enc(d.config());
   std::vector<std::int64_t> out;
   for (std::int64_t c : counts) {
@@ -362,12 +363,23 @@ TEST(PositionDecoder, BatchDecodeMatchesWordByWord) {
       truths.push_back(truth);
       std::uint64_t word = enc.encode_count(truth);
       switch (fault(rng)) {
-        case 0: word = enc.encode_count(truth + 5000); break;        // spike
-        case 1: word &= ~pw::kValid; break;
-        case 2: word |= pw::kGlitch; break;
-        case 3: word |= pw::kSampleOverrun; break;
-        case 4: word |= std::uint64_t{1} << 47; break;
-        default: break;
+        case 0:
+          word = enc.encode_count(truth + 5000);
+          break;  // spike
+        case 1:
+          word &= ~pw::kValid;
+          break;
+        case 2:
+          word |= pw::kGlitch;
+          break;
+        case 3:
+          word |= pw::kSampleOverrun;
+          break;
+        case 4:
+          word |= std::uint64_t{1} << 47;
+          break;
+        default:
+          break;
       }
       if (i == 15000) word |= pw::kMeasurementSignalLost;  // continuity lost from here on
       words.push_back(word);

@@ -39,8 +39,8 @@ void bring_up(Device& d) {
 // The wave sampled at rate (corners on samples when rate * duty / f is whole), ending at 0.
 std::vector<double> sampled(const TriangleWave& w, double rate_hz) {
   std::vector<double> xi;
-  idm::model::sample(w, rate_hz, 0.0, static_cast<std::size_t>(std::lround(w.duration_s() * rate_hz)) + 1,
-                     xi);
+  idm::model::sample(w, rate_hz, 0.0,
+                     static_cast<std::size_t>(std::lround(w.duration_s() * rate_hz)) + 1, xi);
   xi.back() = 0.0;
   return xi;
 }
@@ -213,8 +213,8 @@ TEST(SimConfig, AirIndexUsesTheWavelengthWhereverItIsWritten) {
       YAML::Load(std::string("interferometer: {") + air + ", lambda_vac_m: 0.9e-6}"), "f.yaml");
   const InterferometerConfig after = parse_interferometer_yaml(
       YAML::Load(std::string("interferometer: {lambda_vac_m: 0.9e-6, ") + air + "}"), "f.yaml");
-  const InterferometerConfig red = parse_interferometer_yaml(
-      YAML::Load(std::string("interferometer: {") + air + "}"), "f.yaml");
+  const InterferometerConfig red =
+      parse_interferometer_yaml(YAML::Load(std::string("interferometer: {") + air + "}"), "f.yaml");
   EXPECT_DOUBLE_EQ(before.word.air_index, after.word.air_index);
   EXPECT_LT(before.word.air_index, red.word.air_index) << "air disperses: n falls with wavelength";
 }
@@ -229,25 +229,34 @@ TEST(SimConfig, DriverSectionsNameTheKeyTheLineAndTheAllowedValues) {
     return std::string("no error");
   };
   std::string e = error_of("daq:\n  sim:\n    faults: {friction_scale: 0}\n");
-  EXPECT_NE(e.find("idmd.yaml:3: daq.sim.faults.friction_scale: 0 is out of range, allowed (0, 100]"),
-            std::string::npos) << e;
+  EXPECT_NE(
+      e.find("idmd.yaml:3: daq.sim.faults.friction_scale: 0 is out of range, allowed (0, 100]"),
+      std::string::npos)
+      << e;
   e = error_of("daq:\n  sim:\n    faults: {beam_lots: true}\n");
-  EXPECT_NE(e.find("daq.sim.faults.beam_lots: unknown key, allowed beam_lost,"), std::string::npos) << e;
+  EXPECT_NE(e.find("daq.sim.faults.beam_lots: unknown key, allowed beam_lost,"), std::string::npos)
+      << e;
   e = error_of("daq:\n  sim:\n    output: volts\n");
-  EXPECT_NE(e.find("idmd.yaml:3: daq.sim.output: unknown output 'volts', allowed samples, parameters"),
-            std::string::npos) << e;
+  EXPECT_NE(
+      e.find("idmd.yaml:3: daq.sim.output: unknown output 'volts', allowed samples, parameters"),
+      std::string::npos)
+      << e;
   e = error_of("interferometer:\n  optics: custom\n");
   EXPECT_NE(e.find("interferometer.divisor: required with optics: custom"), std::string::npos) << e;
   e = error_of("interferometer:\n  divisor: 64\n");
-  EXPECT_NE(e.find("idmd.yaml:2: interferometer.divisor: only with optics: custom"), std::string::npos) << e;
+  EXPECT_NE(e.find("idmd.yaml:2: interferometer.divisor: only with optics: custom"),
+            std::string::npos)
+      << e;
   e = error_of("interferometer:\n  air_index: 1.0003\n  air: {co2_ppm: 400}\n");
   EXPECT_NE(e.find("give either air_index or air conditions, not both"), std::string::npos) << e;
   e = error_of("interferometer:\n  air: {co2_ppm: 4000}\n");
   EXPECT_NE(e.find("interferometer.air.co2_ppm: 4000 is out of range, allowed [0, 2000]"),
-            std::string::npos) << e;
+            std::string::npos)
+      << e;
   e = error_of("interferometer:\n  lambda_vac_m: 1.5e-6\n  air: {co2_ppm: 400}\n");
   EXPECT_NE(e.find("idmd.yaml:3: interferometer: air.lambda_vac_m: 1.5e-6 is out of range"),
-            std::string::npos) << e;
+            std::string::npos)
+      << e;
 }
 
 // ---- bursts through the plant ----
@@ -264,7 +273,8 @@ TEST(SimBackend, SampledBurstMovesTheSliderByTheImpulseModelsAmount) {
   EXPECT_TRUE(done) << "the synthetic clock plays the whole burst at start()";
   const Decoded s = drain(d);
   const double settle = d.sim->config().settle_s;
-  ASSERT_EQ(s.t_s.size(), static_cast<std::size_t>(std::lround((w.duration_s() + settle) * 1e5)) + 1);
+  ASSERT_EQ(s.t_s.size(),
+            static_cast<std::size_t>(std::lround((w.duration_s() + settle) * 1e5)) + 1);
   for (std::uint8_t st : s.status) ASSERT_EQ(st, 0);
   EXPECT_DOUBLE_EQ(s.t_s[0], 0.0);
   EXPECT_NEAR(s.t_s[1], 1e-5, 1e-15);
@@ -295,8 +305,9 @@ TEST(SimBackend, ParameterBurstIsPlayedWithExactCornersBothDirections) {
 }
 
 TEST(SimBackend, SameSeedSameWordsOtherSeedOtherNoise) {
-  const std::string base = "sim: {plant: rigid, noise_m: 5e-9, seed: SEED}\n"
-                           "daq: {sim: {faults: {glitch_probability: 0.05}}}";
+  const std::string base =
+      "sim: {plant: rigid, noise_m: 5e-9, seed: SEED}\n"
+      "daq: {sim: {faults: {glitch_probability: 0.05}}}";
   auto words = [&](const std::string& seed) {
     std::string yaml = base;
     yaml.replace(yaml.find("SEED"), 4, seed);
@@ -447,8 +458,8 @@ TEST(SimFaults, DisconnectFailsEveryCallUntilReconnect) {
   std::size_t n = 0;
   TimedWord buf[4];
   for (const DriverStatus& s :
-       {d.output->start(), d.output->stop(), d.output->is_done(done),
-        d.interferometer->latch(word), d.interferometer->read_stream(buf, 4, n),
+       {d.output->start(), d.output->stop(), d.output->is_done(done), d.interferometer->latch(word),
+        d.interferometer->read_stream(buf, 4, n),
         d.output->write_burst_parameters(TriangleWave{200, 0.1, 20e-6, 2})}) {
     EXPECT_EQ(s.error, DriverError::Disconnected);
     EXPECT_NE(s.message.find("disconnected"), std::string::npos) << s.message;

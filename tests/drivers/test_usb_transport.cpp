@@ -1,8 +1,7 @@
-// The USB bridge transport and backend without a device: libusb error mapping, burst packetizing, parsing of
-// bulk IN transfers (sequence gaps, repeats, dropped flags, corrupt packets), the config, and
-// the errors of opening a bridge that is not there.
+// The USB bridge transport and backend without a device: libusb error mapping, burst packetizing,
+// parsing of bulk IN transfers (sequence gaps, repeats, dropped flags, corrupt packets), the
+// config, and the errors of opening a bridge that is not there.
 #include <gtest/gtest.h>
-
 #include <libusb-1.0/libusb.h>
 
 #include <cmath>
@@ -20,14 +19,14 @@ using namespace idm::drivers::usb;
 
 namespace {
 
-std::vector<std::uint8_t> position_packet(std::uint32_t sequence, std::uint8_t flags,
-                                          std::size_t n, std::uint64_t first_tick) {
+std::vector<std::uint8_t> position_packet(std::uint32_t sequence, std::uint8_t flags, std::size_t n,
+                                          std::uint64_t first_tick) {
   PositionPacket p;
   p.sequence = sequence;
   p.flags = flags;
   for (std::size_t i = 0; i < n; ++i)
-    p.samples.push_back({first_tick + i, encode_position_word(static_cast<std::int64_t>(i),
-                                                              WordWidth::Bits32)});
+    p.samples.push_back(
+        {first_tick + i, encode_position_word(static_cast<std::int64_t>(i), WordWidth::Bits32)});
   std::vector<std::uint8_t> bytes;
   EXPECT_TRUE(encode_position_packet(p, bytes).ok());
   return bytes;
@@ -154,13 +153,15 @@ TEST(UsbTransport, ConfigReadsHexIdsAndRejectsUnknownKeys) {
     parse_usb_yaml(YAML::Load("daq:\n  usb:\n    vendor_id: 0x12345\n"), "u.yaml");
     ADD_FAILURE() << "no error";
   } catch (const idm::model::InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("u.yaml:3: daq.usb.vendor_id"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("u.yaml:3: daq.usb.vendor_id"), std::string::npos)
+        << e.what();
   }
   try {
     parse_usb_yaml(YAML::Load("daq:\n  usb:\n    pid: 3\n"), "u.yaml");
     ADD_FAILURE() << "no error";
   } catch (const idm::model::InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("u.yaml:3: daq.usb.pid: unknown key"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("u.yaml:3: daq.usb.pid: unknown key"), std::string::npos)
+        << e.what();
   }
 }
 
@@ -185,7 +186,6 @@ TEST(UsbTransport, NoBridgeIsAClearErrorAndNothingRunsUnopened) {
 }
 
 // ---- the usb backend without a device ----
-
 
 TEST(UsbBackend, DacCodesAndStreamTimes) {
   OutputCapabilities caps;  // +-10 V, 16 bits, 2.5e5 V/m: one code is 20/65536 V = 1.22 nm

@@ -1,23 +1,23 @@
 // The USB transport and backend through real libusb against an emulated bridge: umockdev's testbed
 // provides the sysfs entries and /dev/bus/usb nodes libusb enumerates, and its ioctl emulation
 // hands every usbdevfs ioctl on the node (SUBMITURB, REAPURB, DISCARDURB, CLAIMINTERFACE, ...) to
-// FakeBridge (usb_fake_bridge.h), which answers the control requests and bulk transfers as drivers/usb/README.md
-// specifies. libusb and UsbTransport run unmodified: enumeration by vid:pid:serial, claiming,
-// string descriptors, control transfers, bulk OUT and IN, timeouts (DISCARDURB), stalls and
-// unplugging (ENODEV) all go through the real code paths.
+// FakeBridge (usb_fake_bridge.h), which answers the control requests and bulk transfers as
+// drivers/usb/README.md specifies. libusb and UsbTransport run unmodified: enumeration by
+// vid:pid:serial, claiming, string descriptors, control transfers, bulk OUT and IN, timeouts
+// (DISCARDURB), stalls and unplugging (ENODEV) all go through the real code paths.
 //
 // umockdev needs libumockdev-preload in LD_PRELOAD. Each test re-runs itself (this binary, with
 // --gtest_filter=the test) with the preload; the re-run's exit status is the test's result. The
 // test is skipped only when the preload cannot be loaded (umockdev not installed).
-#include <gtest/gtest.h>
-
 #include <dlfcn.h>
+#include <gtest/gtest.h>
 #include <link.h>
 #include <linux/usbdevice_fs.h>
 #include <sys/ioctl.h>
 #include <sys/wait.h>
-#include <unistd.h>
 #include <umockdev.h>
+#include <unistd.h>
+#include <yaml-cpp/yaml.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -31,8 +31,6 @@
 #include <mutex>
 #include <string>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
 
 #include "drivers/backends.h"
 #include "drivers/link.h"
@@ -65,7 +63,9 @@ constexpr const char* kPreload = "libumockdev-preload.so.0";
 constexpr const char* kChildEnv = "IDM_UMOCKDEV_CHILD";
 constexpr int kNoUmockdev = 77;
 
-bool preload_active() { return dlopen(kPreload, RTLD_LAZY | RTLD_NOLOAD) != nullptr; }
+bool preload_active() {
+  return dlopen(kPreload, RTLD_LAZY | RTLD_NOLOAD) != nullptr;
+}
 
 // The sanitizer runtime this binary loaded as a shared library (GCC's AddressSanitizer and
 // ThreadSanitizer), or "". It must stay first in LD_PRELOAD, ahead of the umockdev preload, or it
@@ -127,17 +127,17 @@ Run run_under_umockdev() {
   return Run::Done;
 }
 
-#define IDM_UNDER_UMOCKDEV()                                                               \
-  switch (run_under_umockdev()) {                                                          \
-    case Run::Here:                                                                        \
-      break;                                                                               \
-    case Run::NoUmockdev:                                                                  \
+#define IDM_UNDER_UMOCKDEV()                                                                \
+  switch (run_under_umockdev()) {                                                           \
+    case Run::Here:                                                                         \
+      break;                                                                                \
+    case Run::NoUmockdev:                                                                   \
       /* ./idm test installs umockdev, so a preload that fails is a broken set-up, not a */ \
       /* reason to pass: the test fails and says what to install. */                        \
       FAIL() << "umockdev is not usable here: " << kPreload                                 \
-             << " cannot be preloaded (install the Debian package umockdev)";              \
-    case Run::Done:                                                                        \
-      return;                                                                              \
+             << " cannot be preloaded (install the Debian package umockdev)";               \
+    case Run::Done:                                                                         \
+      return;                                                                               \
   }
 
 UsbTransportConfig bridge_config(const std::string& serial) {
@@ -181,10 +181,11 @@ TEST(UsbUmockdev, AWrongSerialIsNoDeviceNamingWhatWasFound) {
   const DriverStatus s = t.open();
   EXPECT_EQ(s.error, DriverError::NoDevice) << s.message;
   // libusb lists the newest device first; the message names both
-  EXPECT_TRUE(s.message.find("open: no USB device 1209:4944 serial C99 (found serials: B12, A17)") !=
-                  std::string::npos ||
-              s.message.find("open: no USB device 1209:4944 serial C99 (found serials: A17, B12)") !=
-                  std::string::npos)
+  EXPECT_TRUE(
+      s.message.find("open: no USB device 1209:4944 serial C99 (found serials: B12, A17)") !=
+          std::string::npos ||
+      s.message.find("open: no USB device 1209:4944 serial C99 (found serials: A17, B12)") !=
+          std::string::npos)
       << s.message;
   EXPECT_FALSE(t.is_open());
 
@@ -222,7 +223,8 @@ TEST(UsbUmockdev, ABurstGoesOutAndItsPositionsComeBackThroughLibusb) {
   UsbTransport t(bridge_config("B12"));
   ASSERT_TRUE(t.open().ok());
   std::vector<std::int32_t> codes(20000);  // three waveform blocks: 8192 + 8192 + 3616
-  for (std::size_t i = 0; i < codes.size(); ++i) codes[i] = static_cast<std::int32_t>(i % 30000) - 15000;
+  for (std::size_t i = 0; i < codes.size(); ++i)
+    codes[i] = static_cast<std::int32_t>(i % 30000) - 15000;
   BridgeConfig bc;
   bc.dac_sample_rate_hz = 100000;
   bc.burst_samples = static_cast<std::uint32_t>(codes.size());
@@ -374,7 +376,8 @@ TEST(UsbUmockdev, TheLinkLosesAnUnpluggedBridgeAndTakesItBackKeepingOrNotItsCoun
     }
   };
   const auto count_of = [&](AxisEvent::Kind kind) {
-    return std::count_if(events.begin(), events.end(), [&](const AxisEvent& e) { return e.kind == kind; });
+    return std::count_if(events.begin(), events.end(),
+                         [&](const AxisEvent& e) { return e.kind == kind; });
   };
   const auto last_valid_m = [&] {
     for (auto it = events.rbegin(); it != events.rend(); ++it)

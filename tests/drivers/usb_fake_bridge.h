@@ -3,6 +3,7 @@
 // drivers/usb/README.md specifies; Testbed puts bridges on umockdev's testbed.
 #pragma once
 
+#include <gtest/gtest.h>
 #include <linux/usbdevice_fs.h>
 #include <sys/ioctl.h>
 #include <umockdev.h>
@@ -19,8 +20,6 @@
 #include <mutex>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
 
 #include "drivers/position_word.h"
 #include "drivers/usb/protocol.h"
@@ -43,12 +42,12 @@ inline std::string hex(const std::vector<std::uint8_t>& bytes) {
 // Device descriptor (1209:4944, strings 1..3, serial = 3), one configuration with interface 0
 // (vendor class) and bulk endpoints 0x01 OUT and 0x81 IN.
 inline std::vector<std::uint8_t> descriptors() {
-  return {0x12, 0x01, 0x00, 0x02, 0x00, 0x00, 0x00, 0x40, 0x09, 0x12, 0x44, 0x49, 0x00,
-          0x01, 0x01, 0x02, 0x03, 0x01,                                      // device
-          0x09, 0x02, 0x20, 0x00, 0x01, 0x01, 0x00, 0x80, 0x32,              // configuration
-          0x09, 0x04, 0x00, 0x00, 0x02, 0xFF, 0x00, 0x00, 0x00,              // interface 0
-          0x07, 0x05, 0x01, 0x02, 0x00, 0x02, 0x00,                          // bulk OUT 0x01
-          0x07, 0x05, 0x81, 0x02, 0x00, 0x02, 0x00};                         // bulk IN 0x81
+  return {0x12, 0x01, 0x00, 0x02, 0x00, 0x00, 0x00, 0x40, 0x09,
+          0x12, 0x44, 0x49, 0x00, 0x01, 0x01, 0x02, 0x03, 0x01,  // device
+          0x09, 0x02, 0x20, 0x00, 0x01, 0x01, 0x00, 0x80, 0x32,  // configuration
+          0x09, 0x04, 0x00, 0x00, 0x02, 0xFF, 0x00, 0x00, 0x00,  // interface 0
+          0x07, 0x05, 0x01, 0x02, 0x00, 0x02, 0x00,              // bulk OUT 0x01
+          0x07, 0x05, 0x81, 0x02, 0x00, 0x02, 0x00};             // bulk IN 0x81
 }
 
 struct Urb {
@@ -97,8 +96,14 @@ class FakeBridge {
   UMockdevIoctlBase* handler() const { return handler_; }
 
   // Fault injection.
-  void unplug() { std::lock_guard lock(mutex_); unplugged_ = true; }
-  void replug() { std::lock_guard lock(mutex_); unplugged_ = false; }
+  void unplug() {
+    std::lock_guard lock(mutex_);
+    unplugged_ = true;
+  }
+  void replug() {
+    std::lock_guard lock(mutex_);
+    unplugged_ = false;
+  }
   // Switched off and on: back at once with its clock and its count started over, unconfigured.
   void power_cycle() {
     std::lock_guard lock(mutex_);
@@ -107,18 +112,48 @@ class FakeBridge {
     position_ = 0;
     status_ = {};
   }
-  void set_claim_busy(bool busy) { std::lock_guard lock(mutex_); claim_busy_ = busy; }
-  void set_mute_bulk_in(bool mute) { std::lock_guard lock(mutex_); mute_in_ = mute; }
-  void set_has_latch(bool has) { std::lock_guard lock(mutex_); has_latch_ = has; }
-  void set_position(std::int64_t count) { std::lock_guard lock(mutex_); position_ = count; }
+  void set_claim_busy(bool busy) {
+    std::lock_guard lock(mutex_);
+    claim_busy_ = busy;
+  }
+  void set_mute_bulk_in(bool mute) {
+    std::lock_guard lock(mutex_);
+    mute_in_ = mute;
+  }
+  void set_has_latch(bool has) {
+    std::lock_guard lock(mutex_);
+    has_latch_ = has;
+  }
+  void set_position(std::int64_t count) {
+    std::lock_guard lock(mutex_);
+    position_ = count;
+  }
 
   // What the bridge saw.
-  std::vector<std::int32_t> codes() const { std::lock_guard lock(mutex_); return codes_; }
-  BridgeConfig config() const { std::lock_guard lock(mutex_); return config_; }
-  std::vector<std::string> requests() const { std::lock_guard lock(mutex_); return requests_; }
-  int claimed() const { std::lock_guard lock(mutex_); return claimed_; }
-  int discarded() const { std::lock_guard lock(mutex_); return discarded_; }
-  std::string errors() const { std::lock_guard lock(mutex_); return errors_; }
+  std::vector<std::int32_t> codes() const {
+    std::lock_guard lock(mutex_);
+    return codes_;
+  }
+  BridgeConfig config() const {
+    std::lock_guard lock(mutex_);
+    return config_;
+  }
+  std::vector<std::string> requests() const {
+    std::lock_guard lock(mutex_);
+    return requests_;
+  }
+  int claimed() const {
+    std::lock_guard lock(mutex_);
+    return claimed_;
+  }
+  int discarded() const {
+    std::lock_guard lock(mutex_);
+    return discarded_;
+  }
+  std::string errors() const {
+    std::lock_guard lock(mutex_);
+    return errors_;
+  }
 
  private:
   static gboolean on_ioctl(UMockdevIoctlBase*, UMockdevIoctlClient* client, gpointer self) {
@@ -132,7 +167,8 @@ class FakeBridge {
     UMockdevIoctlData* arg = umockdev_ioctl_client_get_arg(client);
     const std::size_t size = _IOC_SIZE(request);
     GError* error = nullptr;
-    UMockdevIoctlData* data = size > 0 ? umockdev_ioctl_data_resolve(arg, 0, size, &error) : nullptr;
+    UMockdevIoctlData* data =
+        size > 0 ? umockdev_ioctl_data_resolve(arg, 0, size, &error) : nullptr;
     if (error) {
       errors_ += std::string("resolve: ") + error->message + "; ";
       g_error_free(error);
@@ -152,9 +188,12 @@ class FakeBridge {
             USBDEVFS_CAP_REAP_AFTER_DISCONNECT;
         break;
       case USBDEVFS_CLAIMINTERFACE:
-        if (unplugged_) result = -1, err = ENODEV;
-        else if (claim_busy_) result = -1, err = EBUSY;
-        else claimed_ = static_cast<int>(*reinterpret_cast<unsigned*>(data->data));
+        if (unplugged_)
+          result = -1, err = ENODEV;
+        else if (claim_busy_)
+          result = -1, err = EBUSY;
+        else
+          claimed_ = static_cast<int>(*reinterpret_cast<unsigned*>(data->data));
         break;
       case USBDEVFS_RELEASEINTERFACE:
         claimed_ = -1;
@@ -239,7 +278,9 @@ class FakeBridge {
     }
   }
 
-  static std::uint16_t le16(const std::uint8_t* p) { return static_cast<std::uint16_t>(p[0] | p[1] << 8); }
+  static std::uint16_t le16(const std::uint8_t* p) {
+    return static_cast<std::uint16_t>(p[0] | p[1] << 8);
+  }
 
   void reply(usbdevfs_urb* urb, const std::vector<std::uint8_t>& bytes, std::size_t asked) {
     const std::size_t n = std::min(bytes.size(), asked);
@@ -255,7 +296,10 @@ class FakeBridge {
     if (type == 0x80 && request == 6 && (value >> 8) == 3) {  // GET_DESCRIPTOR string
       const unsigned index = value & 0xFF;
       if (index == 0) return reply(urb, {4, 3, 0x09, 0x04}, length);
-      const std::string text = index == 1 ? "idm" : index == 2 ? "bridge" : index == 3 ? serial_ : "";
+      const std::string text = index == 1   ? "idm"
+                               : index == 2 ? "bridge"
+                               : index == 3 ? serial_
+                                            : "";
       if (text.empty()) return stall(urb);
       std::vector<std::uint8_t> d = {static_cast<std::uint8_t>(2 + 2 * text.size()), 3};
       for (char c : text) d.insert(d.end(), {static_cast<std::uint8_t>(c), 0});
@@ -294,14 +338,13 @@ class FakeBridge {
         return;
       case Request::Stop:
         requests_.push_back("STOP");
-        status_.state = status_.state == BridgeState::Idle ? BridgeState::Idle : BridgeState::Finished;
+        status_.state =
+            status_.state == BridgeState::Idle ? BridgeState::Idle : BridgeState::Finished;
         return;
       case Request::Latch:
         requests_.push_back("LATCH");
         if (!has_latch_) return stall(urb);
-        encode_latch({ticks_now(),
-                      encode_position_word(position_, WordWidth::Bits32)},
-                     out);
+        encode_latch({ticks_now(), encode_position_word(position_, WordWidth::Bits32)}, out);
         return reply(urb, out, length);
     }
     return stall(urb);
@@ -345,7 +388,8 @@ class FakeBridge {
     for (std::uint64_t k = 0; k < n; ++k) {
       const std::uint64_t i = k * dac / pos;
       const std::int64_t count = i < codes_.size() ? codes_[i] : 0;
-      records.push_back({1000 + k * info_.tick_hz / pos, encode_position_word(count, WordWidth::Bits32)});
+      records.push_back(
+          {1000 + k * info_.tick_hz / pos, encode_position_word(count, WordWidth::Bits32)});
     }
     for (std::size_t first = 0; first < records.size() || first == 0; first += 100) {
       PositionPacket p;
@@ -424,8 +468,9 @@ class Testbed {
     bridges_.push_back(std::make_unique<FakeBridge>(serial, static_cast<int>(bridges_.size()) + 2));
     FakeBridge& b = *bridges_.back();
     GError* error = nullptr;
-    const bool added = umockdev_testbed_add_from_string(testbed_, b.record().c_str(), &error) &&
-                       umockdev_testbed_attach_ioctl(testbed_, b.devnode().c_str(), b.handler(), &error);
+    const bool added =
+        umockdev_testbed_add_from_string(testbed_, b.record().c_str(), &error) &&
+        umockdev_testbed_attach_ioctl(testbed_, b.devnode().c_str(), b.handler(), &error);
     EXPECT_TRUE(added) << (error ? error->message : "");
     if (error) g_error_free(error);
     return b;

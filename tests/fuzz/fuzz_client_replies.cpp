@@ -71,7 +71,8 @@ void check(std::uint8_t which, std::string_view text) {
     case 6: {
       parse_key_values(text);
       const ClientTable t = parse_client_table(text);
-      if (t.slots + t.stop_only + t.draining != t.connected) fail("a client table that does not add up", text);
+      if (t.slots + t.stop_only + t.draining != t.connected)
+        fail("a client table that does not add up", text);
       break;
     }
     case 7:

@@ -38,8 +38,8 @@ namespace {
 
 const fs::path& work_dir() {
   static const fs::path dir = [] {
-    const fs::path base = fs::is_directory("/dev/shm") ? fs::path("/dev/shm")
-                                                       : fs::temp_directory_path();
+    const fs::path base =
+        fs::is_directory("/dev/shm") ? fs::path("/dev/shm") : fs::temp_directory_path();
     std::string name = (base / "idm-fuzz-dataset-XXXXXX").string();
     if (!::mkdtemp(name.data())) fail("mkdtemp", name);
     return fs::path(name);
@@ -72,7 +72,8 @@ void round_trip(const Dataset& read, const std::vector<TrialSeries>& series, con
   fs::remove_all(copy);
   {
     idm::recording::DatasetWriter writer(copy.string(), read.stage);
-    for (std::size_t i = 0; i < read.trials.size(); ++i) writer.add_trial(read.trials[i], series[i]);
+    for (std::size_t i = 0; i < read.trials.size(); ++i)
+      writer.add_trial(read.trials[i], series[i]);
   }
   const Dataset again = idm::recording::read_dataset(copy.string());
   if (again.trials.size() != read.trials.size()) fail("round trip: trial count", copy.string());

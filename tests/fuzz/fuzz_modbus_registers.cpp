@@ -71,7 +71,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     if (decode_position(again, width, order) != (word & ~(std::uint64_t{1} << 45)))
       fail("decode(encode(word)) != word without its reserved bits", record, per_record);
     const PositionSample s = decoder.decode(word);
-    if ((word >> 45) & 1 && s.valid()) fail("a malformed record decoded as valid", record, per_record);
+    if ((word >> 45) & 1 && s.valid())
+      fail("a malformed record decoded as valid", record, per_record);
   }
 
   // Scaled values.

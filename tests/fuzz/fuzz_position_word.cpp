@@ -53,8 +53,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   if (size < 5) return 0;
   PositionWordConfig config;
   config.width = (data[0] & 1) ? WordWidth::Bits36 : WordWidth::Bits32;
-  config.optics = (data[0] & 2) ? idm::drivers::Optics::PlaneMirror
-                                : idm::drivers::Optics::SingleBeamLinear;
+  config.optics =
+      (data[0] & 2) ? idm::drivers::Optics::PlaneMirror : idm::drivers::Optics::SingleBeamLinear;
   config.max_velocity_m_s = log_scale(data[1], 1e-4, 10);
   config.max_consecutive_jumps = data[2];
   config.sample_interval_s = log_scale(data[3], 1e-7, 1e-2);
@@ -89,19 +89,20 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       const idm::drivers::PositionSample s = single.decode(w);
       if (s.status != status[i] || !same_double(s.position_m, position[i]))
         fail("the batch decode differs from decode()", i, w);
-      if ((s.status == 0) != std::isfinite(s.position_m)) fail("status and position disagree", i, w);
+      if ((s.status == 0) != std::isfinite(s.position_m))
+        fail("status and position disagree", i, w);
       if (s.status == 0 && s.position_m != static_cast<double>(s.count) * single.count_m())
         fail("position is not count * count_m", i, w);
       if (s.status != 0 && have_previous && s.count != before)
         fail("an invalid sample moved the count", i, w);
-      const bool malformed = !(w & pw::kValid) || (w & (pw::kStatusBits & ~pw::kValid)) ||
-                             (w & reserved);
+      const bool malformed =
+          !(w & pw::kValid) || (w & (pw::kStatusBits & ~pw::kValid)) || (w & reserved);
       if (malformed && s.status == 0) fail("a malformed or flagged word was accepted", i, w);
       if (s.status == 0) {
         if (have_previous) {
           const std::int64_t delta = s.count - previous;
-          const std::uint64_t magnitude = delta < 0 ? 0 - static_cast<std::uint64_t>(delta)
-                                                    : static_cast<std::uint64_t>(delta);
+          const std::uint64_t magnitude =
+              delta < 0 ? 0 - static_cast<std::uint64_t>(delta) : static_cast<std::uint64_t>(delta);
           if (magnitude > (rejected + 1) * single.max_step_counts())
             fail("the count jumped farther than the allowance", i, w);
         }

@@ -13,8 +13,8 @@
 //  * the error queue stays within its capacity; nothing throws out of the Session.
 #include <cstddef>
 #include <cstdint>
-#include <cstdlib>
 #include <cstdio>
+#include <cstdlib>
 #include <string>
 #include <string_view>
 

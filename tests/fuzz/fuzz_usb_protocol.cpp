@@ -74,7 +74,8 @@ void position_transfer(Bytes bytes, std::uint32_t first_sequence) {
       break;
     }
     std::vector<std::uint8_t> encoded;
-    if (!encode_position_packet(packet, encoded).ok() || !equal(bytes.subspan(at, consumed), encoded))
+    if (!encode_position_packet(packet, encoded).ok() ||
+        !equal(bytes.subspan(at, consumed), encoded))
       fail("an accepted position packet does not re-encode to its bytes");
     if (again.check(packet.sequence).error != CodecError::SequenceRepeat) {
       expected_records += packet.samples.size();
@@ -115,17 +116,17 @@ void control_reply(Bytes bytes, CodecStatus (*decode)(Bytes, T&),
   if (!s.ok()) return;
   std::vector<std::uint8_t> encoded;
   const CodecStatus e = encode(value, encoded);
-  if (!e.ok() || !equal(bytes, encoded)) fail("an accepted reply does not re-encode to its bytes", e);
+  if (!e.ok() || !equal(bytes, encoded))
+    fail("an accepted reply does not re-encode to its bytes", e);
 }
 
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   if (size < 5) return 0;
-  const std::uint32_t first_sequence = static_cast<std::uint32_t>(data[1]) |
-                                       static_cast<std::uint32_t>(data[2]) << 8 |
-                                       static_cast<std::uint32_t>(data[3]) << 16 |
-                                       static_cast<std::uint32_t>(data[4]) << 24;
+  const std::uint32_t first_sequence =
+      static_cast<std::uint32_t>(data[1]) | static_cast<std::uint32_t>(data[2]) << 8 |
+      static_cast<std::uint32_t>(data[3]) << 16 | static_cast<std::uint32_t>(data[4]) << 24;
   std::vector<std::uint8_t> bytes(data + 5, data + size);
   if (data[0] & 8) fix_crcs(bytes);
   switch (data[0] & 7) {
@@ -152,7 +153,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       PacketHeader h;
       const CodecStatus s = decode_header(bytes, h);
       check_error(s);
-      if (s.ok() && h.packet_bytes() > bytes.size()) fail("a header whose packet leaves the buffer");
+      if (s.ok() && h.packet_bytes() > bytes.size())
+        fail("a header whose packet leaves the buffer");
       break;
     }
   }

@@ -66,7 +66,9 @@ TEST(Identification, ThePapersBackwardDifferencesAreBiasedAtThisRate) {
   const StageParams s;
   std::vector<double> xi, x;
   held_slider_data(s, 1000.0, 10e-6, 0.2, 0.0, xi, x);
-  const StiffnessEstimate central = identify_stiffness(xi, x, 10e-6, s.counter_mass_kg, 0.995, Differences::Central);
-  const StiffnessEstimate backward = identify_stiffness(xi, x, 10e-6, s.counter_mass_kg, 0.995, Differences::Backward);
+  const StiffnessEstimate central =
+      identify_stiffness(xi, x, 10e-6, s.counter_mass_kg, 0.995, Differences::Central);
+  const StiffnessEstimate backward =
+      identify_stiffness(xi, x, 10e-6, s.counter_mass_kg, 0.995, Differences::Backward);
   EXPECT_LT(std::fabs(central.damping_n_s_m - 230), std::fabs(backward.damping_n_s_m - 230));
 }

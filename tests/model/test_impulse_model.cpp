@@ -73,8 +73,8 @@ TEST(ImpulseModel, ReproducesEveryReferenceRow) {
     EXPECT_NEAR(c.beta, r.beta, 1e-8 * r.beta);
     if (r.region != region_name(c.region)) {
       ++region_mismatches;
-      EXPECT_TRUE(near_boundary(c.beta, r.duty)) << "region " << region_name(c.region)
-                                                 << " expected " << r.region;
+      EXPECT_TRUE(near_boundary(c.beta, r.duty))
+          << "region " << region_name(c.region) << " expected " << r.region;
     }
     EXPECT_NEAR(c.step_ideal_m, r.step_ideal_m, 1e-14 + 1e-8 * std::fabs(r.step_ideal_m));
     EXPECT_NEAR(c.step_m, r.step_eq22_m, 1e-14 + 1e-8 * std::fabs(r.step_eq22_m));
@@ -166,7 +166,8 @@ TEST(ImpulseModel, FirstCycleVelocitiesMatchEventSimulation) {
     }
 }
 
-// Eq 21 from the event simulation: in one-step cells the second and later steps are the steady step.
+// Eq 21 from the event simulation: in one-step cells the second and later steps are the steady
+// step.
 TEST(ImpulseModel, SteadyStepIsTheEventSimulationStep) {
   const StageParams s;
   for (double f : {100.0, 250.0, 400.0})
@@ -182,7 +183,8 @@ TEST(ImpulseModel, StepVanishesAtTheCutoffBoundary) {
   const StageParams s;
   // beta = (1-d) d^2 exactly at f* = sqrt((1-d) d^2 mu g / (ratio S))
   const double d = 0.1;
-  const double f_star = std::sqrt((1 - d) * d * d * s.friction_decel_m_s2() / (s.mass_ratio() * s.stroke_m));
+  const double f_star =
+      std::sqrt((1 - d) * d * d * s.friction_decel_m_s2() / (s.mass_ratio() * s.stroke_m));
   EXPECT_NEAR(steady_step_ideal_m(s, f_star * (1 + 1e-9), d, s.stroke_m), 0.0, 1e-13);
   EXPECT_LT(steady_step_ideal_m(s, f_star * 1.01, d, s.stroke_m), -1e-9);
   EXPECT_EQ(steady_step_ideal_m(s, f_star * 0.99, d, s.stroke_m), 0.0);

@@ -72,7 +72,8 @@ TEST(RigidPlant, SampledTriangleWithinOneNanometrePerCycleEnd) {
       const TriangleWave w{f, duty, s.stroke_m, 8};
       const auto ends = cycle_ends(plant, w, 1e-5, false);  // 100 kHz samples only
       const auto ref = cycle_end_positions_m(s, w);
-      for (std::size_t k = 0; k < ref.size(); ++k) worst = std::max(worst, std::fabs(ends[k] - ref[k]));
+      for (std::size_t k = 0; k < ref.size(); ++k)
+        worst = std::max(worst, std::fabs(ends[k] - ref[k]));
     }
   EXPECT_LT(worst, 1e-9);
 }
@@ -95,7 +96,8 @@ TEST(CompliantPlant, ConvergesToTheRigidPlantAsStiffnessGrows) {
     for (std::size_t k = 0; k < ref.size(); ++k) err = std::max(err, std::fabs(ends[k] - ref[k]));
     errors.push_back(err);
   }
-  // The corner impulse is spread over ~1/omega, so the difference falls as K^-1/2 (sqrt(10) a decade)
+  // The corner impulse is spread over ~1/omega, so the difference falls as K^-1/2 (sqrt(10) a
+  // decade)
   for (std::size_t i = 1; i < errors.size(); ++i) EXPECT_LT(errors[i], errors[i - 1] / 2.5) << i;
   EXPECT_GT(errors.front(), 1e-6);  // the paper's K: microns apart after 6 cycles
   // stiff: the rigid result, 4.7 um / 10^2.5 = 15 nm by the K^-1/2 law (17 nm, the same at 0.1 us
@@ -233,7 +235,8 @@ TEST(CompliantPlant, LongStepsSeeTheRingingThatShortStepsSee) {
         CompliantPlant p(s, FrictionLaw::coulomb(s));
         p.reset(0, 0);
         for (int k = 1; k <= steps; ++k) p.step(fast_s / steps, s.stroke_m * k / steps);
-        for (int k = 1; k <= steps; ++k) p.step(slow_s / steps, s.stroke_m * (1.0 - double(k) / steps));
+        for (int k = 1; k <= steps; ++k)
+          p.step(slow_s / steps, s.stroke_m * (1.0 - double(k) / steps));
         return p.position_m();
       };
       // Lightly damped, each of the stick-slip turns passes a rounding difference on, and steps of

@@ -55,10 +55,14 @@ TEST(EffectLibrary, BadEffectArgumentsNameTheKeyAndRange) {
     }
     return std::string();
   };
-  EXPECT_NE(err("wobble").find("unknown effect 'wobble', allowed amplifier, actuator_compliance"), std::string::npos);
-  EXPECT_NE(err("amplifier:cutof_hz=3").find("amplifier.cutof_hz: unknown parameter, allowed order, cutoff_hz, slew_rate_m_s"),
+  EXPECT_NE(err("wobble").find("unknown effect 'wobble', allowed amplifier, actuator_compliance"),
             std::string::npos);
-  EXPECT_NE(err("amplifier:order=3").find("amplifier.order: 3 is out of range, allowed [1, 2]"), std::string::npos);
+  EXPECT_NE(
+      err("amplifier:cutof_hz=3")
+          .find("amplifier.cutof_hz: unknown parameter, allowed order, cutoff_hz, slew_rate_m_s"),
+      std::string::npos);
+  EXPECT_NE(err("amplifier:order=3").find("amplifier.order: 3 is out of range, allowed [1, 2]"),
+            std::string::npos);
   EXPECT_NE(err("tilt:angle_deg=nan").find("tilt.angle_deg"), std::string::npos);
   EXPECT_NE(err("tilt:angle_deg").find("is not key=value"), std::string::npos);
 }
@@ -79,11 +83,16 @@ effects:
   ASSERT_TRUE(c.has("stribeck"));
   EXPECT_DOUBLE_EQ(c.find("stribeck")->params.at("stribeck_velocity_m_s"), 1e-3);
   EXPECT_EQ(error_of("sim:\n  plant: rigid\n  wobble: 1\n"),
-            "idmd.yaml:3: sim.wobble: unknown key, allowed plant, effects, seed, noise_m, internal_rate_hz, "
+            "idmd.yaml:3: sim.wobble: unknown key, allowed plant, effects, seed, noise_m, "
+            "internal_rate_hz, "
             "start_position_m, end_stops_m, reference_mark_m");
-  EXPECT_NE(error_of("sim:\n  effects:\n    tilt: {angle_deg: 90}\n").find("idmd.yaml:3"), std::string::npos);
-  EXPECT_NE(error_of("sim:\n  plant: impulse\n  effects:\n    tilt: {}\n").find("takes no effects"), std::string::npos);
-  EXPECT_NE(error_of("sim:\n  plant: magic\n").find("idmd.yaml:2: sim.plant: unknown plant 'magic'"), std::string::npos);
+  EXPECT_NE(error_of("sim:\n  effects:\n    tilt: {angle_deg: 90}\n").find("idmd.yaml:3"),
+            std::string::npos);
+  EXPECT_NE(error_of("sim:\n  plant: impulse\n  effects:\n    tilt: {}\n").find("takes no effects"),
+            std::string::npos);
+  EXPECT_NE(
+      error_of("sim:\n  plant: magic\n").find("idmd.yaml:2: sim.plant: unknown plant 'magic'"),
+      std::string::npos);
 }
 
 TEST(SimulatedStage, IdealBurstMatchesTheImpulseModel) {
@@ -151,7 +160,8 @@ TEST(EffectSignatures, ComplianceChangesTheStep) {
 
 TEST(EffectSignatures, StribeckChangesTheStep) {
   SimConfig base, strib;
-  strib.effects.push_back(parse_effect_arg("stribeck:static_over_kinetic=1.5,stribeck_velocity_m_s=1e-3"));
+  strib.effects.push_back(
+      parse_effect_arg("stribeck:static_over_kinetic=1.5,stribeck_velocity_m_s=1e-3"));
   // more friction at low speed: the slow forward slide after the corner is cut short
   const double b = steady_step(base, 200, 0.1), st = steady_step(strib, 200, 0.1);
   EXPECT_GT(std::fabs(st - b), 0.005 * std::fabs(b));
@@ -178,7 +188,8 @@ TEST(EffectSignatures, FrictionSpreadVariesTheStepAlongTheGuide) {
 
 TEST(EffectSignatures, HysteresisAndCreepAndDacChangeTheStep) {
   const double base = steady_step(SimConfig{}, 200, 0.1);
-  for (const char* e : {"hysteresis:ratio=0.15", "creep:per_decade=0.05", "quantization:bits=6,update_rate_hz=20000"}) {
+  for (const char* e : {"hysteresis:ratio=0.15", "creep:per_decade=0.05",
+                        "quantization:bits=6,update_rate_hz=20000"}) {
     SimConfig c;
     c.effects.push_back(parse_effect_arg(e));
     EXPECT_GT(std::fabs(steady_step(c, 200, 0.1) - base), 0.005 * std::fabs(base)) << e;

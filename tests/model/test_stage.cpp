@@ -21,9 +21,9 @@ TEST(Stage, DefaultsAreTable1) {
 }
 
 TEST(Stage, ReadsTheSampleDatasetStageFile) {
-  const StageFile f = load_stage_file(std::string(IDM_SHARED_DIR) +
-                                          "/data/sample-sweep-amplifier/stage.yaml",
-                                      {.strict = false, .require_dataset_keys = true});
+  const StageFile f =
+      load_stage_file(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier/stage.yaml",
+                      {.strict = false, .require_dataset_keys = true});
   EXPECT_DOUBLE_EQ(f.stage.slider_mass_kg, 0.16557);
   EXPECT_DOUBLE_EQ(f.interferometer.resolution_m, 9.8906e-09);
 }

@@ -12,10 +12,10 @@ TEST(Waveform, ShapeAndCorners) {
   EXPECT_DOUBLE_EQ(w.period_s(), 5e-3);
   EXPECT_EQ(w.xi_m(-1e-4), 0.0);
   EXPECT_EQ(w.xi_m(0.0), 0.0);
-  EXPECT_NEAR(w.xi_m(0.5e-3), 20e-6, 1e-18);             // top of the first extension
-  EXPECT_NEAR(w.xi_m(0.25e-3), 10e-6, 1e-18);            // halfway up
-  EXPECT_NEAR(w.xi_m(0.5e-3 + 2.25e-3), 10e-6, 1e-17);   // halfway down
-  EXPECT_NEAR(w.xi_m(5e-3), 0.0, 1e-18);                 // cycle end
+  EXPECT_NEAR(w.xi_m(0.5e-3), 20e-6, 1e-18);            // top of the first extension
+  EXPECT_NEAR(w.xi_m(0.25e-3), 10e-6, 1e-18);           // halfway up
+  EXPECT_NEAR(w.xi_m(0.5e-3 + 2.25e-3), 10e-6, 1e-17);  // halfway down
+  EXPECT_NEAR(w.xi_m(5e-3), 0.0, 1e-18);                // cycle end
   EXPECT_EQ(w.xi_m(15e-3), 0.0);
   EXPECT_EQ(w.xi_m(20e-3), 0.0);
   EXPECT_DOUBLE_EQ(w.rate_m_s(0.1e-3), 20e-6 / 0.5e-3);

@@ -219,7 +219,8 @@ TEST(Amplifier, ParamsValidation) {
     }
     return std::string();
   };
-  EXPECT_EQ(message({1, -3.0, 0.0}), "amplifier.cutoff_hz: -3 is out of range, allowed (0, 1000000]");
+  EXPECT_EQ(message({1, -3.0, 0.0}),
+            "amplifier.cutoff_hz: -3 is out of range, allowed (0, 1000000]");
   EXPECT_EQ(message({3, 3000.0, 0.0}),
             "amplifier.order: 3 is out of range, allowed an integer in [1, 2]");
   EXPECT_EQ(message({1, 3000.0, -1.0}),

@@ -1,11 +1,7 @@
 // idm-model as a user runs it: output formats, a sweep read back by the dataset reader, and bad
 // input answered by one line naming the argument and the allowed range, with exit status 2.
 #include <gtest/gtest.h>
-
-#include "tests/tools/run_tool.h"
-
 #include <sys/wait.h>
-
 #include <unistd.h>
 
 #include <algorithm>
@@ -14,14 +10,17 @@
 #include <sstream>
 #include <string>
 
-#include "recording/dataset.h"
 #include "model/impulse_model.h"
+#include "recording/dataset.h"
+#include "tests/tools/run_tool.h"
 
 namespace {
 
 using Result = idm::test::ToolResult;
 
-Result run(const std::string& args) { return idm::test::run_tool("idm-model", args); }
+Result run(const std::string& args) {
+  return idm::test::run_tool("idm-model", args);
+}
 
 }  // namespace
 
@@ -38,7 +37,10 @@ TEST(IdmModel, RegionsCsvMatchesTheModel) {
     ++rows;
     double f, d, stroke, beta, step;
     char region[32];
-    ASSERT_EQ(std::sscanf(line.c_str(), "%lf,%lf,%lf,%lf,%31[^,],%lf", &f, &d, &stroke, &beta, region, &step), 6) << line;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%lf,%lf,%lf,%lf,%31[^,],%lf", &f, &d, &stroke, &beta,
+                          region, &step),
+              6)
+        << line;
     const auto c = idm::model::impulse_cell(s, f, d, stroke);
     EXPECT_STREQ(region, idm::model::region_name(c.region));
     EXPECT_NEAR(step, c.step_m, 1e-15);
@@ -48,7 +50,8 @@ TEST(IdmModel, RegionsCsvMatchesTheModel) {
 }
 
 TEST(IdmModel, SimulateEndsWhereTheEventSimulationDoes) {
-  const Result r = run("simulate --plant impulse --freq 250 --duty 0.1 --cycles 4 --sample-rate 20000");
+  const Result r =
+      run("simulate --plant impulse --freq 250 --duty 0.1 --cycles 4 --sample-rate 20000");
   ASSERT_EQ(r.status, 0) << r.out;
   EXPECT_EQ(r.out.rfind("t_s,xi_cmd_m,x_m\n", 0), 0u);
   // the row at t = 4 T = 16 ms
@@ -61,10 +64,13 @@ TEST(IdmModel, SimulateEndsWhereTheEventSimulationDoes) {
 }
 
 TEST(IdmModel, SweepIsAReadableDataset) {
-  const auto dir = std::filesystem::temp_directory_path() / ("idm_model_sweep_" + std::to_string(getpid()));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("idm_model_sweep_" + std::to_string(getpid()));
   std::filesystem::remove_all(dir);
-  const Result r = run("sweep --plant mck --effect amplifier:cutoff_hz=3000 --freq 100,400 --duty 0.1,0.9 "
-                       "--trials 2 --cycles 4 --sample-rate 20000 --seed 3 --noise 2e-9 --out " + dir.string());
+  const Result r =
+      run("sweep --plant mck --effect amplifier:cutoff_hz=3000 --freq 100,400 --duty 0.1,0.9 "
+          "--trials 2 --cycles 4 --sample-rate 20000 --seed 3 --noise 2e-9 --out " +
+          dir.string());
   ASSERT_EQ(r.status, 0) << r.out;
   const auto ds = idm::recording::read_dataset(dir.string());
   ASSERT_EQ(ds.trials.size(), 8u);
@@ -72,7 +78,9 @@ TEST(IdmModel, SweepIsAReadableDataset) {
   EXPECT_EQ(t.t_s.front() < 0, true);
   EXPECT_DOUBLE_EQ(ds.trials[0].guide_pos_m, t.x_m.front());
   // a second sweep into the same directory is refused, the first left as it was
-  const Result again = run("sweep --freq 100 --duty 0.1 --trials 1 --cycles 1 --sample-rate 20000 --seed 1 --out " + dir.string());
+  const Result again =
+      run("sweep --freq 100 --duty 0.1 --trials 1 --cycles 1 --sample-rate 20000 --seed 1 --out " +
+          dir.string());
   EXPECT_EQ(again.status, 2);
   EXPECT_NE(again.out.find("already holds a sweep"), std::string::npos);
   EXPECT_EQ(idm::recording::read_dataset(dir.string()).trials.size(), 8u);
@@ -88,9 +96,12 @@ TEST(IdmModel, BadInputIsOneLineNamingTheArgument) {
       {"regions --freq 0 --duty 0.1", "--freq: 0 is out of range, allowed (0, 1e6]\n"},
       {"regions --freq nan --duty 0.1", "--freq: 'nan' is not finite\n"},
       {"regions --freq 100 --duty 0.1 --wobble 1", "--wobble: unknown flag"},
-      {"regions --stage /nonexistent.yaml --freq 100 --duty 0.1", "--stage: /nonexistent.yaml: no such file\n"},
-      {"simulate --freq 100 --duty 0.1 --cycles 2 --sample-rate 1e4 --effect wobble", "unknown effect 'wobble'"},
-      {"simulate --freq 100 --duty 0.1 --cycles 2 --sample-rate 1e4 --plant magic", "--plant: unknown plant 'magic'"},
+      {"regions --stage /nonexistent.yaml --freq 100 --duty 0.1",
+       "--stage: /nonexistent.yaml: no such file\n"},
+      {"simulate --freq 100 --duty 0.1 --cycles 2 --sample-rate 1e4 --effect wobble",
+       "unknown effect 'wobble'"},
+      {"simulate --freq 100 --duty 0.1 --cycles 2 --sample-rate 1e4 --plant magic",
+       "--plant: unknown plant 'magic'"},
       {"simulate --freq 100 --duty 0.1 --sample-rate 1e4", "--cycles: missing (required)\n"},
       {"frobnicate", "unknown command 'frobnicate'"},
   };
@@ -103,7 +114,8 @@ TEST(IdmModel, BadInputIsOneLineNamingTheArgument) {
 }
 
 TEST(IdmModel, NegativeMassInAStageFileNamesTheKey) {
-  const auto path = std::filesystem::temp_directory_path() / ("idm_bad_stage_" + std::to_string(getpid()) + ".yaml");
+  const auto path = std::filesystem::temp_directory_path() /
+                    ("idm_bad_stage_" + std::to_string(getpid()) + ".yaml");
   {
     std::FILE* f = std::fopen(path.c_str(), "w");
     std::fputs("stage:\n  slider_mass_kg: 0.2\n  counter_mass_kg: -0.05\n", f);
@@ -111,7 +123,8 @@ TEST(IdmModel, NegativeMassInAStageFileNamesTheKey) {
   }
   const Result r = run("regions --stage " + path.string() + " --freq 100 --duty 0.1");
   EXPECT_EQ(r.status, 2);
-  EXPECT_NE(r.out.find(path.string() + ":3: stage.counter_mass_kg: -0.05 is out of range, allowed (0, 1000]"),
+  EXPECT_NE(r.out.find(path.string() +
+                       ":3: stage.counter_mass_kg: -0.05 is out of range, allowed (0, 1000]"),
             std::string::npos)
       << r.out;
   std::filesystem::remove(path);
