@@ -10,12 +10,16 @@
 
 namespace idm::control {
 
-const model::ParamTable<PositionerConfig>& positioner_params() {
-  using model::integer;
-  using model::real;
-  using model::with_default;
-  using P = PositionerConfig;
-  static const model::ParamTable<P> table({
+namespace {
+
+using model::integer;
+using model::real;
+using model::with_default;
+using P = PositionerConfig;
+
+// The window, the corrections, the stall, the chunks, the readings and the soft limits.
+std::vector<model::Param<P>> move_params() {
+  return {
       real<P>(
           "tolerance_m", "m", {0, 1e-3},
           "the in-position window (RDBD, MOVE:WINDow); 0: one count (the loop aims for half a "
@@ -51,6 +55,12 @@ const model::ParamTable<PositionerConfig>& positioner_params() {
                        "soft limit (HLM): a move or STEP ending above is refused",
                        [](auto& c) -> auto& { return c.soft_upper_m; }),
                    "stage.travel_m"),
+  };
+}
+
+// The approach and the step ladder, and how a motion ends: dwell, timeout, end of travel, hold.
+std::vector<model::Param<P>> ladder_and_end_params() {
+  return {
       real<P>(
           "approach_uncertainty", "1", {0, 10},
           "share by which an approach burst may exceed its prediction",
@@ -103,7 +113,13 @@ const model::ParamTable<PositionerConfig>& positioner_params() {
           "hold_window_m", "m", {0, 1e-3},
           "a hold corrects when a reading leaves this window (0: the move window; HOLD:WINDow)",
           [](auto& c) -> auto& { return c.hold_window_m; }),
-  });
+  };
+}
+
+}  // namespace
+
+const model::ParamTable<PositionerConfig>& positioner_params() {
+  static const model::ParamTable<P> table(model::join<P>({move_params(), ladder_and_end_params()}));
   return table;
 }
 
