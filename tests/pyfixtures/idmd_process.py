@@ -218,6 +218,27 @@ class Idmd(ChildProcess):
         return RawLine(self.port)
 
 
+def ask(daemon, line):
+    """One query on a fresh plain connection: (reply, SYST:ERR?'s reply)."""
+    raw = daemon.raw()
+    try:
+        return raw.ask(line), raw.ask("SYST:ERR?")
+    finally:
+        raw.close()
+
+
+def send(daemon, line):
+    """One command on a fresh plain connection; asserts that it queued no error."""
+    raw = daemon.raw()
+    try:
+        raw.f.write(line + "\n")
+        raw.f.flush()
+        err = raw.ask("SYST:ERR?")
+        assert err == '0,"No error"', "%s: %s" % (line, err)
+    finally:
+        raw.close()
+
+
 @contextlib.contextmanager
 def idmd_in_temp_dir(prefix, idmd_class=Idmd, **kwargs):
     """An idmd (idmd_class(tmp, **kwargs); `config` may be a function of tmp) in a fresh

@@ -14,25 +14,8 @@ import tango
 from conftest import TangoServer, fixtures, wait_for
 
 
-def ask(daemon, line):
-    """One query on a fresh plain connection: (reply, error) with error the SYST:ERR? reply."""
-    raw = daemon.raw()
-    try:
-        reply = raw.ask(line)
-        return reply, raw.ask("SYST:ERR?")
-    finally:
-        raw.close()
-
-
-def send(daemon, line):
-    raw = daemon.raw()
-    try:
-        raw.f.write(line + "\n")
-        raw.f.flush()
-        err = raw.ask("SYST:ERR?")
-        assert err == '0,"No error"', "%s: %s" % (line, err)
-    finally:
-        raw.close()
+ask = fixtures.ask
+send = fixtures.send
 
 
 def resolution(daemon):

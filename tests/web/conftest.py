@@ -69,24 +69,8 @@ def wait_for(what, predicate, timeout=30, period=0.05):
     pytest.fail("timed out waiting for %s (last: %r)" % (what, last))
 
 
-def ask(daemon, line):
-    """One query on a fresh plain connection: (reply, SYST:ERR?'s reply)."""
-    raw = daemon.raw()
-    try:
-        return raw.ask(line), raw.ask("SYST:ERR?")
-    finally:
-        raw.close()
-
-
-def send(daemon, line):
-    raw = daemon.raw()
-    try:
-        raw.f.write(line + "\n")
-        raw.f.flush()
-        err = raw.ask("SYST:ERR?")
-        assert err == '0,"No error"', "%s: %s" % (line, err)
-    finally:
-        raw.close()
+ask = fixtures.ask
+send = fixtures.send
 
 
 def wait_done(daemon, timeout=60):
