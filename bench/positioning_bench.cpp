@@ -8,6 +8,8 @@
 // two sd), interferometer lambda/64 with 2 nm rms noise; 100 kHz output and stream.
 //
 //   positioning_bench [--quick] [--moves N] [--seed S]
+//
+// The plant and the peers: positioning_rig.h.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -20,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "bench/positioning_rig.h"
 #include "control/calibration.h"
 #include "control/positioner.h"
 #include "daemon/sim_axis.h"
@@ -28,31 +31,14 @@
 
 using namespace idm;
 using namespace idm::control;
+using namespace idm::bench;
 
 namespace {
-
-constexpr double kSoftLimitM = 8e-3;
-
-drivers::sim::SimDeviceConfig realistic_device(std::uint64_t seed) {
-  drivers::sim::SimDeviceConfig c;
-  c.sim.plant = model::PlantKind::MassDamperSpring;
-  c.sim.effects = {
-      model::complete_effect({"amplifier", {{"cutoff_hz", 3000}}}, "bench"),
-      model::complete_effect({"stribeck", {{"static_over_kinetic", 1.15}}}, "bench"),
-      model::complete_effect({"friction_spread", {{"relative_sd", 0.05}}}, "bench"),
-  };
-  c.sim.seed = seed;
-  c.sim.noise_m = 2e-9;
-  c.interferometer.word.max_velocity_m_s = 1.0;  // above the slider's fastest velocity jump
-  c.stream_rate_hz = 1e5;
-  return c;
-}
 
 // The operator's one measurement of the stage (used by both sides): the mean step of a 200-cycle
 // burst each way at the baseline's cell (200 Hz, duty 0.9 / 0.1, full stroke), m per cycle.
 double g_uncertainty = 0.15;
 double g_max_freq_hz = 2000;
-bool g_trace = false;        // --trace: one line per move of ours, and the ladder at the end
 double g_dwell_s = 0;        // --dwell S: ours, MOVE:DWELl
 double g_window_counts = 0;  // --window W: ours, MOVE:WINDow in counts (0: half a count)
 double uncertainty() {
@@ -97,130 +83,6 @@ RegionMapConfig map_config(const StepMeasurement& m) {
   c.limits.min_stroke_m = 0.1e-6;
   c.grid = RegionGrid::covering(c.limits, 10, 0.005, 6);
   return c;
-}
-
-struct MoveOutcome {
-  bool within_count = false;       // by the interferometer reading
-  bool within_count_true = false;  // by the simulated true position
-  bool within_count_fresh =
-      false;  // by a fresh reading 5 ms after done (what POS? after *OPC? sees)
-  bool within_count_fresh_true = false;  // by the true position then
-  bool not_ok = false;                   // ours: MOVE:RESult? other than OK
-  bool faulted = false;
-  double time_s = 0;
-  std::uint64_t cycles = 0;
-  std::uint64_t bursts = 0;
-  std::uint32_t corrections = 0;
-  double overshoot_m = 0;  // furthest past the target along the move, at rest after a burst
-  double step_m = 0;  // the step size the side works with (ours: the final rung's learned step)
-  // A chunk that started short of the target and ended past it by more than one of its own steps:
-  // the planner committed more than one cycle past the target. Its step: the larger of its
-  // displacement / its cycles and the steady step it was planned with (a burst whose first cycle
-  // does not move, offset about -step, moves less than a step per cycle on average), at least
-  // one count. The strict count (displacement / cycles alone) is kept beside it.
-  bool overshot_by_more_than_step = false;
-  bool overshot_by_more_than_mean_step = false;
-  double worst_pass_in_steps = 0;  // the largest pass past the target, in steps of the chunk
-  MotionFault fault = MotionFault::None;
-  bool left_soft_limits = false;
-};
-
-struct Summary {
-  std::vector<MoveOutcome> moves;
-  double wall_s = 0;
-};
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const double pos = q * static_cast<double>(v.size() - 1);
-  const std::size_t i = static_cast<std::size_t>(pos);
-  const double f = pos - static_cast<double>(i);
-  return i + 1 < v.size() ? v[i] * (1 - f) + v[i + 1] * f : v[i];
-}
-
-// Runs one move to rest, tracking the true position after every tick (overshoot, soft limits).
-template <class Start>
-MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m, Start&& start) {
-  Positioner& p = *axis.positioner;
-  drivers::sim::SimBackend& sim = *axis.sim;
-  MoveOutcome r;
-  const double sign = target_m >= start_m ? 1.0 : -1.0;
-  const double t0 = sim.now_s();
-  const std::uint64_t cycles0 = p.status().cycles, bursts0 = p.status().bursts;
-  // Chunks are told apart by the positioner's burst counter; a chunk runs from the rest position
-  // before the tick that started it to the rest position before the next one (or the move's end).
-  double x_before_tick = sim.true_position_m();
-  double chunk_x0 = x_before_tick;
-  std::uint64_t chunk_cycles = 0, bursts_seen = bursts0, cycles_seen = cycles0;
-  double chunk_planned_step_m = 0;
-  const double count_m = p.count_m();
-  auto close_chunk = [&](double x_end) {
-    if (chunk_cycles == 0) return;
-    const double moved = x_end - chunk_x0;
-    const double dir = moved >= 0 ? 1.0 : -1.0;
-    const double mean_step =
-        std::max(count_m, std::fabs(moved) / static_cast<double>(chunk_cycles));
-    const double step = std::max(mean_step, chunk_planned_step_m);
-    const double pass = dir * (x_end - target_m);
-    if (dir * (chunk_x0 - target_m) < 0 && pass > 0) {
-      r.worst_pass_in_steps = std::max(r.worst_pass_in_steps, pass / step);
-      if (pass > mean_step * (1 + 1e-9)) r.overshot_by_more_than_mean_step = true;
-      if (pass > step * (1 + 1e-9)) {
-        r.overshot_by_more_than_step = true;
-        if (g_trace)
-          std::printf(
-              "  chunk of %llu cycles moved %.1f nm and passed the target by %.1f nm (%.2f "
-              "steps)\n",
-              static_cast<unsigned long long>(chunk_cycles), moved * 1e9, pass * 1e9, pass / step);
-      }
-    }
-  };
-  auto observe = [&] {
-    const double x = sim.true_position_m();
-    if (p.status().bursts != bursts_seen) {  // a chunk started in this tick
-      close_chunk(x_before_tick);
-      chunk_x0 = x_before_tick;
-      chunk_cycles = p.status().cycles - cycles_seen;
-      chunk_planned_step_m = p.status().closed_loop && !p.last_plan().bursts.empty()
-                                 ? std::fabs(p.last_plan().bursts.front().step_m)
-                                 : 0.0;
-      bursts_seen = p.status().bursts;
-      cycles_seen = p.status().cycles;
-    }
-    r.overshoot_m = std::max(r.overshoot_m, sign * (x - target_m));
-    if (std::fabs(x) > kSoftLimitM) r.left_soft_limits = true;
-    x_before_tick = x;
-  };
-  start();
-  axis.tick();
-  observe();
-  while (!p.at_rest() && sim.now_s() - t0 < 600) {
-    sim.advance_s(1e-4);
-    axis.tick();
-    observe();
-  }
-  close_chunk(sim.true_position_m());
-  r.faulted = p.status().state == MotionState::Fault;
-  r.fault = p.status().fault;
-  r.time_s = sim.now_s() - t0;
-  r.cycles = p.status().cycles - cycles0;
-  r.bursts = p.status().bursts - bursts0;
-  return r;
-}
-
-void finish(MoveOutcome& r, daemon::SimAxis& rig, double target_m) {
-  const Positioner& p = *rig.positioner;
-  const drivers::sim::SimBackend& sim = *rig.sim;
-  r.within_count =
-      p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
-  r.within_count_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
-  r.not_ok = p.status().kind == MotionKind::Move && p.status().result != control::MoveResult::Ok;
-  // A moment later, as a client's POS? after *OPC?: the latest single reading at rest.
-  rig.run_for(5e-3);
-  r.within_count_fresh =
-      p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
-  r.within_count_fresh_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
 }
 
 Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map,
@@ -271,150 +133,6 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
       }
     }
   }
-  return s;
-}
-
-// ---- the two peers: open-loop steps of one cell, judged by the reading ----
-
-// A peer's rig: whole bursts (max_chunk_s 10: 2,000 cycles at most, the sim's 2^20 samples), and a
-// capture that holds a whole 10 s burst.
-std::unique_ptr<daemon::SimAxis> peer_rig(std::uint64_t seed, const RegionMap& map) {
-  PositionerConfig pc;
-  pc.max_chunk_s = 10.0;
-  drivers::sim::SimDeviceConfig device = realistic_device(seed);
-  device.stream_capacity = std::size_t{1} << 21;
-  return std::make_unique<daemon::SimAxis>(map, device, pc);
-}
-
-// The step per cycle of a 200-cycle burst `dir` (+1 / -1) of the cell, as an operator measures it
-// once (the motor record's MRES).
-double measured_step_m(daemon::SimAxis& rig, int dir, double freq_hz, double duty,
-                       double stroke_m) {
-  Positioner& p = *rig.positioner;
-  const double before = p.status().position_m;
-  p.step_open_loop(dir * 200, duty, freq_hz, stroke_m);
-  rig.run();
-  return std::fabs(p.status().position_m - before) / 200;
-}
-
-// One burst of a peer's move: its passes and faults join the move's outcome.
-void play_part(daemon::SimAxis& rig, double start_m, double target_m, MoveOutcome& r,
-               const std::function<void()>& start) {
-  Positioner& p = *rig.positioner;
-  const MoveOutcome part = run_move(rig, start_m, target_m, start);
-  r.overshoot_m = std::max(r.overshoot_m, part.overshoot_m);
-  r.overshot_by_more_than_step = r.overshot_by_more_than_step || part.overshot_by_more_than_step;
-  r.overshot_by_more_than_mean_step =
-      r.overshot_by_more_than_mean_step || part.overshot_by_more_than_mean_step;
-  r.worst_pass_in_steps = std::max(r.worst_pass_in_steps, part.worst_pass_in_steps);
-  r.left_soft_limits = r.left_soft_limits || part.left_soft_limits;
-  if (part.faulted) {
-    r.faulted = true;
-    p.reset_fault();
-    rig.tick();
-  }
-}
-
-// Every target in turn: `approach(target, start, outcome)` plays the peer's bursts; the time,
-// cycles and bursts are counted around it and the move judged at rest.
-Summary run_peer(daemon::SimAxis& rig, const std::vector<double>& targets, double step_m,
-                 const std::function<void(double, double, MoveOutcome&)>& approach) {
-  Summary s;
-  Positioner& p = *rig.positioner;
-  const auto w0 = std::chrono::steady_clock::now();
-  for (double target : targets) {
-    const double start = rig.sim->true_position_m();
-    MoveOutcome r = run_move(rig, start, target, [] {});
-    const double t0 = rig.sim->now_s();
-    const std::uint64_t cycles0 = p.status().cycles, bursts0 = p.status().bursts;
-    r.corrections = 0;  // the peer's own retries
-    approach(target, start, r);
-    r.time_s = rig.sim->now_s() - t0;
-    r.cycles = p.status().cycles - cycles0;
-    r.bursts = p.status().bursts - bursts0;
-    r.step_m = step_m;
-    finish(r, rig, target);
-    s.moves.push_back(r);
-  }
-  s.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
-  return s;
-}
-
-// The baseline: fixed steps of (200 Hz, duty 0.1 / 0.9, full stroke) whose size the operator
-// measured once (a 200-cycle burst each way, as one sets the motor record's MRES); a move asks
-// for round(error / step) steps, reads the encoder and retries while outside the deadband (one
-// count), up to 10 retries; it gives up when the error rounds to zero steps.
-Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map) {
-  const std::unique_ptr<daemon::SimAxis> rig = peer_rig(seed, map);
-  Positioner& p = *rig->positioner;
-  const double freq = 200, duty_positive = 0.9, stroke = 20.35e-6;
-  double step_m[2] = {0, 0};  // [0] negative, [1] positive, measured
-  for (int dir : {1, -1})
-    step_m[dir > 0 ? 1 : 0] = measured_step_m(*rig, dir, freq, duty_positive, stroke);
-  const auto approach = [&](double target, double start, MoveOutcome& r) {
-    for (int attempt = 0; attempt <= 10; ++attempt) {
-      const double error = target - p.status().position_m;
-      if (std::fabs(error) <= p.count_m()) break;
-      const int dir = error > 0 ? 1 : -1;
-      const double n = std::round(std::fabs(error) / step_m[dir > 0 ? 1 : 0]);
-      if (n < 1) break;  // the error rounds to no step: the motor record stops here
-      if (attempt > 0) ++r.corrections;
-      for (double left = n; left > 0;) {
-        const double burst = std::min(left, 2000.0);
-        left -= burst;
-        play_part(*rig, start, target, r, [&] {
-          p.step_open_loop(static_cast<std::int64_t>(dir * burst), duty_positive, freq, stroke);
-        });
-      }
-    }
-  };
-  const Summary s = run_peer(*rig, targets, std::max(step_m[0], step_m[1]), approach);
-  std::printf("baseline steps measured: +%.4g um, -%.4g um per cycle\n", step_m[1] * 1e6,
-              step_m[0] * 1e6);
-  return s;
-}
-
-// A vendor-style closed loop: the same cell (200 Hz, duty 0.1 / 0.9), full amplitude while the
-// error is more than two full steps (bursts of floor(error / step) - 1 cycles), then one cycle
-// at a time with the amplitude lowered as the error falls: stroke = S_cut + error / slope, from
-// the step measured at full and at half stroke (the step is linear in the stroke above the
-// cut-off stroke S_cut, eq 22). Done within one count; at most 200 cycles of fine approach.
-Summary run_vendor(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map) {
-  const std::unique_ptr<daemon::SimAxis> rig = peer_rig(seed, map);
-  Positioner& p = *rig->positioner;
-  const double freq = 200, duty_positive = 0.9, full = 20.35e-6;
-  const double min_stroke = map.config().limits.min_stroke_m;
-  double step_full[2] = {0, 0}, step_half[2] = {0, 0};
-  for (int dir : {1, -1}) {
-    step_full[dir > 0 ? 1 : 0] = measured_step_m(*rig, dir, freq, duty_positive, full);
-    step_half[dir > 0 ? 1 : 0] = measured_step_m(*rig, dir, freq, duty_positive, 0.5 * full);
-  }
-  const auto approach = [&](double target, double start, MoveOutcome& r) {
-    for (int fine = 0; fine < 200;) {
-      const double error = target - p.status().position_m;
-      if (std::fabs(error) <= p.count_m()) break;
-      const int dir = error > 0 ? 1 : -1;
-      const int d = dir > 0 ? 1 : 0;
-      const double slope = (step_full[d] - step_half[d]) / (0.5 * full);
-      const double s_cut = std::max(min_stroke, full - step_full[d] / std::max(slope, 1e-12));
-      double stroke = full;
-      std::int64_t n = 1;
-      if (std::fabs(error) > 2 * step_full[d]) {
-        n = static_cast<std::int64_t>(
-            std::min(2000.0, std::floor(std::fabs(error) / step_full[d]) - 1));
-      } else {
-        stroke = std::clamp(s_cut + std::fabs(error) / std::max(slope, 1e-12), min_stroke, full);
-        ++fine;
-      }
-      play_part(*rig, start, target, r,
-                [&] { p.step_open_loop(dir * n, duty_positive, freq, stroke); });
-    }
-  };
-  const Summary s = run_peer(*rig, targets, std::max(step_full[0], step_full[1]), approach);
-  std::printf(
-      "vendor steps measured: full stroke +%.4g / -%.4g um, half stroke +%.4g / -%.4g um per "
-      "cycle\n",
-      step_full[1] * 1e6, step_full[0] * 1e6, step_half[1] * 1e6, step_half[0] * 1e6);
   return s;
 }
 

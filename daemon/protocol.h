@@ -210,6 +210,9 @@ class Session {
   void push(CommandError error);
   void notice_motion_end();
   void started_motion(const CommandError& result);
+  // MOVE:ABSolute / MOVE:RELative: the number argument (`what` in its error), then `move`.
+  CommandError start_move(const Args& args, std::string_view what,
+                          CommandError (Instrument::*move)(int, double));
 
   // Instrument commands.
   CommandError idn(const Args&, std::string& reply);

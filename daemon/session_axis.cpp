@@ -62,11 +62,7 @@ CommandError Session::position(const Args&, std::string& reply) {
 }
 
 CommandError Session::move_absolute(const Args& args, std::string&) {
-  double target = 0;
-  if (CommandError e = number_arg(args, 0, "MOVE:ABSolute target", target); !e.ok()) return e;
-  CommandError e = instrument_error(instrument_.move_absolute(axis_, target));
-  started_motion(e);
-  return e;
+  return start_move(args, "MOVE:ABSolute target", &Instrument::move_absolute);
 }
 
 CommandError Session::move_target(const Args&, std::string& reply) {
@@ -75,9 +71,14 @@ CommandError Session::move_target(const Args&, std::string& reply) {
 }
 
 CommandError Session::move_relative(const Args& args, std::string&) {
-  double distance = 0;
-  if (CommandError e = number_arg(args, 0, "MOVE:RELative distance", distance); !e.ok()) return e;
-  CommandError e = instrument_error(instrument_.move_relative(axis_, distance));
+  return start_move(args, "MOVE:RELative distance", &Instrument::move_relative);
+}
+
+CommandError Session::start_move(const Args& args, std::string_view what,
+                                 CommandError (Instrument::*move)(int, double)) {
+  double value_m = 0;
+  if (CommandError e = number_arg(args, 0, what, value_m); !e.ok()) return e;
+  CommandError e = instrument_error((instrument_.*move)(axis_, value_m));
   started_motion(e);
   return e;
 }

@@ -51,6 +51,48 @@ class Sleep:
         self.seconds = seconds
 
 
+class PlanRun:
+    """One plan being run by a client that performs its ops: ``op`` is the op to perform now;
+    :meth:`send` (its result) or :meth:`throw` (its exception) advance the plan. When the plan
+    has returned, ``running`` is False and ``value`` is what it returned."""
+
+    __slots__ = ("plan", "op", "running", "value")
+
+    def __init__(self, plan: Plan):
+        self.plan = plan
+        self.op: Any = None
+        self.running = True
+        self.value: Any = None
+        self._advance(lambda: next(plan))
+
+    def send(self, result: Any) -> None:
+        self._advance(lambda: self.plan.send(result))
+
+    def throw(self, exc: BaseException) -> None:
+        self._advance(lambda: self.plan.throw(exc))
+
+    def _advance(self, step: Callable[[], Any]) -> None:
+        try:
+            self.op = step()
+        except StopIteration as stop:
+            self.running = False
+            self.value = stop.value
+
+
+def run_plan(plan: Plan, perform: Callable[[Any], Any]) -> Any:
+    """Runs a plan synchronously: ``perform(op)`` gives each op's result; an exception it
+    raises is thrown into the plan (which may handle it). Returns the plan's value."""
+    run = PlanRun(plan)
+    while run.running:
+        try:
+            result = perform(run.op)
+        except Exception as exc:
+            run.throw(exc)
+            continue
+        run.send(result)
+    return run.value
+
+
 def is_query(line: str) -> bool:
     """The daemon answers a line with exactly one reply when its first word ends in ``?``."""
     words = line.split(None, 1)
@@ -375,15 +417,24 @@ def p_check_result(sess: Session, prefix: str, command: str, tolerance: Optional
     return None
 
 
+def p_motion(sess: Session, prefix: str, command: str, wait: bool, timeout: Optional[float],
+             poll: float) -> Plan:
+    """Sends a command that starts motion; with ``wait``, waits until the axis is at rest (a
+    fault the motion ended in raised, see :func:`p_wait_axis`). Returns whether it waited."""
+    mark = sess.fault_seq
+    yield Line(command)
+    if not wait:
+        return False
+    yield from p_wait_axis(prefix, timeout, poll, command, faults=(sess, mark))
+    return True
+
+
 def p_move(sess: Session, key: AxisKey, value: Any, relative: bool, wait: bool,
            timeout: Optional[float], poll: float, tolerance: Optional[float]) -> Plan:
     prefix = yield from p_prefix(sess, key)
     command = prefix + ("MOVE:RELative " if relative else "MOVE:ABSolute ") + fmt(value, "target")
-    mark = sess.fault_seq
-    yield Line(command)
-    if not wait:
+    if not (yield from p_motion(sess, prefix, command, wait, timeout, poll)):
         return None
-    yield from p_wait_axis(prefix, timeout, poll, command, faults=(sess, mark))
     yield from p_check_result(sess, prefix, command, tolerance)
     position = yield from p_number(prefix + "POSition?")
     return position
@@ -402,11 +453,8 @@ def p_step(sess: Session, key: AxisKey, cycles: Any, duty: Any, freq_hz: Any, st
             args.append(fmt(stroke_m, "stroke_m"))
     prefix = yield from p_prefix(sess, key)
     command = prefix + "STEP " + ",".join(args)
-    mark = sess.fault_seq
-    yield Line(command)
-    if not wait:
+    if not (yield from p_motion(sess, prefix, command, wait, timeout, poll)):
         return None
-    yield from p_wait_axis(prefix, timeout, poll, command, faults=(sess, mark))
     position = yield from p_number(prefix + "POSition?")
     return position
 
@@ -423,11 +471,8 @@ def p_reference(sess: Session, key: AxisKey, mode: Optional[str], wait: bool,
         if word not in modes:
             raise ValueError("reference mode %r: NEGATIVE, POSITIVE or MARK" % (mode,))
         command = prefix + "REFerence:STARt " + modes[word]
-    mark = sess.fault_seq
-    yield Line(command)
-    if not wait:
+    if not (yield from p_motion(sess, prefix, command, wait, timeout, poll)):
         return None
-    yield from p_wait_axis(prefix, timeout, poll, command, faults=(sess, mark))
     referenced = yield from p_bool(prefix + "REFerence?")
     if not referenced:
         raise MoveError("%s came to rest but REFerence? answers 0" % command)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from typing import Any, List, Optional, Tuple
+from typing import Any, Generator, List, NamedTuple, Optional, Tuple
 
 from . import _core, _sweep
 from ._core import AxisKey, Line, Plan, Session, Sleep
@@ -21,16 +21,120 @@ DEFAULT_PORT = 5025
 _MAX_DRAIN = 64
 
 
+class _Send(NamedTuple):
+    data: str
+    what: str  # the line it is for, in error messages
+
+
+class _Read(NamedTuple):
+    seconds: float
+    what: str
+
+
+class _Fail(NamedTuple):
+    why: str
+
+
+def _exchange(line: Line, timeout: float, session: Session) -> Generator[Any, Any, Optional[str]]:
+    """One line's exchange with idmd, the same for both clients: the line and ``SYSTem:ERRor?``
+    in one write, the reply (a query), the error queue drained; the first queued error raised
+    (and noted in the session: a waiter elsewhere must see a fault). A generator of the I/O it
+    needs (:class:`_Send`, :class:`_Read` answered with the line read, :class:`_Fail` to
+    close the connection); returns the reply."""
+    reply_timeout = timeout if line.timeout is None else max(line.timeout, timeout)
+    yield _Send(line.text + "\nSYSTem:ERRor?\n", line.text)
+    reply = (yield _Read(reply_timeout, line.text)) if line.query else None
+    errors: List[Tuple[int, str]] = []
+    code, text = parse_error_line((yield _Read(timeout, line.text)))
+    while code != 0:
+        errors.append((code, text))
+        if len(errors) > _MAX_DRAIN:
+            yield _Fail("the error queue does not empty")
+            raise ProtocolError("more than %d errors queued after %r" % (_MAX_DRAIN, line.text))
+        yield _Send("SYSTem:ERRor?\n", line.text)
+        code, text = parse_error_line((yield _Read(timeout, line.text)))
+    if errors:
+        error = error_from_code(errors[0][0], errors[0][1], line.text, errors, reply)
+        session.note_errors(error)
+        raise error
+    if line.query and reply == "":
+        raise ProtocolError("%r got an empty reply with no error queued" % line.text)
+    return reply
+
+
 class _Api:
     """The operations of a client, shared by :class:`Client` (they return the result) and
-    :class:`idm.aio.AsyncClient` (they return an awaitable of it)."""
+    :class:`idm.aio.AsyncClient` (they return an awaitable of it), and what both clients do
+    alike around their I/O: the settings, the address, the errors of a failed connection."""
 
     _session: Session
+    host: str
+    port: int
+    unix: Optional[str]
+    timeout: float
     wait_timeout: Optional[float]
     poll_interval: float
 
     def _run(self, plan: Plan) -> Any:  # pragma: no cover - defined by the clients
         raise NotImplementedError
+
+    def _fail(self, why: str) -> None:  # pragma: no cover - defined by the clients
+        raise NotImplementedError
+
+    def _settings(self, host: str, port: int, unix: Optional[str], timeout: float,
+                  wait_timeout: Optional[float], poll_interval: float) -> None:
+        if timeout is None or not timeout > 0:
+            raise ValueError("timeout must be a positive number of seconds, not %r" % (timeout,))
+        self.host = host
+        self.port = port
+        self.unix = unix
+        self.timeout = float(timeout)
+        self.wait_timeout = wait_timeout
+        self.poll_interval = poll_interval
+        self._session = Session()
+
+    @property
+    def address(self) -> str:
+        return ("unix:" + self.unix) if self.unix else "%s:%d" % (self.host, self.port)
+
+    # The errors of the I/O (each closes the connection first where it is broken).
+    def _connect_timed_out(self) -> IdmTimeout:
+        return IdmTimeout("cannot connect to idmd at %s within %g s" % (self.address, self.timeout))
+
+    def _connect_failed(self, e: OSError) -> IdmConnectionError:
+        return IdmConnectionError("cannot connect to idmd at %s: %s"
+                                  % (self.address, e.strerror or e))
+
+    def _not_open(self, why: str) -> IdmConnectionError:
+        return IdmConnectionError("the connection to idmd at %s is %s" % (self.address, why))
+
+    def _send_timed_out(self, what: str) -> IdmTimeout:
+        self._fail("a send timed out")
+        return IdmTimeout("cannot send %r to idmd at %s within %g s"
+                          % (what, self.address, self.timeout))
+
+    def _send_failed(self, what: str, e: Any) -> IdmConnectionError:
+        reason = getattr(e, "strerror", None) or e
+        self._fail("send failed: %s" % reason)
+        return IdmConnectionError("lost the connection to idmd at %s sending %r: %s"
+                                  % (self.address, what, reason))
+
+    def _no_reply(self, what: str, timeout: float) -> IdmTimeout:
+        self._fail("no reply to %r within %g s" % (what, timeout))
+        return IdmTimeout("no reply to %r from idmd at %s within %g s; the connection was "
+                          "closed (a late reply would be taken for the next one's)"
+                          % (what, self.address, timeout))
+
+    def _receive_failed(self, what: str, e: Any) -> IdmConnectionError:
+        reason = getattr(e, "strerror", None) or e
+        self._fail("receive failed: %s" % reason)
+        return IdmConnectionError("lost the connection to idmd at %s waiting for the reply to "
+                                  "%r: %s" % (self.address, what, reason))
+
+    def _peer_closed(self, what: str) -> IdmConnectionError:
+        self._fail("idmd closed it")
+        return IdmConnectionError("idmd at %s closed the connection (waiting for the reply to "
+                                  "%r)" % (self.address, what))
 
     # -- axes --
     def axis(self, key: AxisKey = 1) -> "Axis":
@@ -414,24 +518,12 @@ class Client(_Api):
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
                  unix: Optional[str] = None, timeout: float = 5.0,
                  wait_timeout: Optional[float] = 60.0, poll_interval: float = 0.01):
-        if timeout is None or not timeout > 0:
-            raise ValueError("timeout must be a positive number of seconds, not %r" % (timeout,))
-        self.host = host
-        self.port = port
-        self.unix = unix
-        self.timeout = float(timeout)
-        self.wait_timeout = wait_timeout
-        self.poll_interval = poll_interval
-        self._session = Session()
+        self._settings(host, port, unix, timeout, wait_timeout, poll_interval)
         self._lock = threading.RLock()
         self._sock: Optional[socket.socket] = None
         self._buf = b""
         self._closed_why: Optional[str] = None
         self.connect()
-
-    @property
-    def address(self) -> str:
-        return ("unix:" + self.unix) if self.unix else "%s:%d" % (self.host, self.port)
 
     def connect(self) -> None:
         """(Re)connect; a client closed after a timeout can be reconnected this way."""
@@ -450,11 +542,9 @@ class Client(_Api):
                     s = socket.create_connection((self.host, self.port), timeout=self.timeout)
                     s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             except socket.timeout:
-                raise IdmTimeout("cannot connect to idmd at %s within %g s"
-                                 % (self.address, self.timeout)) from None
+                raise self._connect_timed_out() from None
             except OSError as e:
-                raise IdmConnectionError("cannot connect to idmd at %s: %s"
-                                         % (self.address, e.strerror or e)) from None
+                raise self._connect_failed(e) from None
             self._sock = s
             self._buf = b""
             self._closed_why = None
@@ -501,55 +591,34 @@ class Client(_Api):
 
     # -- running plans --
     def _run(self, plan: Plan) -> Any:
-        try:
-            op = next(plan)
-        except StopIteration as stop:
-            return stop.value
-        while True:
-            try:
-                if isinstance(op, Sleep):
-                    time.sleep(op.seconds)
-                    result = None
-                else:
-                    result = self._transact(op)
-            except Exception as exc:
-                try:
-                    op = plan.throw(exc)
-                except StopIteration as stop:
-                    return stop.value
-                continue
-            try:
-                op = plan.send(result)
-            except StopIteration as stop:
-                return stop.value
+        return _core.run_plan(plan, self._perform)
+
+    def _perform(self, op: Any) -> Any:
+        if isinstance(op, Sleep):
+            time.sleep(op.seconds)
+            return None
+        return self._transact(op)
 
     def _transact(self, line: Line) -> Optional[str]:
-        """Send a line and ``SYSTem:ERRor?`` in one write, read the reply (a query) and the
-        error; drain further errors; raise the first."""
         with self._lock:
             if self._sock is None:
-                raise IdmConnectionError("the connection to idmd at %s is %s"
-                                         % (self.address, self._closed_why or "closed"))
-            timeout = self.timeout if line.timeout is None else max(line.timeout, self.timeout)
-            self._send(line.text + "\nSYSTem:ERRor?\n", line.text)
-            reply = self._read_line(timeout, line.text) if line.query else None
-            errors: List[Tuple[int, str]] = []
-            code, text = parse_error_line(self._read_line(self.timeout, line.text))
-            while code != 0:
-                errors.append((code, text))
-                if len(errors) > _MAX_DRAIN:
-                    self._fail("the error queue does not empty")
-                    raise ProtocolError("more than %d errors queued after %r"
-                                        % (_MAX_DRAIN, line.text))
-                self._send("SYSTem:ERRor?\n", line.text)
-                code, text = parse_error_line(self._read_line(self.timeout, line.text))
-            if errors:  # noted under the lock: a waiter on another thread must see a fault
-                error = error_from_code(errors[0][0], errors[0][1], line.text, errors, reply)
-                self._session.note_errors(error)
-                raise error
-        if line.query and reply == "":
-            raise ProtocolError("%r got an empty reply with no error queued" % line.text)
-        return reply
+                raise self._not_open(self._closed_why or "closed")
+            exchange = _exchange(line, self.timeout, self._session)
+            result: Any = None
+            try:
+                while True:
+                    result = self._io(exchange.send(result))
+            except StopIteration as done:
+                return done.value
+
+    def _io(self, request: Any) -> Optional[str]:
+        if isinstance(request, _Send):
+            self._send(request.data, request.what)
+            return None
+        if isinstance(request, _Read):
+            return self._read_line(request.seconds, request.what)
+        self._fail(request.why)
+        return None
 
     def _fail(self, why: str) -> None:
         self._drop()
@@ -561,37 +630,25 @@ class Client(_Api):
             self._sock.settimeout(self.timeout)
             self._sock.sendall(data.encode("utf-8"))
         except socket.timeout:
-            self._fail("a send timed out")
-            raise IdmTimeout("cannot send %r to idmd at %s within %g s"
-                             % (what, self.address, self.timeout)) from None
+            raise self._send_timed_out(what) from None
         except OSError as e:
-            self._fail("send failed: %s" % (e.strerror or e))
-            raise IdmConnectionError("lost the connection to idmd at %s sending %r: %s"
-                                     % (self.address, what, e.strerror or e)) from None
+            raise self._send_failed(what, e) from None
 
     def _read_line(self, timeout: float, what: str) -> str:
         deadline = time.monotonic() + timeout
         while b"\n" not in self._buf:
             left = deadline - time.monotonic()
             if left <= 0 or self._sock is None:
-                self._fail("no reply to %r within %g s" % (what, timeout))
-                raise IdmTimeout("no reply to %r from idmd at %s within %g s; the connection was "
-                                 "closed (a late reply would be taken for the next one's)"
-                                 % (what, self.address, timeout))
+                raise self._no_reply(what, timeout)
             try:
                 self._sock.settimeout(left)
                 chunk = self._sock.recv(65536)
             except socket.timeout:
                 continue
             except OSError as e:
-                self._fail("receive failed: %s" % (e.strerror or e))
-                raise IdmConnectionError("lost the connection to idmd at %s waiting for the "
-                                         "reply to %r: %s" % (self.address, what,
-                                                              e.strerror or e)) from None
+                raise self._receive_failed(what, e) from None
             if not chunk:
-                self._fail("idmd closed it")
-                raise IdmConnectionError("idmd at %s closed the connection (waiting for the "
-                                         "reply to %r)" % (self.address, what))
+                raise self._peer_closed(what)
             self._buf += chunk
         raw, self._buf = self._buf.split(b"\n", 1)
         return raw.rstrip(b"\r").decode("utf-8", "replace")

@@ -75,34 +75,22 @@ class Scripted:
         self.sent = []
 
     def run(self, plan):
-        op = next(plan)
-        while True:
-            try:
-                if isinstance(op, Sleep):
-                    result = None
-                else:
-                    assert isinstance(op, Line)
-                    self.sent.append(op.text)
-                    answer = self.replies.get(op.text, -113 if op.query else None)
-                    if isinstance(answer, list):
-                        answer = answer.pop(0) if len(answer) > 1 else answer[0]
-                    if isinstance(answer, int):
-                        raise error_from_code(answer, "scripted", op.text, None,
-                                              "" if op.query else None)
-                    if isinstance(answer, tuple):
-                        reply, code = answer
-                        raise error_from_code(code, "scripted", op.text, None, reply)
-                    result = answer
-            except idm.ScpiError as e:
-                try:
-                    op = plan.throw(e)
-                except StopIteration as s:
-                    return s.value
-                continue
-            try:
-                op = plan.send(result)
-            except StopIteration as s:
-                return s.value
+        return _core.run_plan(plan, self.answer)
+
+    def answer(self, op):
+        if isinstance(op, Sleep):
+            return None
+        assert isinstance(op, Line)
+        self.sent.append(op.text)
+        answer = self.replies.get(op.text, -113 if op.query else None)
+        if isinstance(answer, list):
+            answer = answer.pop(0) if len(answer) > 1 else answer[0]
+        if isinstance(answer, int):
+            raise error_from_code(answer, "scripted", op.text, None, "" if op.query else None)
+        if isinstance(answer, tuple):
+            reply, code = answer
+            raise error_from_code(code, "scripted", op.text, None, reply)
+        return answer
 
 
 def test_single_axis_daemon_axis_one_is_unprefixed():
