@@ -5,107 +5,15 @@ one simulated card), driven through its sockets by plain clients and by idmctl -
 usage: axes_integration.py BUILD_DIR SOURCE_DIR CASE
 CASE: protocol | three_at_once | idle_axes_stay | crosstalk | modbus_two_channels
 """
-import os
-import re
-import signal
-import socket
-import subprocess
-import sys
-import tempfile
 import time
 
-BUILD, SOURCE, CASE = sys.argv[1], sys.argv[2], sys.argv[3]
-IDMD = os.path.join(BUILD, "daemon", "idmd")
-IDMCTL = os.path.join(BUILD, "tools", "idmctl")
-SIMDEV = os.path.join(BUILD, "tools", "idm-simdev")
-TMP = tempfile.mkdtemp(prefix="idmd-axes-")
+import script_harness as harness
+from script_harness import (Client, Daemon, SimDev, check, config, free_port, idmctl, modbus_config,
+                            temp_file)
+
+harness.setup("idmd-axes-")
 COUNT_M = 632.991e-9 / 64  # one count of the single-beam linear optics
-
-
-def fail(msg):
-    print("FAIL:", msg)
-    sys.exit(1)
-
-
-def check(cond, msg):
-    if not cond:
-        fail(msg)
-    print("ok:", msg)
-
-
-def config(name="idmd-xyz.yaml", edits=()):
-    text = open(os.path.join(SOURCE, "config", name)).read()
-    text = text.replace("/var/lib/idmd", TMP)
-    text = text.replace("sched_fifo: true", "sched_fifo: false")
-    text = text.replace("lock_memory: true", "lock_memory: false")
-    for old, new in edits:
-        if old not in text:
-            fail("config edit: %r not in %s" % (old, name))
-        text = text.replace(old, new)
-    path = os.path.join(TMP, "c.yaml")
-    open(path, "w").write(text)
-    return path
-
-
-class Daemon:
-    def __init__(self, cfg):
-        self.sock = os.path.join(TMP, "idmd.sock")
-        self.err = open(os.path.join(TMP, "idmd.err"), "w+")
-        self.proc = subprocess.Popen([IDMD, "--config", cfg, "--port", "0", "--unix", self.sock],
-                                     stdout=subprocess.PIPE, stderr=self.err, text=True)
-        line = self.proc.stdout.readline()
-        m = re.search(r"127\.0\.0\.1:(\d+)", line)
-        if not m:
-            self.proc.wait(10)
-            self.err.seek(0)
-            fail("idmd did not start: %r\n%s" % (line, self.err.read()))
-        self.port = int(m.group(1))
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            self.proc.wait(30)
-
-
-class Client:
-    def __init__(self, d):
-        self.s = socket.create_connection(("127.0.0.1", d.port))
-        self.s.settimeout(30)
-        self.buf = b""
-
-    def send(self, text):
-        self.s.sendall((text + "\n").encode())
-
-    def ask(self, query):
-        self.send(query)
-        while b"\n" not in self.buf:
-            chunk = self.s.recv(65536)
-            if not chunk:
-                fail("the daemon closed the connection")
-            self.buf += chunk
-        line, self.buf = self.buf.split(b"\n", 1)
-        return line.decode()
-
-    def positions(self):
-        return [float(x) for x in self.ask("POS:ALL?").split(",")]
-
-    def mean_positions(self, n=32, spacing_s=0.003):
-        """Where the axes are at rest: the mean of n readings spread over n * spacing_s. Each is
-        quantized to one count with the sensor's noise, and a slider resting near the edge between
-        two counts reads as either; readings taken back to back repeat the same few words, so a
-        short burst of them can read the far count only (the three_at_once case, 1 run in 12)."""
-        rows = []
-        for _ in range(n):
-            rows.append(self.positions())
-            time.sleep(spacing_s)
-        return [sum(r[k] for r in rows) / n for k in range(len(rows[0]))]
-
-    def no_error(self):
-        err = self.ask("SYST:ERR?")
-        check(err == '0,"No error"', "no error queued (%s)" % err)
+XYZ = "idmd-xyz.yaml"  # three simulated stages on one simulated card
 
 
 def wait_all_done(c, n, timeout=60):
@@ -118,7 +26,7 @@ def wait_all_done(c, n, timeout=60):
 
 
 def case_protocol():
-    with Daemon(config()) as d:
+    with Daemon(config(XYZ)) as d:
         c = Client(d)
         check(c.ask("AXIS:COUNt?") == "3", "AXIS:COUNt? answers 3")
         check([c.ask("AXIS%d:NAME?" % k) for k in (1, 2, 3)] == ["x", "y", "z"], "names in order")
@@ -126,55 +34,52 @@ def case_protocol():
         check(abs(float(c.ask("AXIS2:RES?")) - COUNT_M) < 1e-15, "RESolution? is one count")
         check(c.ask("AXIS4:POS?") == "", "AXIS4:POS? answers an empty line")
         check(c.ask("SYST:ERR?").startswith("-114,"), "a missing axis is -114, never axis 1")
-        c.send("AXIS0:MOVE:REL 1e-6")
+        c.send("AXIS0:MOVE:REL 1e-6\n")
         check(c.ask("SYST:ERR?").startswith("-114,"), "AXIS0 is -114 too")
         check(c.ask("AXIS1:SYST:VERS?") == "", "AXIS1:SYST:VERS? answers an empty line")
         check(c.ask("SYST:ERR?").startswith("-113,"), "an instrument command takes no AXIS prefix")
         # Unprefixed per-axis commands are axis 1.
-        c.send("MOVE:REL 5e-6")
+        c.send("MOVE:REL 5e-6\n")
         check(c.ask("*OPC?") == "1", "*OPC? waits for the move")
         p = c.mean_positions()
         check(abs(p[0] - 5e-6) <= COUNT_M and abs(p[1]) <= COUNT_M, "an unprefixed move moved x only")
         # The z axis has its own travel and limits.
         check(c.ask("AXIS3:LIM?") == "-0.002,0.002", "z's soft limits are its own travel")
-        c.send("AXIS3:MOVE:ABS 3e-3")
+        c.send("AXIS3:MOVE:ABS 3e-3\n")
         check(c.ask("SYST:ERR?").startswith("-222,"), "a move past z's travel is refused")
         c.no_error()
         # idmctl --axis by name and by number.
-        r = subprocess.run([IDMCTL, "--port", str(d.port), "--axis", "y", "rel", "2e-6"],
-                           capture_output=True, text=True, timeout=60)
+        r = idmctl("--port", d.port, "--axis", "y", "rel", "2e-6")
         # One reading (quantized, noisy) of a slider within one count of the target.
         check(r.returncode == 0 and abs(float(r.stdout) - 2e-6) <= 1.5 * COUNT_M,
               "idmctl --axis y rel 2e-6 -> %s %s" % (r.stdout.strip(), r.stderr.strip()))
-        r = subprocess.run([IDMCTL, "--port", str(d.port), "--axis", "3", "pos"],
-                           capture_output=True, text=True, timeout=60)
+        r = idmctl("--port", d.port, "--axis", "3", "pos")
         check(r.returncode == 0 and abs(float(r.stdout)) <= COUNT_M, "idmctl --axis 3 pos")
-        r = subprocess.run([IDMCTL, "--port", str(d.port), "--axis", "w", "pos"],
-                           capture_output=True, text=True, timeout=60)
+        r = idmctl("--port", d.port, "--axis", "w", "pos")
         check(r.returncode == 2 and "x, y, z" in r.stderr, "idmctl --axis w names the axes: " + r.stderr.strip())
         # AXIS2:STOP stops y only; STOP stops every axis.
-        c.send("AXIS1:MOVE:REL 1e-3")
-        c.send("AXIS2:MOVE:REL 1e-3")
+        c.send("AXIS1:MOVE:REL 1e-3\n")
+        c.send("AXIS2:MOVE:REL 1e-3\n")
         time.sleep(0.05)
-        c.send("AXIS2:STOP")
+        c.send("AXIS2:STOP\n")
         end = time.time() + 5
         while time.time() < end and c.ask("AXIS2:MOVE:DONE?") != "1":
             time.sleep(0.005)
         check(c.ask("AXIS2:MOVE:DONE?") == "1" and c.ask("AXIS1:MOVE:DONE?") == "0",
               "AXIS2:STOP stopped y while x goes on")
-        c.send("STOP")
+        c.send("STOP\n")
         check(wait_all_done(c, 3, 5), "STOP stopped every axis")
         c.no_error()
 
 
 def case_three_at_once():
-    with Daemon(config()) as d:
+    with Daemon(config(XYZ)) as d:
         c = Client(d)
         start = c.positions()
         targets = [start[0] + 150e-6, start[1] - 80e-6, start[2] + 33.3e-6]
         t0 = time.time()
         for k, t in enumerate(targets):
-            c.send("AXIS%d:MOVE:ABS %r" % (k + 1, t))
+            c.send("AXIS%d:MOVE:ABS %r\n" % (k + 1, t))
         # All three are moving at the same time.
         moving = [c.ask("AXIS%d:MOVE:DONE?" % (k + 1)) for k in range(3)]
         check(moving == ["0", "0", "0"], "three axes move at once: MOVE:DONE? %s" % moving)
@@ -189,10 +94,10 @@ def case_three_at_once():
 
 
 def case_idle_axes_stay():
-    with Daemon(config()) as d:
+    with Daemon(config(XYZ)) as d:
         c = Client(d)
         before = c.mean_positions()
-        c.send("AXIS1:MOVE:REL 400e-6")
+        c.send("AXIS1:MOVE:REL 400e-6\n")
         samples = []
         while c.ask("AXIS1:MOVE:DONE?") != "1":
             samples.append(c.positions())
@@ -206,12 +111,12 @@ def case_idle_axes_stay():
 
 
 def case_crosstalk():
-    cfg = config(edits=[("crosstalk_fraction: 0 ", "crosstalk_fraction: 0.02 ")])
+    cfg = config(XYZ, [("crosstalk_fraction: 0 ", "crosstalk_fraction: 0.02 ")])
     with Daemon(cfg) as d:
         c = Client(d)
         # A step of x now nudges y and z: 400 um of x moves the others 8 um.
         before = c.mean_positions()
-        c.send("AXIS1:MOVE:REL 400e-6")
+        c.send("AXIS1:MOVE:REL 400e-6\n")
         check(c.ask("*OPC?") == "1", "x's move ends")
         after = c.mean_positions()
         check(abs(after[0] - before[0] - 400e-6) <= COUNT_M, "x landed within one count")
@@ -222,7 +127,7 @@ def case_crosstalk():
         start = c.positions()
         targets = [start[0] - 200e-6, start[1] + 300e-6, start[2] + 100e-6]
         for k, t in enumerate(targets):
-            c.send("AXIS%d:MOVE:ABS %r" % (k + 1, t))
+            c.send("AXIS%d:MOVE:ABS %r\n" % (k + 1, t))
         landed = [None, None, None]
         end = time.time() + 60
         while None in landed and time.time() < end:
@@ -236,25 +141,12 @@ def case_crosstalk():
         c.no_error()
 
 
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
 def case_modbus_two_channels():
     """Two axes on one Modbus card (two units of one idm-simdev), moving at once."""
     port = free_port()
-    single = open(os.path.join(SOURCE, "config", "idmd-modbus.yaml")).read()
-    single = single.replace("port: 1502", "port: %d" % port)
-    simcfg = os.path.join(TMP, "simdev.yaml")
-    open(simcfg, "w").write(single)
-    sim = subprocess.Popen([SIMDEV, "--port", str(port), "--config", simcfg, "--channels", "2"],
-                           stdout=subprocess.PIPE, text=True)
-    try:
-        check("listening" in sim.stdout.readline(), "idm-simdev with two channels listens")
+    simcfg = modbus_config(port, out="simdev.yaml")
+    with SimDev(port, simcfg, channels=2) as sim:
+        check("listening" in sim.ready, "idm-simdev with two channels listens")
         axis = """    stage:
       slider_mass_kg: 0.16557
       counter_mass_kg: 0.05761
@@ -278,14 +170,13 @@ def case_modbus_two_channels():
                 "      max_freq_hz: 5000\n"
                 "axes:\n  a:\n%s  b:\n%s"
                 "server:\n  tcp_port: 0\nrealtime:\n  period_s: 1e-3\n  sched_fifo: false\n"
-                "  lock_memory: false\nrecording:\n  data_dir: %s\n") % (port, axis, axis, TMP)
-        cfg = os.path.join(TMP, "mb2.yaml")
-        open(cfg, "w").write(text)
+                "  lock_memory: false\nrecording:\n  data_dir: %s\n")
+        cfg = temp_file("mb2.yaml", text % (port, axis, axis, harness.TMP))
         with Daemon(cfg) as d:
             c = Client(d)
             start = c.positions()
-            c.send("AXIS1:MOVE:REL 20e-6")
-            c.send("AXIS2:MOVE:REL -15e-6")
+            c.send("AXIS1:MOVE:REL 20e-6\n")
+            c.send("AXIS2:MOVE:REL -15e-6\n")
             check(c.ask("*OPC?") == "1", "both Modbus axes finish")
             p = c.positions()
             count36 = 632.991e-9 / 64
@@ -293,9 +184,6 @@ def case_modbus_two_channels():
                   "each Modbus unit moved its own stage: %.2f, %.2f um" %
                   ((p[0] - start[0]) * 1e6, (p[1] - start[1]) * 1e6))
             c.no_error()
-    finally:
-        sim.terminate()
-        sim.wait(10)
 
 
 CASES = {"protocol": case_protocol, "three_at_once": case_three_at_once,
@@ -303,5 +191,4 @@ CASES = {"protocol": case_protocol, "three_at_once": case_three_at_once,
          "modbus_two_channels": case_modbus_two_channels}
 
 if __name__ == "__main__":
-    CASES[CASE]()
-    print("PASS", CASE)
+    harness.run(CASES)

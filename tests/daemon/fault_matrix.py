@@ -10,119 +10,13 @@ import os
 import re
 import signal
 import socket
-import subprocess
-import sys
-import tempfile
 import time
 
-BUILD, SOURCE, CASE = sys.argv[1], sys.argv[2], sys.argv[3]
-IDMD = os.path.join(BUILD, "daemon", "idmd")
-TMP = tempfile.mkdtemp(prefix="idmd-fm-")
+import script_harness as harness
+from script_harness import (Client, Daemon, SimDev, bursts_stay, check, config, free_port,
+                            key_values, modbus_config, modbus_registers, wait_state)
 
-
-def fail(msg):
-    print("FAIL:", msg)
-    sys.exit(1)
-
-
-def check(cond, msg):
-    if not cond:
-        fail(msg)
-    print("ok:", msg)
-
-
-def config(replace=(), name="idmd.yaml"):
-    """config/idmd.yaml with paths under TMP, no real-time privileges, and the given edits."""
-    text = open(os.path.join(SOURCE, "config", "idmd.yaml")).read()
-    text = text.replace("/var/lib/idmd/calibration.txt", os.path.join(TMP, "calibration.txt"))
-    text = text.replace("/var/lib/idmd/data", os.path.join(TMP, "data"))
-    text = text.replace("sched_fifo: true", "sched_fifo: false")
-    text = text.replace("lock_memory: true", "lock_memory: false")
-    for old, new in replace:
-        if old not in text:
-            fail("config edit: %r not in the config" % old)
-        text = text.replace(old, new)
-    path = os.path.join(TMP, name)
-    open(path, "w").write(text)
-    return path
-
-
-class Daemon:
-    def __init__(self, cfg, env=None):
-        self.sock = os.path.join(TMP, "idmd.sock")
-        self.err = open(os.path.join(TMP, "idmd.err"), "w+")
-        self.proc = subprocess.Popen([IDMD, "--config", cfg, "--port", "0", "--unix", self.sock],
-                                     stdout=subprocess.PIPE, stderr=self.err, text=True,
-                                     env=dict(os.environ, **(env or {})))
-        line = self.proc.stdout.readline()
-        m = re.search(r"127\.0\.0\.1:(\d+)", line)
-        if not m:
-            self.proc.wait(10)
-            fail("idmd did not start: %r\n%s" % (line, self.log()))
-        self.port = int(m.group(1))
-
-    def log(self):
-        self.err.flush()
-        self.err.seek(0)
-        return self.err.read()
-
-    def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            return self.proc.wait(30)
-        return self.proc.returncode
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.stop()
-
-
-class Client:
-    """A plain line client over TCP or the Unix socket."""
-
-    def __init__(self, d, unix=False):
-        if unix:
-            self.s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            self.s.connect(d.sock)
-        else:
-            self.s = socket.create_connection(("127.0.0.1", d.port))
-        self.s.settimeout(20)
-        self.buf = b""
-
-    def send(self, text):
-        self.s.sendall(text.encode())
-
-    def line(self):
-        while b"\n" not in self.buf:
-            chunk = self.s.recv(65536)
-            if not chunk:
-                return None
-            self.buf += chunk
-        out, self.buf = self.buf.split(b"\n", 1)
-        return out.decode()
-
-    def ask(self, query):
-        self.send(query + "\n")
-        return self.line()
-
-    def error(self):
-        return self.ask("SYST:ERR?")
-
-    def status(self):
-        return dict(kv.split("=", 1) for kv in self.ask("STAT?").split())
-
-    def wait_done(self, timeout=30):
-        end = time.time() + timeout
-        while time.time() < end:
-            if self.ask("MOVE:DONE?") == "1":
-                return True
-            time.sleep(0.01)
-        return False
-
-    def close(self):
-        self.s.close()
+harness.setup("idmd-fm-")
 
 
 def expect_refused(c, line, code, words):
@@ -207,8 +101,8 @@ def case_reset_keeps_limits():
 
 def case_sweep_confined():
     """SWEEP writes only below recording.data_dir, into a new directory."""
-    data = os.path.join(TMP, "data")
-    outside = os.path.join(TMP, "outside")
+    data = os.path.join(harness.TMP, "data")
+    outside = os.path.join(harness.TMP, "outside")
     os.makedirs(data, exist_ok=True)
     os.makedirs(outside, exist_ok=True)
     open(os.path.join(outside, "keep.txt"), "w").write("keep\n")
@@ -230,7 +124,7 @@ def case_sweep_confined():
 def case_client_table_full():
     """Clients that sent *OPC? and vanished free their slots; with the table full a STOP still
     gets through."""
-    cfg = config([("  max_clients: 16", "  max_clients: 2")])
+    cfg = config(edits=[("  max_clients: 16", "  max_clients: 2")])
     with Daemon(cfg) as d:
         mover = Client(d)
         mover.send("MOVE:REL 4e-3\n")
@@ -255,7 +149,7 @@ def case_client_count():
     """SYST:CLI? counts the connections open now (the asking one included), over TCP and the
     Unix socket, a stop-only one too; it goes back down as they close."""
     n = 8  # besides the asker: the table (max_clients 9) is then full
-    cfg = config([("  max_clients: 16", "  max_clients: %d" % (n + 1))])
+    cfg = config(edits=[("  max_clients: 16", "  max_clients: %d" % (n + 1))])
     with Daemon(cfg) as d:
         asker = Client(d)
         check(asker.ask("SYST:CLI?") == "1", "alone: SYST:CLI? 1")
@@ -266,7 +160,7 @@ def case_client_count():
             check(asker.ask("SYST:CLI?") == str(k + 2), "%d open: SYST:CLI? %d" % (k + 2, k + 2))
         extra = Client(d)  # past the table: a stop-only slot (for 2 s), counted too
         check(extra.ask("*IDN?").startswith("idm,idmd"), "the stop-only client answered")
-        table = dict(kv.split("=", 1) for kv in asker.ask("SYST:CLI:TABL?").split())
+        table = key_values(asker.ask("SYST:CLI:TABL?"))
         check(table == {"connected": str(n + 2), "slots": str(n + 1), "max_clients": str(n + 1),
                         "stop_only": "1", "overflow_slots": "4", "draining": "0"},
               "SYST:CLI:TABL? %r" % table)
@@ -280,24 +174,6 @@ def case_client_count():
                 time.sleep(0.01)
             check(asker.ask("SYST:CLI?") == want, "one closed: SYST:CLI? back to %s" % want)
         check(asker.error() == '0,"No error"', "no error queued")
-
-
-def wait_state(c, want, timeout=10, axis=""):
-    end = time.time() + timeout
-    st = {}
-    while time.time() < end:
-        st = dict(kv.split("=", 1) for kv in c.ask(axis + "STAT?").split())
-        if all(st.get(k) == v for k, v in want.items()):
-            return st
-        time.sleep(0.01)
-    fail("state %s not reached in %g s: %s" % (want, timeout, st))
-
-
-def bursts_stay(c, seconds=0.2):
-    """The output is at rest: no chunk starts for a while."""
-    before = c.status()["bursts"]
-    time.sleep(seconds)
-    return c.status()["bursts"] == before
 
 
 def case_beam_loss():
@@ -386,57 +262,41 @@ def case_stall():
 def case_sim_commands_on_a_real_backend():
     """SIMulation: commands are refused (-241) on a real backend: Modbus against idm-simdev."""
     port = free_port()
-    cfg = config_file("idmd-modbus.yaml", [("port: 1502", "port: %d" % port)])
-    sim = subprocess.Popen([os.path.join(BUILD, "tools", "idm-simdev"), "--port", str(port),
-                            "--config", cfg], stdout=subprocess.PIPE, text=True)
-    try:
-        sim.stdout.readline()
-        with Daemon(cfg) as d:
-            c = Client(d)
-            c.send("SIM:PUSH 1e-6\n")
-            check(c.error().startswith("-241,"), "SIM:PUSH on Modbus is -241")
-    finally:
-        sim.terminate()
-        sim.wait(10)
+    cfg = modbus_config(port)
+    with SimDev(port, cfg), Daemon(cfg) as d:
+        c = Client(d)
+        c.send("SIM:PUSH 1e-6\n")
+        check(c.error().startswith("-241,"), "SIM:PUSH on Modbus is -241")
 
 
 def case_modbus_server_killed():
     """The Modbus device lost (server killed) and back (a new server: a restarted device)."""
     port = free_port()
-    cfg = config_file("idmd-modbus.yaml", [("port: 1502", "port: %d" % port)])
-    simdev = [os.path.join(BUILD, "tools", "idm-simdev"), "--port", str(port), "--config", cfg]
-    sim = subprocess.Popen(simdev, stdout=subprocess.PIPE, text=True)
-    sim.stdout.readline()
-    try:
-        with Daemon(cfg) as d:
-            c = Client(d)
-            c.send("MOVE:REL 30e-6\n")
-            check(c.ask("*OPC?") == "1", "a move over Modbus")
-            p = float(c.ask("POS?"))
-            sim.kill()
-            sim.wait(10)
-            t0 = time.time()
-            st = wait_state(c, {"state": "FAULT", "fault": "device_lost", "device": "lost"}, timeout=5)
-            check(time.time() - t0 < 2, "lost within 2 s (%.2f s)" % (time.time() - t0))
-            check(c.ask("POS?") == "9.91E37" and c.error().startswith("-230,"), "POS? untrusted")
-            sim = subprocess.Popen(simdev, stdout=subprocess.PIPE, text=True)
-            sim.stdout.readline()
-            st = wait_state(c, {"device": "up", "position_valid": "1"}, timeout=10)
-            check(abs(float(st["position"]) - p) < 2e-8, "a restarted device: the position goes on from the last reading")
-            check(st["referenced"] == "0" and st["state"] == "FAULT", "not referenced, FAULT until *RST")
-            c.send("*RST\n")
-            check(c.ask("*OPC?") == "1", "*RST")
-            # It moves again (how precisely it lands is the positioner's business, not this test's).
-            before = float(c.ask("POS?"))
-            c.send("MOVE:REL 50e-6\n")
-            opc, err = c.ask("*OPC?"), c.ask("SYST:ERR?")
-            moved = float(c.ask("POS?")) - before
-            check(opc == "1" and not err.startswith(("104,", "107,", "-230")) and abs(moved - 50e-6) < 1e-7,
-                  "it moves again over Modbus: %.4g um (%s)" % (moved * 1e6, err))
-            check("device daq lost" in d.log(), "the log names the device")
-    finally:
+    cfg = modbus_config(port)
+    with SimDev(port, cfg) as sim, Daemon(cfg) as d:
+        c = Client(d)
+        c.send("MOVE:REL 30e-6\n")
+        check(c.ask("*OPC?") == "1", "a move over Modbus")
+        p = float(c.ask("POS?"))
         sim.kill()
-        sim.wait(10)
+        t0 = time.time()
+        st = wait_state(c, {"state": "FAULT", "fault": "device_lost", "device": "lost"}, timeout=5)
+        check(time.time() - t0 < 2, "lost within 2 s (%.2f s)" % (time.time() - t0))
+        check(c.ask("POS?") == "9.91E37" and c.error().startswith("-230,"), "POS? untrusted")
+        sim.start()
+        st = wait_state(c, {"device": "up", "position_valid": "1"}, timeout=10)
+        check(abs(float(st["position"]) - p) < 2e-8, "a restarted device: the position goes on from the last reading")
+        check(st["referenced"] == "0" and st["state"] == "FAULT", "not referenced, FAULT until *RST")
+        c.send("*RST\n")
+        check(c.ask("*OPC?") == "1", "*RST")
+        # It moves again (how precisely it lands is the positioner's business, not this test's).
+        before = float(c.ask("POS?"))
+        c.send("MOVE:REL 50e-6\n")
+        opc, err = c.ask("*OPC?"), c.ask("SYST:ERR?")
+        moved = float(c.ask("POS?")) - before
+        check(opc == "1" and not err.startswith(("104,", "107,", "-230")) and abs(moved - 50e-6) < 1e-7,
+              "it moves again over Modbus: %.4g um (%s)" % (moved * 1e6, err))
+        check("device daq lost" in d.log(), "the log names the device")
 
 
 def case_modbus_server_stalled():
@@ -444,50 +304,42 @@ def case_modbus_server_stalled():
     real-time loop does not: it keeps ticking, the command link keeps answering, the device is
     reported lost after its timeout, and all is well again once the server answers."""
     port = free_port()
-    cfg = config_file("idmd-modbus.yaml", [("port: 1502", "port: %d" % port)])
-    sim = subprocess.Popen([os.path.join(BUILD, "tools", "idm-simdev"), "--port", str(port),
-                            "--config", cfg], stdout=subprocess.PIPE, text=True)
-    sim.stdout.readline()
-    try:
-        with Daemon(cfg) as d:
-            c = Client(d)
-            loop = lambda: int(re.search(r"wakeups=(\d+)", c.ask("SYST:LOOP?")).group(1))
-            os.kill(sim.pid, signal.SIGSTOP)
-            w0, t0 = loop(), time.time()
-            wait_state(c, {"state": "FAULT", "fault": "device_lost"}, timeout=5)
-            time.sleep(1.0)
-            w1, t1 = loop(), time.time()
-            expected = (t1 - t0) / 1e-3  # the Modbus config's loop runs at 1 kHz
-            check(w1 - w0 > 0.5 * expected, "the loop kept ticking while the server was stalled: "
-                  "%d wake-ups in %.2f s (%d expected)" % (w1 - w0, t1 - t0, expected))
-            check(c.ask("*IDN?").startswith("idm,idmd"), "the command link answers")
-            os.kill(sim.pid, signal.SIGCONT)
-            # The same device (its boot_id unchanged): it kept its count, the axis was at rest.
-            st = wait_state(c, {"device": "up", "position_valid": "1", "state": "IDLE"}, timeout=10)
-            check(st["fault"] == "none", "back by itself, at rest with its count")
-            c.send("MOVE:REL 20e-6\n")
-            check(c.ask("*OPC?") == "1" and c.status()["state"] == "IDLE", "it moves again")
-    finally:
-        os.kill(sim.pid, signal.SIGCONT)
-        sim.kill()
-        sim.wait(10)
+    cfg = modbus_config(port)
+    with SimDev(port, cfg) as sim, Daemon(cfg) as d:
+        c = Client(d)
+        loop = lambda: int(re.search(r"wakeups=(\d+)", c.ask("SYST:LOOP?")).group(1))
+        sim.proc.send_signal(signal.SIGSTOP)
+        w0, t0 = loop(), time.time()
+        wait_state(c, {"state": "FAULT", "fault": "device_lost"}, timeout=5)
+        time.sleep(1.0)
+        w1, t1 = loop(), time.time()
+        expected = (t1 - t0) / 1e-3  # the Modbus config's loop runs at 1 kHz
+        check(w1 - w0 > 0.5 * expected, "the loop kept ticking while the server was stalled: "
+              "%d wake-ups in %.2f s (%d expected)" % (w1 - w0, t1 - t0, expected))
+        check(c.ask("*IDN?").startswith("idm,idmd"), "the command link answers")
+        sim.proc.send_signal(signal.SIGCONT)
+        # The same device (its boot_id unchanged): it kept its count, the axis was at rest.
+        st = wait_state(c, {"device": "up", "position_valid": "1", "state": "IDLE"}, timeout=10)
+        check(st["fault"] == "none", "back by itself, at rest with its count")
+        c.send("MOVE:REL 20e-6\n")
+        check(c.ask("*OPC?") == "1" and c.status()["state"] == "IDLE", "it moves again")
 
 
 def case_sigkill_mid_sweep():
     """SIGKILL mid-sweep: every trial written is whole (sweep.csv lists only finished trials and
     each of their files reads back)."""
-    d = Daemon(config())
-    c = Client(d)
-    c.send("SWEEP killed,200:800:100,0.1;0.9,3,12\n")
-    data = os.path.join(TMP, "data", "killed")
-    end = time.time() + 20
-    while time.time() < end:
-        rows = open(os.path.join(data, "sweep.csv")).read().splitlines() if os.path.exists(os.path.join(data, "sweep.csv")) else []
-        if len(rows) > 3:
-            break
-        time.sleep(0.01)
-    d.proc.kill()
-    d.proc.wait(10)
+    data = os.path.join(harness.TMP, "data", "killed")
+    with Daemon(config()) as d:
+        c = Client(d)
+        c.send("SWEEP killed,200:800:100,0.1;0.9,3,12\n")
+        end = time.time() + 20
+        while time.time() < end:
+            rows = open(os.path.join(data, "sweep.csv")).read().splitlines() if os.path.exists(os.path.join(data, "sweep.csv")) else []
+            if len(rows) > 3:
+                break
+            time.sleep(0.01)
+        d.proc.kill()
+        d.proc.wait(10)
     rows = open(os.path.join(data, "sweep.csv")).read().splitlines()
     check(len(rows) > 3, "some trials were written before the kill (%d rows)" % (len(rows) - 1))
     header = rows[0].split(",")
@@ -502,41 +354,23 @@ def case_sigkill_mid_sweep():
     check(not stray, "every trial file on disk is a listed, whole trial (stray: %s)" % stray)
 
 
-def modbus_registers(port, address, count, unit=1):
-    """Reads holding registers with a raw Modbus TCP request (function 3): no library of ours."""
-    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
-        s.sendall(bytes([0, 1, 0, 0, 0, 6, unit, 3, address >> 8, address & 0xFF, 0, count]))
-        reply = b""
-        while len(reply) < 9 + 2 * count:
-            chunk = s.recv(256)
-            if not chunk:
-                fail("the Modbus server closed the connection")
-            reply += chunk
-    if reply[7] != 3:
-        fail("Modbus exception reply %r" % reply)
-    return [reply[9 + 2 * k] << 8 | reply[10 + 2 * k] for k in range(count)]
-
-
 def case_sigterm_mid_move():
     """SIGTERM mid-move (systemd stopping the service) on a Modbus device: idmd stops the output,
     exits 0 within its stop timeout and says so; the device is left at rest (not running, no new
     burst); a new idmd on the same device goes on from the device's count and moves."""
     port = free_port()
-    cfg = config_file("idmd-modbus.yaml", [("port: 1502", "port: %d" % port)])
-    sim = subprocess.Popen([os.path.join(BUILD, "tools", "idm-simdev"), "--port", str(port),
-                            "--config", cfg], stdout=subprocess.PIPE, text=True)
-    sim.stdout.readline()
-    try:
-        d = Daemon(cfg)
-        c = Client(d)
-        c.send("MOVE:REL 2e-3\n")
-        time.sleep(0.3)
-        check(c.ask("MOVE:DONE?") == "0", "a long move is on")
-        d.proc.send_signal(signal.SIGTERM)
-        t0 = time.time()
-        code = d.proc.wait(10)
-        check(code == 0, "exit code 0 (%s) in %.2f s" % (code, time.time() - t0))
-        check("SIGTERM: stopping motion" in d.log(), "the log says why it stopped")
+    cfg = modbus_config(port)
+    with SimDev(port, cfg):
+        with Daemon(cfg) as d:
+            c = Client(d)
+            c.send("MOVE:REL 2e-3\n")
+            time.sleep(0.3)
+            check(c.ask("MOVE:DONE?") == "0", "a long move is on")
+            d.proc.send_signal(signal.SIGTERM)
+            t0 = time.time()
+            code = d.proc.wait(10)
+            check(code == 0, "exit code 0 (%s) in %.2f s" % (code, time.time() - t0))
+            check("SIGTERM: stopping motion" in d.log(), "the log says why it stopped")
         status, burst = modbus_registers(port, 1, 2)
         check(status & 1 == 0, "the device is not playing (status 0x%04x)" % status)
         time.sleep(0.3)
@@ -548,16 +382,13 @@ def case_sigterm_mid_move():
             check(p > 1e-5, "the position goes on from the device's count (%.4g um)" % (p * 1e6))
             c2.send("MOVE:REL -20e-6\n")
             check(c2.ask("*OPC?") == "1" and c2.error() == '0,"No error"', "it moves again")
-    finally:
-        sim.kill()
-        sim.wait(10)
 
 
 def case_client_vanishes_mid_query():
     """Clients that vanish mid-query (a query sent and the socket closed unread, a reset with
     unread replies, half a line) cost nothing: the move in progress goes on to its target, the
     daemon answers everyone else, and their slots are free again."""
-    cfg = config([("  max_clients: 16", "  max_clients: 3")])
+    cfg = config(edits=[("  max_clients: 16", "  max_clients: 3")])
     with Daemon(cfg) as d:
         mover = Client(d)
         mover.send("MOVE:REL 1e-3\n")
@@ -587,26 +418,6 @@ def case_client_vanishes_mid_query():
         check(d.proc.poll() is None, "idmd still runs")
 
 
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-def config_file(name, replace):
-    text = open(os.path.join(SOURCE, "config", name)).read()
-    text = text.replace("/var/lib/idmd", TMP)
-    text = text.replace("sched_fifo: true", "sched_fifo: false")
-    text = text.replace("lock_memory: true", "lock_memory: false")
-    for old, new in replace:
-        text = text.replace(old, new)
-    path = os.path.join(TMP, "m-" + name)
-    open(path, "w").write(text)
-    return path
-
-
 CASES = {
     "bad_input": case_bad_input,
     "unterminated_line": case_unterminated_line,
@@ -627,8 +438,4 @@ CASES = {
 }
 
 if __name__ == "__main__":
-    if CASE == "--list":
-        print(" ".join(CASES))
-        sys.exit(0)
-    CASES[CASE]()
-    print("PASS", CASE)
+    harness.run(CASES)

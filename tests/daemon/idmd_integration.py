@@ -7,69 +7,16 @@ usage: idmd_integration.py BUILD_DIR SOURCE_DIR CASE
 CASE: pyvisa | idmctl | notify_sigterm | modbus | bad_config | missing_device
 """
 import os
-import re
-import signal
 import socket
 import subprocess
-import sys
-import tempfile
 import threading
 import time
 
-BUILD, SOURCE, CASE = sys.argv[1], sys.argv[2], sys.argv[3]
-IDMD = os.path.join(BUILD, "daemon", "idmd")
-IDMCTL = os.path.join(BUILD, "tools", "idmctl")
-SIMDEV = os.path.join(BUILD, "tools", "idm-simdev")
-TMP = tempfile.mkdtemp(prefix="idmd-it-")
+import script_harness as harness
+from script_harness import (Daemon, SimDev, check, config, fail, free_port, idmctl, key_values,
+                            modbus_config, temp_file, wait_done)
 
-
-def fail(msg):
-    print("FAIL:", msg)
-    sys.exit(1)
-
-
-def check(cond, msg):
-    if not cond:
-        fail(msg)
-    print("ok:", msg)
-
-
-def sim_config(extra_daq=None):
-    """config/idmd.yaml with paths under TMP and no real-time privileges asked for."""
-    text = open(os.path.join(SOURCE, "config", "idmd.yaml")).read()
-    text = text.replace("/var/lib/idmd/calibration.txt", os.path.join(TMP, "calibration.txt"))
-    text = text.replace("/var/lib/idmd/data", os.path.join(TMP, "data"))
-    text = text.replace("sched_fifo: true", "sched_fifo: false")
-    text = text.replace("lock_memory: true", "lock_memory: false")
-    if extra_daq:
-        text = re.sub(r"daq:\n(  .*\n|    .*\n)*", extra_daq, text)
-    path = os.path.join(TMP, "idmd.yaml")
-    open(path, "w").write(text)
-    return path
-
-
-class Daemon:
-    def __init__(self, config, env=None):
-        self.sock = os.path.join(TMP, "idmd.sock")
-        self.err = open(os.path.join(TMP, "idmd.err"), "w+")
-        self.proc = subprocess.Popen([IDMD, "--config", config, "--port", "0", "--unix", self.sock],
-                                     stdout=subprocess.PIPE, stderr=self.err, text=True,
-                                     env=dict(os.environ, **(env or {})))
-        line = self.proc.stdout.readline()
-        m = re.search(r"127\.0\.0\.1:(\d+)", line)
-        if not m:
-            self.proc.wait(10)
-            fail("idmd did not start: %r\n%s" % (line, self.log()))
-        self.port = int(m.group(1))
-
-    def log(self):
-        self.err.flush()
-        self.err.seek(0)
-        return self.err.read()
-
-    def terminate(self, timeout=20):
-        self.proc.send_signal(signal.SIGTERM)
-        return self.proc.wait(timeout)
+harness.setup("idmd-it-")
 
 
 def visa(port):
@@ -80,33 +27,23 @@ def visa(port):
     return inst
 
 
-def wait_done(inst, timeout=30):
-    end = time.time() + timeout
-    while time.time() < end:
-        if inst.query("MOVE:DONE?").strip() == "1":
-            return True
-        time.sleep(0.01)
-    return False
-
-
 def status(inst):
-    return dict(kv.split("=", 1) for kv in inst.query("STAT?").split())
+    return key_values(inst.query("STAT?"))
 
 
 def case_pyvisa():
-    d = Daemon(sim_config())
-    try:
+    with Daemon(config()) as d:
         inst = visa(d.port)
         idn = inst.query("*IDN?").strip()
         check(idn.split(",")[1] == "idmd", "*IDN? names idmd: " + idn)
         p0 = float(inst.query("POS?"))
         inst.write("MOVE:REL 5e-6")
-        check(wait_done(inst), "MOVE:REL 5e-6 finishes")
+        check(wait_done(inst.query), "MOVE:REL 5e-6 finishes")
         p1 = float(inst.query("POS?"))
         check(abs(p1 - p0 - 5e-6) < 20e-9, "moved 5 um: %g -> %g" % (p0, p1))
         check(inst.query("SYST:ERR?").strip().startswith("0,"), "no error after the move")
         inst.write("MOVE:ABS %r" % (p1 - 2e-6))
-        check(wait_done(inst), "MOVE:ABS back 2 um finishes")
+        check(wait_done(inst.query), "MOVE:ABS back 2 um finishes")
         check(abs(float(inst.query("POS?")) - (p1 - 2e-6)) < 20e-9, "at the absolute target")
         # Errors: an unknown header, a target past the soft limits, a non-number.
         inst.write("FROBNICATE 3")
@@ -124,26 +61,21 @@ def case_pyvisa():
         check(inst.query("MOVE:DONE?").strip() == "0", "a long move is in progress")
         t = time.time()
         inst.write("STOP")
-        check(wait_done(inst, 5), "STOP brings it to rest")
+        check(wait_done(inst.query, 5), "STOP brings it to rest")
         st = status(inst)
         check(st["state"] == "IDLE", "IDLE after STOP (%.3f s)" % (time.time() - t))
         check(abs(float(st["position"]) - float(st["target"])) > 10e-6, "stopped short of the target")
         check(inst.query("*OPC?").strip() == "1", "*OPC? 1 at rest")
         inst.close()
-        check(d.terminate() == 0, "SIGTERM -> exit 0")
-    finally:
-        if d.proc.poll() is None:
-            d.proc.kill()
+        check(d.stop(20) == 0, "SIGTERM -> exit 0")
 
 
 def case_idmctl():
-    if not os.path.exists(IDMCTL):
+    if not os.path.exists(harness.IDMCTL):
         fail("idmctl not built")
-    d = Daemon(sim_config())
-    try:
+    with Daemon(config()) as d:
         def ctl(*args):
-            r = subprocess.run([IDMCTL, "--port", str(d.port)] + list(args), capture_output=True,
-                               text=True, timeout=60)
+            r = idmctl("--port", d.port, *args)
             return r.returncode, r.stdout.strip(), r.stderr.strip()
         rc, out, _ = ctl("pos")
         check(rc == 0, "idmctl pos: " + out)
@@ -152,19 +84,15 @@ def case_idmctl():
         check(rc == 0, "idmctl move waits and succeeds " + err)
         rc, out, _ = ctl("pos")
         check(abs(float(out.split()[-1]) - p0 - 4e-6) < 20e-9, "at the target: " + out)
-        r = subprocess.run([IDMCTL, "--unix", d.sock, "status"], capture_output=True, text=True,
-                           timeout=60)
+        r = idmctl("--unix", d.sock, "status")
         rc, out = r.returncode, r.stdout.strip()
         check(rc == 0 and "state=IDLE" in out, "idmctl over the Unix socket: " + out)
-        check(d.terminate() == 0, "SIGTERM -> exit 0")
-    finally:
-        if d.proc.poll() is None:
-            d.proc.kill()
+        check(d.stop(20) == 0, "SIGTERM -> exit 0")
 
 
 def case_notify_sigterm():
     """READY=1, WATCHDOG=1 while the loop runs, STOPPING=1; SIGTERM mid-move -> exit 0, output 0."""
-    path = os.path.join(TMP, "notify.sock")
+    path = os.path.join(harness.TMP, "notify.sock")
     rx = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     rx.bind(path)
     rx.settimeout(0.2)
@@ -179,119 +107,92 @@ def case_notify_sigterm():
                 pass
     th = threading.Thread(target=listen)
     th.start()
-    d = Daemon(sim_config(), env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "200000"})
     try:
-        end = time.time() + 10
-        while time.time() < end and not any("READY=1" in m for _, m in got):
-            time.sleep(0.01)
-        check(any("READY=1" in m for _, m in got), "READY=1 once the device is configured")
-        check(any("STATUS=" in m for _, m in got), "STATUS= in words: " +
-              "; ".join(m.replace("\n", " ") for _, m in got[:3]))
-        time.sleep(0.6)
-        pings = [t for t, m in got if "WATCHDOG=1" in m]
-        check(len(pings) >= 3, "WATCHDOG=1 while the loop advances (%d in 0.6 s)" % len(pings))
-        inst = visa(d.port)
-        inst.write("MOVE:REL 4e-3")
-        time.sleep(0.3)
-        check(inst.query("MOVE:DONE?").strip() == "0", "moving when SIGTERM comes")
-        inst.close()
-        rc = d.terminate()
-        check(rc == 0, "SIGTERM mid-move -> exit 0")
-        time.sleep(0.3)
-        check(any("STOPPING=1" in m for _, m in got), "STOPPING=1 on the way out")
-        log = d.log()
-        check("every output at zero (commanded elongation x 0 m)" in log, "output at zero after SIGTERM")
+        with Daemon(config(), env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "200000"}) as d:
+            end = time.time() + 10
+            while time.time() < end and not any("READY=1" in m for _, m in got):
+                time.sleep(0.01)
+            check(any("READY=1" in m for _, m in got), "READY=1 once the device is configured")
+            check(any("STATUS=" in m for _, m in got), "STATUS= in words: " +
+                  "; ".join(m.replace("\n", " ") for _, m in got[:3]))
+            time.sleep(0.6)
+            pings = [t for t, m in got if "WATCHDOG=1" in m]
+            check(len(pings) >= 3, "WATCHDOG=1 while the loop advances (%d in 0.6 s)" % len(pings))
+            inst = visa(d.port)
+            inst.write("MOVE:REL 4e-3")
+            time.sleep(0.3)
+            check(inst.query("MOVE:DONE?").strip() == "0", "moving when SIGTERM comes")
+            inst.close()
+            rc = d.stop(20)
+            check(rc == 0, "SIGTERM mid-move -> exit 0")
+            time.sleep(0.3)
+            check(any("STOPPING=1" in m for _, m in got), "STOPPING=1 on the way out")
+            log = d.log()
+            check("every output at zero (commanded elongation x 0 m)" in log, "output at zero after SIGTERM")
     finally:
         stop.set()
         th.join()
-        if d.proc.poll() is None:
-            d.proc.kill()
-
-
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 def case_modbus():
     port = free_port()
-    text = open(os.path.join(SOURCE, "config", "idmd-modbus.yaml")).read()
-    text = text.replace("port: 1502", "port: %d" % port)
     # The simulated device's plant is the ideal model: alpha 1.
-    text = text.replace("step_correction: 0.35", "step_correction: 1.0")
-    text = text.replace("/var/lib/idmd/calibration.txt", os.path.join(TMP, "calibration.txt"))
-    text = text.replace("/var/lib/idmd/data", os.path.join(TMP, "data"))
-    text = text.replace("sched_fifo: true", "sched_fifo: false")
-    cfg = os.path.join(TMP, "modbus.yaml")
-    open(cfg, "w").write(text)
+    cfg = modbus_config(port, [("step_correction: 0.35", "step_correction: 1.0")],
+                        out="modbus.yaml")
     # The device and the daemon read the same file, so that they agree on the word format.
-    simdev = subprocess.Popen([SIMDEV, "--port", str(port), "--config", cfg],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        simdev.stdout.readline()  # "listening on ..."
-        d = Daemon(cfg)
-        try:
-            inst = visa(d.port)
-            p0 = float(inst.query("POS?"))
-            inst.write("STEP 20")
-            check(wait_done(inst, 30), "open-loop STEP 20 over Modbus finishes")
-            p1 = float(inst.query("POS?"))
-            check(p1 - p0 > 1e-6, "20 cycles moved the slider: %g -> %g" % (p0, p1))
-            err = inst.query("SYST:ERR?").strip()
-            check(err.startswith("0,"), "no error: " + err)
-            inst.write("MOVE:REL -5e-6")
-            check(wait_done(inst, 30), "closed-loop MOVE:REL over Modbus finishes")
-            p2 = float(inst.query("POS?"))
-            st = status(inst)
-            check(st["state"] == "IDLE" and abs(p2 - p1 + 5e-6) < 50e-9,
-                  "moved -5 um closed loop: %g -> %g (%s)" % (p1, p2, st["fault"]))
-            inst.write("STEP 20000")
-            time.sleep(0.2)
-            inst.close()
-            check(d.terminate() == 0, "SIGTERM mid-burst over Modbus -> exit 0")
-            check("output at zero" in d.log(), "output at zero")
-        finally:
-            if d.proc.poll() is None:
-                d.proc.kill()
-    finally:
-        simdev.terminate()
-        simdev.wait(10)
+    with SimDev(port, cfg), Daemon(cfg) as d:
+        inst = visa(d.port)
+        p0 = float(inst.query("POS?"))
+        inst.write("STEP 20")
+        check(wait_done(inst.query, 30), "open-loop STEP 20 over Modbus finishes")
+        p1 = float(inst.query("POS?"))
+        check(p1 - p0 > 1e-6, "20 cycles moved the slider: %g -> %g" % (p0, p1))
+        err = inst.query("SYST:ERR?").strip()
+        check(err.startswith("0,"), "no error: " + err)
+        inst.write("MOVE:REL -5e-6")
+        check(wait_done(inst.query, 30), "closed-loop MOVE:REL over Modbus finishes")
+        p2 = float(inst.query("POS?"))
+        st = status(inst)
+        check(st["state"] == "IDLE" and abs(p2 - p1 + 5e-6) < 50e-9,
+              "moved -5 um closed loop: %g -> %g (%s)" % (p1, p2, st["fault"]))
+        inst.write("STEP 20000")
+        time.sleep(0.2)
+        inst.close()
+        check(d.stop(20) == 0, "SIGTERM mid-burst over Modbus -> exit 0")
+        check("output at zero" in d.log(), "output at zero")
+
+
+def idmd(*args):
+    """idmd run with `args` to its end (30 s at most), the output as text."""
+    return subprocess.run([harness.IDMD] + list(args), capture_output=True, text=True, timeout=30)
 
 
 def case_bad_config():
-    cfg = os.path.join(TMP, "bad.yaml")
-    open(cfg, "w").write("daq:\n  driver: sim\ncontrol:\n  max_retries: many\n")
-    r = subprocess.run([IDMD, "--check-config", cfg], capture_output=True, text=True, timeout=30)
+    cfg = temp_file("bad.yaml", "daq:\n  driver: sim\ncontrol:\n  max_retries: many\n")
+    r = idmd("--check-config", cfg)
     check(r.returncode == 2, "--check-config of a bad file exits 2")
     check("bad.yaml:4" in r.stderr and "control.max_retries" in r.stderr,
           "the error names the line and the key: " + r.stderr.strip())
-    r = subprocess.run([IDMD, "--config", cfg, "--port", "0", "--unix", ""], capture_output=True,
-                       text=True, timeout=30)
+    r = idmd("--config", cfg, "--port", "0", "--unix", "")
     check(r.returncode == 2, "idmd with a bad file exits 2 before touching hardware")
-    r = subprocess.run([IDMD, "--check-config", os.path.join(SOURCE, "config", "idmd.yaml")],
-                       capture_output=True, text=True, timeout=30)
+    r = idmd("--check-config", os.path.join(harness.SOURCE, "config", "idmd.yaml"))
     check(r.returncode == 0, "the default config checks: " + r.stdout.strip())
-    r = subprocess.run([IDMD, "--port", "x"], capture_output=True, text=True, timeout=30)
+    r = idmd("--port", "x")
     check(r.returncode == 2, "bad usage exits 2")
 
 
 def case_missing_device():
     port = free_port()  # nothing listens there
-    text = open(os.path.join(SOURCE, "config", "idmd-modbus.yaml")).read().replace(
-        "port: 1502", "port: %d" % port)
-    cfg = os.path.join(TMP, "nodev.yaml")
-    open(cfg, "w").write(text)
-    r = subprocess.run([IDMD, "--config", cfg, "--port", "0", "--unix", ""], capture_output=True,
-                       text=True, timeout=30)
+    cfg = modbus_config(port, out="nodev.yaml")
+    r = idmd("--config", cfg, "--port", "0", "--unix", "")
     check(r.returncode == 3, "a missing device exits 3 (got %d)" % r.returncode)
     check("cannot open the modbus device" in r.stderr and str(port) in r.stderr,
           "the error says which device: " + r.stderr.strip().splitlines()[-1])
 
 
-{"pyvisa": case_pyvisa, "idmctl": case_idmctl, "notify_sigterm": case_notify_sigterm,
- "modbus": case_modbus, "bad_config": case_bad_config,
- "missing_device": case_missing_device}[CASE]()
-print("PASS", CASE)
+CASES = {"pyvisa": case_pyvisa, "idmctl": case_idmctl, "notify_sigterm": case_notify_sigterm,
+         "modbus": case_modbus, "bad_config": case_bad_config,
+         "missing_device": case_missing_device}
+
+if __name__ == "__main__":
+    harness.run(CASES)

@@ -6,22 +6,15 @@ referenced flag, hold against pushes.
 
 usage: motion_integration.py BUILD_DIR SOURCE_DIR CASE
 """
-import os
-import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import fault_matrix as fm  # noqa: E402  (the same argv: BUILD_DIR SOURCE_DIR CASE)
-from fault_matrix import Client, Daemon, check, fail, wait_state, bursts_stay  # noqa: E402
+import script_harness as harness
+from script_harness import Client, Daemon, bursts_stay, check, config, wait_state
 
-CASE = sys.argv[3]
+harness.setup("idmd-motion-")
 COUNT_M = 632.991e-9 / 64
 # A stage whose zero lies off-centre: the low end stop comes before the soft limit (-5 mm).
 STOPS = ("  noise_m: 1e-9\n", "  noise_m: 1e-9\n  end_stops_m: [-0.3e-3, 5e-3]\n")
-
-
-def config(edits=()):
-    return fm.config(replace=edits)
 
 
 def oper(c, axis=""):
@@ -31,16 +24,6 @@ def oper(c, axis=""):
 def result(c):
     word, dist = c.ask("MOVE:RES?").split(",")
     return word, float(dist)
-
-
-def mean_pos(c, n=32, spacing_s=0.003):
-    """The mean of n readings spread over n * spacing_s: back-to-back readings repeat the same few
-    words, and a slider resting near the edge between two counts can read the far one only."""
-    total = 0.0
-    for _ in range(n):
-        total += float(c.ask("POS?"))
-        time.sleep(spacing_s)
-    return total / n
 
 
 def errors(c):
@@ -138,7 +121,8 @@ def case_window_and_dwell():
 
 
 def case_not_arrived():
-    with Daemon(config([("  max_chunk_s: 0.05\n", "  max_chunk_s: 0.05\n  move_timeout_s: 0.15\n")])) as d:
+    move_timeout = ("  max_chunk_s: 0.05\n", "  max_chunk_s: 0.05\n  move_timeout_s: 0.15\n")
+    with Daemon(config(edits=[move_timeout])) as d:
         c = Client(d)
         c.send("MOVE:REL 4e-3\n")
         check(c.ask("*OPC?") == "1", "the long move ends")
@@ -157,7 +141,7 @@ def case_not_arrived():
 
 
 def case_eot_open_loop():
-    with Daemon(config([STOPS])) as d:
+    with Daemon(config(edits=[STOPS])) as d:
         c = Client(d)
         for _ in range(40):
             c.send("STEP -200\n")
@@ -180,7 +164,7 @@ def case_eot_open_loop():
 
 
 def case_eot_closed_loop():
-    with Daemon(config([STOPS])) as d:
+    with Daemon(config(edits=[STOPS])) as d:
         c = Client(d)
         c.send("MOVE:ABS -1e-3\n")
         check(c.ask("*OPC?") == "1", "the move into the stop ends")
@@ -196,11 +180,11 @@ def case_eot_closed_loop():
         check(c.ask("*OPC?") == "1", "a move away is allowed")
         word, dist = result(c)
         check(word == "OK" and abs(dist) <= COUNT_M, "and arrives (%g m)" % dist)
-        check(abs(mean_pos(c) - 1e-4) <= COUNT_M, "at the target by a fresh reading")
+        check(abs(c.mean_position() - 1e-4) <= COUNT_M, "at the target by a fresh reading")
 
 
 def case_reference():
-    cfg = config([STOPS, ("  max_retries: 10\n", "  max_retries: 10\n"),
+    cfg = config(edits=[STOPS, ("  max_retries: 10\n", "  max_retries: 10\n"),
                   ("stage:                          # Table 1",
                    "require_reference: true\nstage:                          # Table 1")])
     with Daemon(cfg) as d:
@@ -220,12 +204,12 @@ def case_reference():
         check(c.ask("REF?") == "1" and oper(c) & (1 << 3), "referenced")
         check(result(c)[0] == "OK", "MOVE:RES? OK after the reference")
         # the stop is at -0.3 mm on the stage; the reference puts it at the travel's end (-5 mm)
-        p = mean_pos(c)
+        p = c.mean_position()
         check(abs(p - (-5e-3)) < 1e-6, "the position at the stop is the travel's lower end (%g)" % p)
         c.send("MOVE:ABS -4.9e-3\n")
         check(c.ask("*OPC?") == "1" and result(c)[0] == "OK" and errors(c) == [],
               "absolute moves allowed once referenced")
-        p = mean_pos(c)
+        p = c.mean_position()
         check(abs(p + 4.9e-3) <= COUNT_M, "at -4.9 mm (%g)" % p)
         c.send("SIM:FAULT beam_lost,1\n")
         wait_state(c, {"position_valid": "0"})
@@ -251,11 +235,12 @@ def case_reference():
 
 
 def case_reference_positive():
-    with Daemon(config([("  noise_m: 1e-9\n", "  noise_m: 1e-9\n  end_stops_m: [-5e-3, 0.4e-3]\n")])) as d:
+    high_stop = ("  noise_m: 1e-9\n", "  noise_m: 1e-9\n  end_stops_m: [-5e-3, 0.4e-3]\n")
+    with Daemon(config(edits=[high_stop])) as d:
         c = Client(d)
         c.send("REF POS\n")
         check(c.ask("*OPC?") == "1" and c.ask("REF?") == "1", "REF POS found the high stop")
-        p = mean_pos(c)
+        p = c.mean_position()
         check(abs(p - 5e-3) < 1e-6, "the position there is the travel's upper end (%g)" % p)
         check(c.status()["eot"] == "high", "and it is at the end of travel (high)")
 
@@ -277,9 +262,9 @@ def case_hold():
             while time.time() < end:
                 time.sleep(0.05)
                 if int(c.status()["bursts"]) > before and c.status()["state"] == "IDLE" and \
-                        abs(mean_pos(c, 4) - 2e-4) <= window:
+                        abs(c.mean_position(4) - 2e-4) <= window:
                     break
-            p = mean_pos(c)
+            p = c.mean_position()
             check(abs(p - 2e-4) <= window, "pushed by %g m: back within the hold window (%g m)" % (push, p - 2e-4))
             check(int(c.status()["bursts"]) > before, "it corrected")
             check(bursts_stay(c, 0.2), "and rests again")
@@ -290,7 +275,7 @@ def case_hold():
         before = c.status()["bursts"]
         c.send("SIM:PUSH 2e-6\n")
         time.sleep(0.3)
-        check(c.status()["bursts"] == before and abs(mean_pos(c) - 2e-4 - 2e-6) < 3 * COUNT_M,
+        check(c.status()["bursts"] == before and abs(c.mean_position() - 2e-4 - 2e-6) < 3 * COUNT_M,
               "no correction after the hold ended")
         c.send("HOLD 0.3\nMOVE:ABS 1e-4\n")
         check(c.ask("*OPC?") == "1", "a move with a 0.3 s hold")
@@ -312,8 +297,4 @@ CASES = {
 }
 
 if __name__ == "__main__":
-    if CASE == "--list":
-        print(" ".join(CASES))
-        sys.exit(0)
-    CASES[CASE]()
-    print("PASS", CASE)
+    harness.run(CASES)
