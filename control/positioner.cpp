@@ -359,6 +359,10 @@ void Positioner::on_reading(const model::AxisEvent& e) {
     return;
   }
   const double position = e.position_m + offset_m_;
+  if (e.mark && mark_search_ == MarkSearch::Searching && !mark_seen_) {
+    mark_seen_ = true;
+    mark_reading_m_ = position;
+  }
   status_.position_m = position;
   chunk_lo_m_ = std::min(chunk_lo_m_, position);
   chunk_hi_m_ = std::max(chunk_hi_m_, position);
@@ -474,6 +478,10 @@ void Positioner::next_open_loop_chunk(double now_s) {
 }
 
 void Positioner::after_chunk(double now_s, double position) {
+  if (mark_search_ == MarkSearch::Searching && mark_seen_ && !stop_requested_) {
+    mark_found(now_s);
+    return;
+  }
   const double moved = position - chunk_start_position_m_;
   if (end_of_travel_seen(moved)) {
     end_of_travel(

@@ -211,6 +211,13 @@ class Positioner {
   // Finds the end stop toward `direction` (+1/-1) open loop at the largest step, then sets the
   // position there to position_at_stop_m. Soft limits do not apply to it.
   Refusal reference(int direction, double position_at_stop_m);
+  // Finds the reference mark (the interferometer's words report crossing it: AxisEvent::mark):
+  // drives open loop at the largest step toward `direction` (+1/-1); at an end stop before the
+  // mark it reverses once. The mark's reading sets the offset so that the mark reads
+  // position_at_mark_m, and a closed-loop move brings the slider back onto the mark. Ends OK and
+  // counted in status().references once there; a second end stop without the mark ends with
+  // END_OF_TRAVEL, the cycles running out with TIMEOUT (not referenced either way).
+  Refusal reference_mark(int direction, double position_at_mark_m);
   // Ends a hold (any motion command does).
   void end_hold();
   // After a rebuild at rest (new settings): carry on from the previous positioner's status (the
@@ -341,6 +348,12 @@ class Positioner {
   void play_rung(const std::vector<Rung>& ladder, int chosen, int sign, std::uint64_t cycles,
                  bool final_chunk, bool capped, double b_final, double error);
   void next_open_loop_chunk(double now_s);
+  // The references: the open-loop drive toward `sign` (false: no cell moves that way), the start
+  // of both kinds, and the mark search's steps (the mark found; an end stop met while searching).
+  bool reference_drive(int sign);
+  Refusal start_reference(int direction, double position_m, bool mark);
+  void mark_found(double now_s);
+  void mark_search_end_stop(double now_s, int sign);
   void finish(double now_s, MoveResult result);
   void arrived(double now_s);
   bool end_of_travel_seen(double moved_m);  // after a chunk: the mean step collapsed
@@ -409,6 +422,13 @@ class Positioner {
   int eot_count_ = 0, eot_next_ = 0;
   bool referencing_ = false;
   double reference_position_m_ = 0;
+  // The mark search (reference_mark): driving until a reading carries the mark, then the
+  // closed-loop move back onto it.
+  enum class MarkSearch : std::uint8_t { Off, Searching, Returning };
+  MarkSearch mark_search_ = MarkSearch::Off;
+  bool mark_seen_ = false;      // a reading with the mark came in while searching
+  bool mark_reversed_ = false;  // the search met an end stop and drives the other way
+  double mark_reading_m_ = 0;   // that reading (with the offset then in force)
   double dwell_until_s_ = 0;
   bool hold_armed_ = false;                 // holding: at rest, watching the readings
   double hold_until_s_ = 0;                 // +inf: until the next command

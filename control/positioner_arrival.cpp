@@ -28,6 +28,9 @@ void Positioner::finish(double now_s, MoveResult result) {
   status_.result = result;
   status_.result_distance_m = status_.target_m - status_.position_m;
   status_.in_window = status_.kind == MotionKind::Move && result == MoveResult::Ok;
+  // A mark search is done once the move back onto the mark arrived.
+  if (mark_search_ == MarkSearch::Returning && result == MoveResult::Ok) ++status_.references;
+  mark_search_ = MarkSearch::Off;
   referencing_ = false;
   if (status_.in_window && config_.hold_s != 0) {
     hold_armed_ = true;
@@ -153,6 +156,10 @@ void Positioner::end_of_travel(double now_s, int sign) {
   status_.eot = sign;
   status_.eot_position_m = sign < 0 ? std::min(chunk_lo_m_, status_.position_m)
                                     : std::max(chunk_hi_m_, status_.position_m);
+  if (mark_search_ == MarkSearch::Searching) {
+    mark_search_end_stop(now_s, sign);
+    return;
+  }
   if (referencing_) {
     // At the stop: this is where the reference lies.
     const double shift = reference_position_m_ - status_.position_m;
@@ -166,6 +173,51 @@ void Positioner::end_of_travel(double now_s, int sign) {
     return;
   }
   finish(now_s, MoveResult::EndOfTravel);
+}
+
+// ---- the reference mark ----
+
+void Positioner::mark_found(double now_s) {
+  // The mark's reading becomes the reference position: readings, target and the end of travel
+  // move with the offset.
+  const double shift = reference_position_m_ - mark_reading_m_;
+  offset_m_ += shift;
+  status_.offset_m = offset_m_;
+  status_.position_m += shift;
+  status_.eot_position_m += shift;
+  chunk_lo_m_ += shift;
+  chunk_hi_m_ += shift;
+  status_.target_m = reference_position_m_;
+  // The chunk played on past the mark: a closed-loop move brings the slider back onto it.
+  mark_search_ = MarkSearch::Returning;
+  referencing_ = false;
+  status_.eot = 0;
+  status_.closed_loop = true;
+  load_rung_estimates();
+  last_try_done_ = false;
+  stall_count_ = 0;
+  streak_cycles_ = 0;
+  streak_along_m_ = 0;
+  move_chunks_ = 0;
+  eot_count_ = 0;
+  eot_next_ = 0;
+  plan_next_chunk(now_s);
+}
+
+void Positioner::mark_search_end_stop(double now_s, int sign) {
+  // An end stop before the mark: the mark lies the other way (once); a second stop means the
+  // travel has no mark, and the axis is not referenced.
+  if (!mark_reversed_ && !stop_requested_ && reference_drive(-sign)) {
+    mark_reversed_ = true;
+    status_.eot = 0;
+    eot_count_ = 0;
+    eot_next_ = 0;
+    stall_count_ = 0;
+    next_open_loop_chunk(now_s);
+    return;
+  }
+  referencing_ = false;
+  finish(now_s, stop_requested_ ? stop_result_ : MoveResult::EndOfTravel);
 }
 
 }  // namespace idm::control

@@ -22,6 +22,7 @@ void Positioner::start_motion(MotionKind kind) {
   hold_armed_ = false;
   hold_correcting_ = false;
   referencing_ = false;
+  mark_search_ = MarkSearch::Off;
   stop_requested_ = false;
   stop_result_ = MoveResult::Stopped;
   last_try_done_ = false;
@@ -150,15 +151,9 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
   return Refusal::None;
 }
 
-Refusal Positioner::reference(int direction, double position_at_stop_m) {
-  requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
-  if (!std::isfinite(position_at_stop_m)) return Refusal::NotFinite;
-  if (phase_ == Phase::Fault) return Refusal::Faulted;
-  if (phase_ != Phase::Idle) return Refusal::Busy;
-  if (!status_.position_valid) return Refusal::NoPosition;
-  const int sign = direction > 0 ? 1 : -1;
+bool Positioner::reference_drive(int sign) {
   const int d = direction_index(sign);
-  if (!has_largest_cell_[d]) return Refusal::OutOfRange;
+  if (!has_largest_cell_[d]) return false;
   const RegionCell& cell = map_.cells()[largest_cell_[d]];
   Chunk c;
   c.freq_hz = cell.freq_hz;
@@ -167,7 +162,7 @@ Refusal Positioner::reference(int direction, double position_at_stop_m) {
   c.period_samples = cell.period_samples;
   c.extension_samples = cell.extension_samples;
   const double step = nominal_open_loop_step_m(c.freq_hz, c.duty, c.stroke_m);
-  if (!(std::fabs(step) > 0)) return Refusal::OutOfRange;
+  if (!(std::fabs(step) > 0)) return false;
   // Enough cycles to cross the soft range four times at the nominal step (a real stage steps
   // less); the end stop ends it long before.
   const double span = std::isfinite(config_.soft_upper_m - config_.soft_lower_m)
@@ -178,14 +173,35 @@ Refusal Positioner::reference(int direction, double position_at_stop_m) {
   c.cell = nullptr;
   open_loop_ = c;
   open_loop_remaining_ = static_cast<std::uint64_t>(std::clamp(n, 1.0, 1e9));
+  return true;
+}
+
+Refusal Positioner::start_reference(int direction, double position_m, bool mark) {
+  requested_target_m_ = std::numeric_limits<double>::quiet_NaN();
+  if (!std::isfinite(position_m)) return Refusal::NotFinite;
+  if (phase_ == Phase::Fault) return Refusal::Faulted;
+  if (phase_ != Phase::Idle) return Refusal::Busy;
+  if (!status_.position_valid) return Refusal::NoPosition;
+  if (!reference_drive(direction > 0 ? 1 : -1)) return Refusal::OutOfRange;
   status_.closed_loop = false;
   status_.eot = 0;
   start_motion(MotionKind::Reference);
   referencing_ = true;
-  reference_position_m_ = position_at_stop_m;
-  status_.target_m = position_at_stop_m;
+  mark_search_ = mark ? MarkSearch::Searching : MarkSearch::Off;
+  mark_seen_ = false;
+  mark_reversed_ = false;
+  reference_position_m_ = position_m;
+  status_.target_m = position_m;
   target_known_ = true;
   return Refusal::None;
+}
+
+Refusal Positioner::reference(int direction, double position_at_stop_m) {
+  return start_reference(direction, position_at_stop_m, false);
+}
+
+Refusal Positioner::reference_mark(int direction, double position_at_mark_m) {
+  return start_reference(direction, position_at_mark_m, true);
 }
 
 Refusal Positioner::set_window(double window_m) {
@@ -294,6 +310,7 @@ void Positioner::enter_fault(MotionFault fault) {
   status_.holding = false;
   status_.in_window = false;
   referencing_ = false;
+  mark_search_ = MarkSearch::Off;
   if (moving || status_.result == MoveResult::None) {
     status_.result = MoveResult::Fault;
     status_.result_distance_m = status_.target_m - status_.position_m;

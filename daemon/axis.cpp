@@ -80,6 +80,7 @@ void Axis::build(const ControlConfig& control) {
   const drivers::OutputCapabilities& oc = link_.output_capabilities(channel());
   const drivers::InterferometerCapabilities& ic = link_.interferometer_capabilities(channel());
   count_m_ = ic.word.count_m();
+  has_reference_mark_ = ic.reference_mark;
   if (!next_map_ && (!map_ || grid_changed(control_, control))) prepare(control);
   const control::MotionStatus previous =
       positioner_ ? positioner_->status() : control::MotionStatus{};
@@ -143,7 +144,9 @@ control::Refusal Axis::apply(const AxisCommand& c) {
       return positioner_->set_hold(c.a, c.b);
     case AxisCommand::Kind::Reference: {
       if (busy) return Refusal::Busy;
-      const Refusal r = positioner_->reference(c.n > 0 ? 1 : -1, c.a);
+      const int direction = c.n > 0 ? 1 : -1;
+      const Refusal r = c.b != 0 ? positioner_->reference_mark(direction, c.a)
+                                 : positioner_->reference(direction, c.a);
       if (r == Refusal::None) referenced_ = false;  // until it is found
       return r;
     }

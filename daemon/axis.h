@@ -35,7 +35,8 @@ struct AxisCommand {
     SetDwell,
     SetEot,
     SetHold,
-    Reference,  // settings: a (and b, n); Reference: n = direction
+    Reference,  // settings: a (and b, n); Reference: n = direction, a = the position it
+                // sets, b != 0: find the reference mark (else the end stop)
   };
   Kind kind = Kind::Stop;
   std::int32_t axis = -1;
@@ -136,6 +137,8 @@ class Axis {
   drivers::DeviceLink& link() { return link_; }
   std::size_t channel() const { return link_index_; }
   double count_m() const { return count_m_; }
+  // The interferometer reports crossing a reference mark (REFerence MARK can find it).
+  bool has_reference_mark() const { return has_reference_mark_; }
   // The calibration as the loop last published it (a copy), and its update count.
   control::CalibrationState calibration_snapshot() const { return calibration_snapshot_.load(); }
 
@@ -151,6 +154,7 @@ class Axis {
   std::size_t link_index_;
   drivers::ChannelPort& port_;
   double count_m_ = 0;
+  bool has_reference_mark_ = false;
   ControlConfig control_;
   control::DeviceLimits limits_;
   std::unique_ptr<control::RegionMap> map_, next_map_;

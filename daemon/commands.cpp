@@ -278,16 +278,24 @@ CommandError Daemon::reference(int axis, ReferenceMethod method) {
     method = cfg.reference == AxisConfig::Reference::Positive ? ReferenceMethod::Positive
              : cfg.reference == AxisConfig::Reference::Mark   ? ReferenceMethod::Mark
                                                               : ReferenceMethod::Negative;
-  if (method == ReferenceMethod::Mark)
-    return {error_code::kSettingsConflict,
-            "REFerence MARK: axis " + cfg.name +
-                "'s interferometer reports no reference mark; use NEGative or POSitive"};
-  const bool negative = method == ReferenceMethod::Negative;
-  double at = cfg.reference_position_m;
-  if (std::isnan(at)) at = negative ? cfg.stage.travel_lower_m : cfg.stage.travel_upper_m;
   AxisCommand c;
   c.kind = AxisCommand::Kind::Reference;
   c.axis = axis;
+  if (method == ReferenceMethod::Mark) {
+    if (!a.has_reference_mark())
+      return {error_code::kSettingsConflict,
+              "REFerence MARK: axis " + cfg.name +
+                  "'s interferometer reports no reference mark; use NEGative or POSitive"};
+    // The search drives toward negative first (and turns at the end stop); the mark reads
+    // reference_position_m, 0 when not configured.
+    c.n = -1;
+    c.b = 1;
+    c.a = std::isnan(cfg.reference_position_m) ? 0.0 : cfg.reference_position_m;
+    return submit(c);
+  }
+  const bool negative = method == ReferenceMethod::Negative;
+  double at = cfg.reference_position_m;
+  if (std::isnan(at)) at = negative ? cfg.stage.travel_lower_m : cfg.stage.travel_upper_m;
   c.n = negative ? -1 : 1;
   c.a = at;
   return submit(c);

@@ -178,6 +178,9 @@ struct InterferometerCapabilities {
   PositionWordConfig word;
   double stream_rate_hz = 1e5;             // rate of the burst stream
   std::size_t stream_capacity = 1u << 20;  // samples the device keeps until they are read
+  // The scale has an index mark: words carry position_word::kReferenceMark on crossing it
+  // (REFerence MARK needs it). Only the simulated device has one (sim.reference_mark_m).
+  bool reference_mark = false;
 };
 
 class Interferometer : public HardwareComponent {

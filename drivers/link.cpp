@@ -356,16 +356,19 @@ void DeviceLink::drain_stream(Channel& c, double now_s, bool final) {
       }
       ++c.streamed;
       const bool last = final && i + 1 == n && n < c.stream.size();
-      if (!p.valid() || last || c.streamed % config_.stream_every == 0) {
+      // A reading with the reference mark is never thinned out nor dropped: the controller
+      // looks for it.
+      if (!p.valid() || p.mark || last || c.streamed % config_.stream_every == 0) {
         model::AxisEvent e;
         e.kind = Kind::Reading;
         e.in_segment = true;
         e.status = p.status;
         e.overrun = (p.status & sample_status::kSampleOverrun) != 0;
+        e.mark = p.mark;
         e.position_m = position;
         e.t_s = std::min(now_s, c.segment_start_s + c.stream[i].t_s);
         e.seq = c.request.seq;
-        push_event(c, e, p.valid());
+        push_event(c, e, p.valid() && !p.mark);
       }
     }
     if (!s.ok()) {
@@ -417,6 +420,7 @@ void DeviceLink::latch(Channel& c, double now_s) {
   model::AxisEvent e;
   e.kind = Kind::Reading;
   e.status = p.status;
+  e.mark = p.mark;
   e.t_s = now_s;
   if (p.valid()) {
     const std::int64_t count = p.count + c.offset_counts;
@@ -426,7 +430,7 @@ void DeviceLink::latch(Channel& c, double now_s) {
   } else {
     e.position_m = kNaN;
   }
-  push_event(c, e, p.valid());
+  push_event(c, e, p.valid() && !p.mark);
 }
 
 // ---- loss and reconnection ----

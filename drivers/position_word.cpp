@@ -178,10 +178,10 @@ void validate(const PositionWordConfig& c, const std::string& where) {
 }
 
 std::uint64_t encode_position_word(std::int64_t count, WordWidth width, std::uint64_t status_bits) {
-  if ((status_bits & ~position_word::kStatusBits) != 0) {
+  if ((status_bits & ~position_word::kDefinedBits) != 0) {
     std::ostringstream msg;
     msg << "encode_position_word: status bits 0x" << std::hex << status_bits
-        << " outside the defined bits 40..44";
+        << " outside the defined bits 40..45";
     throw model::InputError(msg.str());
   }
   return (static_cast<std::uint64_t>(count) & count_mask(width)) | status_bits;
@@ -228,8 +228,8 @@ PositionDecoder::PositionDecoder(const PositionWordConfig& config) : config_(con
   count_m_ = config_.count_m();
   const unsigned bits = width_bits(config_.width);
   count_mask_ = count_mask(config_.width);
-  // Everything but the count field and the defined status bits.
-  reserved_mask_ = ~(count_mask_ | position_word::kStatusBits);
+  // Everything but the count field, the defined status bits and the reference mark.
+  reserved_mask_ = ~(count_mask_ | position_word::kDefinedBits);
   sign_shift_ = 64 - bits;
   half_range_counts_ = std::uint64_t{1} << (bits - 1);
   step_allowance_counts_ = static_cast<std::uint64_t>(step_allowance(config_));
@@ -266,7 +266,7 @@ PositionSample PositionDecoder::decode(std::uint64_t word) {
   double position_m = 0.0;
   std::uint8_t status = 0;
   decode(&word, 1, &position_m, &status);
-  return PositionSample{count_, position_m, status};
+  return PositionSample{count_, position_m, status, (word & position_word::kReferenceMark) != 0};
 }
 
 void PositionDecoder::decode(const std::uint64_t* words, std::size_t n, double* position_m,

@@ -11,7 +11,10 @@
 //   bit  42      reference signal lost (the laser head's reference dropped out)
 //   bit  43      glitch (the board saw an impossible phase step)
 //   bit  44      sample overrun (the latch was overwritten before it was read)
-//   bits 45..63  reserved, zero
+//   bit  45      reference mark: the slider crossed the scale's index mark since the previous
+//                word the device produced (latched or streamed). Not an error: the sample
+//                stays valid; the decoder reports it as PositionSample::mark.
+//   bits 46..63  reserved, zero
 //
 // A count of one is lambda_vac / (n_air * divisor) of slider travel: divisor 64 for single-beam
 // linear optics (HP 10705A, the paper's 9.89 nm), 128 for plane-mirror optics.
@@ -32,9 +35,13 @@ inline constexpr std::uint64_t kMeasurementSignalLost = std::uint64_t{1} << 41;
 inline constexpr std::uint64_t kReferenceSignalLost = std::uint64_t{1} << 42;
 inline constexpr std::uint64_t kGlitch = std::uint64_t{1} << 43;
 inline constexpr std::uint64_t kSampleOverrun = std::uint64_t{1} << 44;
-// Every status bit defined above.
+// Every status bit defined above (the valid bit and the error bits).
 inline constexpr std::uint64_t kStatusBits =
     kValid | kMeasurementSignalLost | kReferenceSignalLost | kGlitch | kSampleOverrun;
+// The reference mark flag: not a status bit (it never makes a sample invalid).
+inline constexpr std::uint64_t kReferenceMark = std::uint64_t{1} << 45;
+// Every bit above the count field that a well-formed word may set.
+inline constexpr std::uint64_t kDefinedBits = kStatusBits | kReferenceMark;
 }  // namespace position_word
 
 // Per-sample status written by the decoder: 0 means a valid position; any bit set means the
@@ -88,7 +95,8 @@ struct PositionWordConfig {
 void validate(const PositionWordConfig& config, const std::string& where = "interferometer");
 
 // The raw word for `count` (taken modulo 2^width, two's complement) with the given status bits
-// (a subset of position_word::kStatusBits; others throw InputError).
+// (a subset of position_word::kDefinedBits: the status bits and the reference mark; others throw
+// InputError).
 std::uint64_t encode_position_word(std::int64_t count, WordWidth width,
                                    std::uint64_t status_bits = position_word::kValid);
 
@@ -118,6 +126,7 @@ struct PositionSample {
   std::int64_t count = 0;   // unwrapped count; the last valid one when this sample is invalid
   double position_m = 0.0;  // count * count_m(); NaN when invalid
   std::uint8_t status = 0;  // sample_status bits; 0 = valid
+  bool mark = false;        // the word's reference mark bit (set whatever the status)
 
   bool valid() const { return status == 0; }
 };
@@ -130,7 +139,8 @@ struct PositionSample {
 // sample_interval / count_m) + 1 (the +1 for quantization) and k the words rejected since the
 // last accepted one. A larger delta is a glitch: the sample is invalid and the unwrap state is
 // left as it was. A word with any error bit, a clear valid bit or
-// a reserved bit set is invalid too. Invalid samples never move the position.
+// a reserved bit set is invalid too. Invalid samples never move the position. The reference mark
+// bit is neither: decode(word) reports it in PositionSample::mark, the batch decode ignores it.
 //
 // Continuity is lost (every later sample carries kContinuityLost until reset()) when the
 // measurement or reference signal is lost (counts were missed), after more than

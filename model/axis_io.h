@@ -27,9 +27,12 @@ struct AxisEvent {
   bool in_segment = false;  // Reading: streamed while a segment played
   bool overrun = false;     // Reading: the capture overflowed before this sample (not the beam)
   bool count_kept = true;   // DeviceBack: the device kept its position count through the loss
-  std::uint32_t seq = 0;    // segment events: the request's sequence number
-  double t_s = 0;           // the link's clock (monotonic seconds; the synthetic clock in tests)
-  double position_m = 0;    // Reading: metres, meaningful when status == 0
+  // Reading: the word carried the reference mark (the slider crossed the scale's index mark
+  // since the device's previous word; position_word.h bit 45).
+  bool mark = false;
+  std::uint32_t seq = 0;  // segment events: the request's sequence number
+  double t_s = 0;         // the link's clock (monotonic seconds; the synthetic clock in tests)
+  double position_m = 0;  // Reading: metres, meaningful when status == 0
 
   bool valid() const { return kind == Kind::Reading && status == 0; }
 };

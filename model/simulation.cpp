@@ -204,7 +204,9 @@ const ParamTable<SimConfig>& sim_params() {
                     throw InputError(located(file, v, key, "low must be below high"));
                 }),
       with_default(real<C>(
-                       "reference_mark_m", "m", {-10, 10}, "an index mark REFerence MARK finds",
+                       "reference_mark_m", "m", {-10, 10},
+                       "an index mark (a slider position) REFerence MARK finds: the word after "
+                       "each crossing carries the reference mark bit",
                        [](auto& c) -> auto& { return c.reference_mark_m; }),
                    "none"),
   });

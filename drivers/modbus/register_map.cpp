@@ -43,6 +43,11 @@ std::size_t RegisterMap::register_span(WordWidth width) const {
 
 namespace {
 
+// A record's status register: bits 0..5 are the word's bits 40..45 (the status bits and the
+// reference mark); a higher bit is not defined and becomes reserved word bit 46.
+constexpr std::uint16_t kDefinedStatus = 0x3Fu;
+constexpr std::uint64_t kUndefinedStatusBit = std::uint64_t{1} << 46;
+
 struct Span {
   const char* name;
   std::size_t first, count;
@@ -232,7 +237,7 @@ double decode_value(const ScaledField& f, WordOrder order, const std::uint16_t* 
 
 void encode_position(std::uint64_t word, WordWidth width, WordOrder order, std::uint16_t* regs) {
   const std::uint16_t status =
-      static_cast<std::uint16_t>((word >> position_word::kStatusShift) & 0x1Fu);
+      static_cast<std::uint16_t>((word >> position_word::kStatusShift) & kDefinedStatus);
   if (width == WordWidth::Bits32) {
     put32(static_cast<std::uint32_t>(word), order, regs);
     regs[2] = status;
@@ -259,10 +264,11 @@ std::uint64_t decode_position(const std::uint16_t* regs, WordWidth width, WordOr
     count = (top << 32) | (std::uint64_t{regs[1]} << 16) | low;
     status = regs[3];
   }
-  std::uint64_t word = count | (std::uint64_t{status & 0x1Fu} << position_word::kStatusShift);
+  std::uint64_t word =
+      count | (static_cast<std::uint64_t>(status & kDefinedStatus) << position_word::kStatusShift);
   // Status bits the layout does not define: a malformed record; a reserved word bit makes the
   // decoder mark it invalid rather than drop the evidence.
-  if ((status & ~0x1Fu) != 0) word |= std::uint64_t{1} << 45;
+  if ((status & ~kDefinedStatus) != 0) word |= kUndefinedStatusBit;
   return word;
 }
 

@@ -92,8 +92,9 @@ bool encode_value(const ScaledField& field, double value, WordOrder order, std::
 double decode_value(const ScaledField& field, WordOrder order, const std::uint16_t* regs);
 
 // Encodes a raw word (position_word.h layout) into a position record and back. Count bits above
-// the width and reserved word bits are not carried; status register bits above 4 (undefined)
-// decode to reserved word bit 45, so that the decoder marks such a sample invalid.
+// the width and reserved word bits are not carried. The status register's bits 0..5 are the
+// word's bits 40..45 (status bits and the reference mark); bits above 5 (undefined) decode to
+// reserved word bit 46, so that the decoder marks such a sample invalid.
 void encode_position(std::uint64_t word, WordWidth width, WordOrder order, std::uint16_t* regs);
 std::uint64_t decode_position(const std::uint16_t* regs, WordWidth width, WordOrder order);
 

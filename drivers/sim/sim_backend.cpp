@@ -201,6 +201,7 @@ void SimBackend::push(double dx_m) {
   if (users_ > 0) sync();
   const double before = stage_.position_m();
   stage_.displace(dx_m);
+  check_mark();
   if (crosstalk_) crosstalk_->moved(this, stage_.position_m() - before);
 }
 
@@ -220,6 +221,8 @@ DriverStatus SimBackend::open() {
     stage_.reset(config_.sim.start_position_m, config_.sim.seed);
     stage_.plant().set_slider_held(faults_.slider_stalled);
     fault_rng_.seed(config_.sim.seed * 0x9E3779B97F4A7C15ull + 0x5EED);
+    mark_side_ = mark_side();
+    mark_pending_ = false;
     t_s_ = 0.0;
     epoch_s_ = monotonic_s();
     powered_ = true;
@@ -290,7 +293,10 @@ void SimBackend::advance_plant_to(double target_s) {
       t_next = std::min(t_next, end_s_);
     }
     const double xi = running_ ? command_at(t_next) : xi_cmd_m_;
-    if (t_next > t_s_) stage_.step(t_next - t_s_, xi);
+    if (t_next > t_s_) {
+      stage_.step(t_next - t_s_, xi);
+      check_mark();
+    }
     t_s_ = t_next;
     xi_cmd_m_ = xi;
     if (!running_) continue;
@@ -305,9 +311,28 @@ void SimBackend::advance_plant_to(double target_s) {
   }
 }
 
+int SimBackend::mark_side() const {
+  const double mark = config_.sim.reference_mark_m;
+  if (std::isnan(mark)) return 0;
+  return stage_.position_m() >= mark ? 1 : -1;
+}
+
+void SimBackend::check_mark() {
+  const int side = mark_side();
+  if (side != mark_side_) {
+    mark_side_ = side;
+    mark_pending_ = true;
+  }
+}
+
 std::uint64_t SimBackend::make_word() {
+  check_mark();  // a push or another axis's crosstalk may have moved the slider
   std::int64_t count = encoder_.counts_from_m(stage_.measured_m());
   std::uint64_t status = position_word::kValid;
+  if (mark_pending_) {
+    status |= position_word::kReferenceMark;
+    mark_pending_ = false;
+  }
   if (faults_.beam_lost) status |= position_word::kMeasurementSignalLost;
   if (faults_.glitch_probability > 0 &&
       std::uniform_real_distribution<double>(0.0, 1.0)(fault_rng_) < faults_.glitch_probability) {
@@ -325,6 +350,7 @@ void SimBackend::capture(double t_rel_s) {
   } else {
     ++stream_dropped_;
     if (!stream_.empty()) stream_.back().word |= position_word::kSampleOverrun;
+    if ((word & position_word::kReferenceMark) != 0) mark_pending_ = true;  // for the next word
   }
 }
 
@@ -333,6 +359,7 @@ void SimBackend::abort_burst() {
   running_ = false;
   // The output ramps from where it is to zero.
   stage_.step(config_.stop_ramp_s, 0.0);
+  check_mark();
   t_s_ += config_.stop_ramp_s;
   xi_cmd_m_ = 0.0;
 }
@@ -462,6 +489,7 @@ SimInterferometer::SimInterferometer(std::shared_ptr<SimBackend> backend)
   caps_.word = word_of(backend_->config());
   caps_.stream_rate_hz = backend_->config().stream_rate_hz;
   caps_.stream_capacity = backend_->config().stream_capacity;
+  caps_.reference_mark = !std::isnan(backend_->config().sim.reference_mark_m);
 }
 
 DriverStatus SimInterferometer::on_shutdown() {

@@ -9,6 +9,9 @@
 // call, so the burst plays in real time; wait_done sleeps with clock_nanosleep to the burst's end).
 // Seeded and deterministic: the same config and calls give the same words.
 //
+// Reference mark (sim.reference_mark_m): the words report crossing it with bit 45 (see
+// check_mark below and drivers/README.md).
+//
 // Faults, from the config (`daq.sim.faults`) or at run time: beam loss, glitches, a stalled
 // slider, a friction jump, a disconnected device, timeouts. Not thread-safe (one caller thread).
 #pragma once
@@ -139,6 +142,10 @@ class SimBackend {
   void capture(double t_rel_s);
   std::uint64_t make_word();
   void abort_burst();
+  // The reference mark: the side of sim.reference_mark_m the slider is on, checked after every
+  // plant step and at every word; a change arms the mark bit of the next word produced.
+  int mark_side() const;
+  void check_mark();
 
   DriverStatus load_samples(const double* xi_m, std::size_t n, double sample_rate_hz);
   DriverStatus load_parameters(const model::TriangleWave& wave);
@@ -170,6 +177,8 @@ class SimBackend {
   double t0_s_ = 0.0, end_s_ = 0.0;
   std::size_t next_breakpoint_ = 0;
   std::uint64_t next_capture_ = 0;
+  int mark_side_ = 0;          // -1 below the mark, +1 at or above it; 0 without a mark
+  bool mark_pending_ = false;  // crossed since the last word: the next word carries the mark
 
   std::vector<TimedWord> stream_;
   std::size_t stream_read_ = 0;

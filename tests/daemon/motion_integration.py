@@ -245,6 +245,57 @@ def case_reference_positive():
         check(c.status()["eot"] == "high", "and it is at the end of travel (high)")
 
 
+def case_reference_mark():
+    # An index mark at -0.1 mm on the stage, the zero off-centre as in STOPS; the mark is where the
+    # user's coordinates put 1 mm.
+    mark = ("  noise_m: 1e-9\n",
+            "  noise_m: 1e-9\n  end_stops_m: [-0.3e-3, 5e-3]\n  reference_mark_m: -0.1e-3\n")
+    at = ("stage:                          # Table 1",
+          "require_reference: true\nreference_position_m: 1e-3\nstage:                          # Table 1")
+    with Daemon(config(edits=[mark, at])) as d:
+        c = Client(d)
+        check(c.ask("REF?") == "0", "not referenced at start")
+        c.send("REF MARK\n")
+        time.sleep(0.05)
+        check(oper(c) & (1 << 9), "bit 9 while referencing")
+        check(c.ask("*OPC?") == "1", "REF MARK ends")
+        check(errors(c) == [], "no error queued")
+        check(c.ask("REF?") == "1" and oper(c) & (1 << 3), "referenced")
+        word, dist = result(c)
+        check(word == "OK" and abs(dist) <= COUNT_M, "MOVE:RES? OK (%s, %g m)" % (word, dist))
+        p = c.mean_position()
+        check(abs(p - 1e-3) <= 2 * COUNT_M, "POS? at the reference position on the mark (%g)" % p)
+        st = c.status()
+        check(st["eot"] == "none" and st["state"] == "IDLE", "IDLE, not at an end stop: %s" % st)
+        c.send("MOVE:ABS 1.05e-3\n")
+        check(c.ask("*OPC?") == "1" and result(c)[0] == "OK" and errors(c) == [],
+              "absolute moves allowed once referenced")
+        c.send("REF NEG\n")
+        check(c.ask("*OPC?") == "1" and c.ask("REF?") == "1", "REF NEG still finds the stop")
+    # A mark outside the travel: the search meets both end stops and fails, truthfully.
+    beyond = ("  noise_m: 1e-9\n",
+              "  noise_m: 1e-9\n  end_stops_m: [-0.3e-3, 0.3e-3]\n  reference_mark_m: 1e-3\n")
+    with Daemon(config(edits=[beyond])) as d:
+        c = Client(d)
+        c.send("REF MARK\n")
+        check(c.ask("*OPC?") == "1", "REF MARK ends")
+        check(c.ask("REF?") == "0", "not referenced")
+        check(result(c)[0] == "END_OF_TRAVEL", "MOVE:RES? END_OF_TRAVEL: %s" % (result(c),))
+        e = errors(c)
+        check(any(x.startswith("112,") and "reference" in x for x in e), "112 queued: %s" % e)
+        check(c.status()["eot"] == "high", "at the high stop (the second one it met)")
+    # The default configuration's simulated stage has no mark: refused, nothing moves.
+    with Daemon(config()) as d:
+        c = Client(d)
+        bursts = c.status()["bursts"]
+        c.send("REF MARK\n")
+        e = c.error()
+        check(e.startswith("-221,") and "reports no reference mark" in e, "REF MARK refused: %s" % e)
+        check(c.ask("*OPC?") == "1" and c.status()["bursts"] == bursts and bursts_stay(c),
+              "nothing moved")
+        check(c.ask("REF?") == "0" and result(c)[0] == "NONE", "not referenced, no motion")
+
+
 def case_hold():
     with Daemon(config()) as d:
         c = Client(d)
@@ -293,6 +344,7 @@ CASES = {
     "eot_closed_loop": case_eot_closed_loop,
     "reference": case_reference,
     "reference_positive": case_reference_positive,
+    "reference_mark": case_reference_mark,
     "hold": case_hold,
 }
 

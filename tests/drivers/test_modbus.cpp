@@ -214,11 +214,28 @@ TEST(ModbusRegisterMap, PositionRecordsCarryCountAndStatus) {
   EXPECT_EQ(r[1], 0xABCD);
   EXPECT_EQ(r[2], 0xEF12);
   EXPECT_EQ(r[3], 1);  // valid
-  // An undefined status bit makes the word malformed for the decoder.
-  r[3] |= 1u << 9;
+  // The reference mark is status bit 5, carried both ways and valid for the decoder.
   PositionWordConfig c;
   c.width = WordWidth::Bits36;
+  const std::uint64_t marked = encode_position_word(
+      0x9ABCDEF12LL, WordWidth::Bits36, position_word::kValid | position_word::kReferenceMark);
+  std::uint16_t m[4] = {0, 0, 0, 0};
+  mb::encode_position(marked, WordWidth::Bits36, mb::WordOrder::HighFirst, m);
+  EXPECT_EQ(m[3], 1u | (1u << 5));
+  EXPECT_EQ(mb::decode_position(m, WordWidth::Bits36, mb::WordOrder::HighFirst), marked);
+  {
+    PositionDecoder d(c);
+    const PositionSample s = d.decode(marked);
+    EXPECT_TRUE(s.valid());
+    EXPECT_TRUE(s.mark);
+  }
+  // An undefined status bit makes the word malformed for the decoder.
+  r[3] |= 1u << 9;
   PositionDecoder d(c);
+  EXPECT_NE(d.decode(mb::decode_position(r, WordWidth::Bits36, mb::WordOrder::HighFirst)).status &
+                sample_status::kReservedBitsSet,
+            0);
+  r[3] = 1u | (1u << 6);
   EXPECT_NE(d.decode(mb::decode_position(r, WordWidth::Bits36, mb::WordOrder::HighFirst)).status &
                 sample_status::kReservedBitsSet,
             0);

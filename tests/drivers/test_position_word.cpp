@@ -69,8 +69,54 @@ TEST(PositionWord, LayoutAndRoundTrip) {
     }
     EXPECT_EQ(word_count(encode_position_word(half, w), w), -half);  // rolled over
   }
-  EXPECT_THROW(encode_position_word(0, WordWidth::Bits32, std::uint64_t{1} << 45), InputError);
+  EXPECT_THROW(encode_position_word(0, WordWidth::Bits32, std::uint64_t{1} << 46), InputError);
   EXPECT_THROW(encode_position_word(0, WordWidth::Bits32, std::uint64_t{1} << 39), InputError);
+}
+
+TEST(PositionWord, ReferenceMarkIsBit45AndKeepsTheSampleValid) {
+  EXPECT_EQ(pw::kReferenceMark, 0x2000'0000'0000ull);
+  EXPECT_EQ(pw::kStatusBits & pw::kReferenceMark, 0u);
+  EXPECT_EQ(encode_position_word(5, WordWidth::Bits32, pw::kValid | pw::kReferenceMark),
+            0x2100'0000'0005ull);
+  for (WordWidth w : {WordWidth::Bits32, WordWidth::Bits36}) {
+    PositionDecoder d(config_for(w));
+    const PositionEncoder enc(d.config());
+    const PositionSample first = d.decode(enc.encode_count(100));
+    EXPECT_TRUE(first.valid());
+    EXPECT_FALSE(first.mark);
+    const PositionSample marked = d.decode(enc.encode_count(103, pw::kValid | pw::kReferenceMark));
+    EXPECT_TRUE(marked.valid());
+    EXPECT_TRUE(marked.mark);
+    EXPECT_EQ(marked.count, 103);
+    EXPECT_DOUBLE_EQ(marked.position_m, 103 * d.count_m());
+    const PositionSample after = d.decode(enc.encode_count(104));
+    EXPECT_TRUE(after.valid());
+    EXPECT_FALSE(after.mark);
+    // The mark on a word with an error bit: reported, and the sample is still invalid.
+    const PositionSample lost =
+        d.decode(enc.encode_count(105, pw::kValid | pw::kGlitch | pw::kReferenceMark));
+    EXPECT_TRUE(lost.mark);
+    EXPECT_EQ(lost.status, ss::kGlitchFlagged);
+    // Bits 46..63 stay reserved, with or without the mark.
+    for (unsigned bit : {46u, 47u, 55u, 63u}) {
+      PositionDecoder r(config_for(w));
+      r.decode(enc.encode_count(0));
+      const PositionSample s = r.decode(enc.encode_count(1, pw::kValid | pw::kReferenceMark) |
+                                        (std::uint64_t{1} << bit));
+      EXPECT_EQ(s.status, ss::kReservedBitsSet) << bit;
+      EXPECT_TRUE(std::isnan(s.position_m)) << bit;
+    }
+    // The batch decode takes a marked word as valid too.
+    PositionDecoder b(config_for(w));
+    const std::uint64_t words[3] = {enc.encode_count(7),
+                                    enc.encode_count(8, pw::kValid | pw::kReferenceMark),
+                                    enc.encode_count(9)};
+    double x[3];
+    std::uint8_t st[3];
+    b.decode(words, 3, x, st);
+    EXPECT_EQ(st[1], 0u);
+    EXPECT_DOUBLE_EQ(x[1], 8 * b.count_m());
+  }
 }
 
 TEST(PositionWord, CountSizeFromOptics) {
@@ -312,8 +358,8 @@ TEST(PositionDecoder, ErrorBitsAreNeverAPosition) {
         EXPECT_EQ(next.count, 503);
       }
     }
-    // Reserved bits: 36..39 (and 32..35 of a 32-bit word), 45..63.
-    std::vector<unsigned> reserved{36, 37, 38, 39, 45, 50, 63};
+    // Reserved bits: 36..39 (and 32..35 of a 32-bit word), 46..63.
+    std::vector<unsigned> reserved{36, 37, 38, 39, 46, 50, 63};
     if (w == WordWidth::Bits32) reserved.insert(reserved.end(), {32, 33, 34, 35});
     for (unsigned bit : reserved) {
       PositionDecoder d(config_for(w));

@@ -502,3 +502,87 @@ TEST(SimFaults, AFullStreamMarksTheOverrun) {
   ASSERT_EQ(s.status.size(), 10u);
   EXPECT_NE(s.status.back() & sample_status::kSampleOverrun, 0);
 }
+
+// ---- the reference mark ----
+
+namespace {
+
+// The stream of the last burst: the decoded positions and which words carried the mark.
+struct MarkedStream {
+  std::vector<double> x_m;
+  std::vector<std::size_t> marks;  // indices of the words with the reference mark
+};
+MarkedStream drain_marks(Device& d) {
+  MarkedStream out;
+  PositionDecoder decoder(d.interferometer->capabilities().word);
+  std::vector<TimedWord> buf(256);
+  for (;;) {
+    std::size_t n = 0;
+    EXPECT_TRUE(d.interferometer->read_stream(buf.data(), buf.size(), n).ok());
+    if (n == 0) break;
+    for (std::size_t i = 0; i < n; ++i) {
+      const PositionSample s = decoder.decode(buf[i].word);
+      EXPECT_TRUE(s.valid());
+      if (s.mark) out.marks.push_back(out.x_m.size());
+      out.x_m.push_back(s.position_m);
+    }
+  }
+  return out;
+}
+
+bool latch_marked(Device& d) {
+  std::uint64_t word = 0;
+  EXPECT_TRUE(d.interferometer->latch(word).ok());
+  return (word & position_word::kReferenceMark) != 0;
+}
+
+}  // namespace
+
+TEST(SimReferenceMark, TheWordAfterACrossingCarriesTheMarkEitherWay) {
+  const double mark = -0.5e-6;
+  Device d = sim_device(
+      "sim: {plant: rigid, reference_mark_m: -0.5e-6}\n"
+      "daq: {sim: {output: parameters}}");
+  bring_up(d);
+  EXPECT_TRUE(d.interferometer->capabilities().reference_mark);
+  const double count = d.interferometer->capabilities().word.count_m();
+  for (int i = 0; i < 3; ++i) EXPECT_FALSE(latch_marked(d)) << "at rest, not crossed";
+  // Negative across the mark: exactly one streamed word carries it, the first past the mark.
+  for (double duty : {0.1, 0.9}) {
+    const TriangleWave w{200, duty, 20.35e-6, 10};
+    ASSERT_TRUE(d.output->write_burst_parameters(w).ok());
+    ASSERT_TRUE(d.output->start().ok());
+    const int sign = duty < 0.5 ? -1 : 1;
+    EXPECT_GT(sign * (d.sim->true_position_m() - mark), 1e-7) << "the burst crossed the mark";
+    const MarkedStream s = drain_marks(d);
+    ASSERT_EQ(s.marks.size(), 1u) << "duty " << duty;
+    const std::size_t k = s.marks[0];
+    ASSERT_GT(k, 0u);
+    EXPECT_LE(sign * (s.x_m[k - 1] - mark), count) << "the word before: not yet past the mark";
+    EXPECT_GE(sign * (s.x_m[k] - mark), -count) << "the marked word: past it";
+    EXPECT_FALSE(latch_marked(d)) << "the mark went with the stream's word";
+  }
+  // A burst that stays on one side: no mark.
+  ASSERT_TRUE(d.output->write_burst_parameters(TriangleWave{200, 0.9, 20.35e-6, 3}).ok());
+  ASSERT_TRUE(d.output->start().ok());
+  EXPECT_TRUE(drain_marks(d).marks.empty());
+  // A push across it: the next latch carries the mark, the one after does not.
+  d.sim->push(mark - d.sim->true_position_m() - 50e-9);
+  EXPECT_TRUE(latch_marked(d));
+  EXPECT_FALSE(latch_marked(d));
+  d.sim->push(100e-9);
+  EXPECT_TRUE(latch_marked(d));
+  EXPECT_FALSE(latch_marked(d));
+}
+
+TEST(SimReferenceMark, NoMarkConfiguredNoMarkBitAndNoCapability) {
+  Device d = sim_device("sim: {plant: rigid}\ndaq: {sim: {output: parameters}}");
+  bring_up(d);
+  EXPECT_FALSE(d.interferometer->capabilities().reference_mark);
+  for (double duty : {0.1, 0.9, 0.9}) {
+    ASSERT_TRUE(d.output->write_burst_parameters(TriangleWave{200, duty, 20.35e-6, 10}).ok());
+    ASSERT_TRUE(d.output->start().ok());
+    EXPECT_TRUE(drain_marks(d).marks.empty());
+    EXPECT_FALSE(latch_marked(d));
+  }
+}

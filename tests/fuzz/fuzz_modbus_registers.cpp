@@ -58,7 +58,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const std::size_t per_record = RegisterMap::position_registers(width);
   const unsigned bits = static_cast<unsigned>(width);
   const std::uint64_t allowed =
-      ((std::uint64_t{1} << bits) - 1) | position_word::kStatusBits | (std::uint64_t{1} << 45);
+      ((std::uint64_t{1} << bits) - 1) | position_word::kDefinedBits | (std::uint64_t{1} << 46);
   PositionWordConfig config;
   config.width = width;
   PositionDecoder decoder(config);

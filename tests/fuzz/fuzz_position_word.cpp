@@ -79,7 +79,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
 
     const unsigned bits = static_cast<unsigned>(config.width);
     const std::uint64_t count_mask = (std::uint64_t{1} << bits) - 1;
-    const std::uint64_t reserved = ~(count_mask | pw::kStatusBits);
+    const std::uint64_t reserved = ~(count_mask | pw::kDefinedBits);
     bool have_previous = false;
     std::int64_t previous = 0;
     std::uint64_t rejected = 0;
@@ -114,7 +114,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       }
       if (!(w & reserved)) {
         const std::uint64_t again = idm::drivers::encode_position_word(
-            idm::drivers::word_count(w, config.width), config.width, w & pw::kStatusBits);
+            idm::drivers::word_count(w, config.width), config.width, w & pw::kDefinedBits);
         if (again != w) fail("encode(decode(word)) != word", i, w);
       }
     }
