@@ -359,7 +359,8 @@ void Positioner::on_reading(const model::AxisEvent& e) {
     return;
   }
   const double position = e.position_m + offset_m_;
-  if (e.mark && mark_search_ == MarkSearch::Searching && !mark_seen_) {
+  if (e.mark && !mark_seen_ &&
+      (mark_search_ == MarkSearch::Searching || mark_search_ == MarkSearch::Crawling)) {
     mark_seen_ = true;
     mark_reading_m_ = position;
   }
@@ -463,7 +464,10 @@ void Positioner::start_chunk() {
 void Positioner::next_open_loop_chunk(double now_s) {
   if (open_loop_remaining_ == 0) {
     // A reference that met no end stop within its cycles did not find it.
-    finish(now_s, referencing_ ? MoveResult::Timeout : MoveResult::Ok);
+    if (mark_search_ == MarkSearch::Crawling)
+      crawl_failed(now_s);
+    else
+      finish(now_s, referencing_ ? MoveResult::Timeout : MoveResult::Ok);
     return;
   }
   chunk_ = open_loop_;
@@ -478,7 +482,8 @@ void Positioner::next_open_loop_chunk(double now_s) {
 }
 
 void Positioner::after_chunk(double now_s, double position) {
-  if (mark_search_ == MarkSearch::Searching && mark_seen_ && !stop_requested_) {
+  if ((mark_search_ == MarkSearch::Searching || mark_search_ == MarkSearch::Crawling) &&
+      mark_seen_ && !stop_requested_) {
     mark_found(now_s);
     return;
   }
@@ -493,6 +498,11 @@ void Positioner::after_chunk(double now_s, double position) {
   } else if (chunk_.predicted_m != 0) {
     // Open loop. Stall: a chunk that moved less than stall_fraction of its prediction.
     const double along = moved / chunk_.predicted_m;
+    if (along < config_.stall_fraction && mark_search_ == MarkSearch::Crawling &&
+        !stop_requested_) {
+      crawl_failed(now_s);
+      return;
+    }
     if (along < config_.stall_fraction) {
       if (++stall_count_ >= config_.stall_bursts) {
         enter_fault(MotionFault::Stall);

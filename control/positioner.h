@@ -214,9 +214,11 @@ class Positioner {
   // Finds the reference mark (the interferometer's words report crossing it: AxisEvent::mark):
   // drives open loop at the largest step toward `direction` (+1/-1); at an end stop before the
   // mark it reverses once. The mark's reading sets the offset so that the mark reads
-  // position_at_mark_m, and a closed-loop move brings the slider back onto the mark. Ends OK and
-  // counted in status().references once there; a second end stop without the mark ends with
-  // END_OF_TRAVEL, the cycles running out with TIMEOUT (not referenced either way).
+  // position_at_mark_m; a closed-loop move backs off before the mark, a slow open-loop crawl
+  // crosses it again (its reading sets the offset once more, to about a count), and a closed-loop
+  // move brings the slider onto the mark. Ends OK and counted in status().references once there;
+  // a second end stop without the mark ends with END_OF_TRAVEL, the cycles running out (of the
+  // search or the crawl) with TIMEOUT (not referenced either way).
   Refusal reference_mark(int direction, double position_at_mark_m);
   // Ends a hold (any motion command does).
   void end_hold();
@@ -354,6 +356,13 @@ class Positioner {
   Refusal start_reference(int direction, double position_m, bool mark);
   void mark_found(double now_s);
   void mark_search_end_stop(double now_s, int sign);
+  // The most the slider moves between two stream samples in a chunk (its predicted_m per cycle
+  // set); the open-loop chunk of the crawl across the mark toward `sign` (false: no cell).
+  double sample_travel_m(const Chunk& c) const;
+  bool crawl_chunk(int sign, Chunk& out);
+  void start_crawl(double now_s);
+  void crawl_failed(double now_s);                // back onto the mark as the search found it
+  void move_onto(double now_s, double target_m);  // a closed-loop move within the reference
   void finish(double now_s, MoveResult result);
   void arrived(double now_s);
   bool end_of_travel_seen(double moved_m);  // after a chunk: the mean step collapsed
@@ -424,11 +433,19 @@ class Positioner {
   double reference_position_m_ = 0;
   // The mark search (reference_mark): driving until a reading carries the mark, then the
   // closed-loop move back onto it.
-  enum class MarkSearch : std::uint8_t { Off, Searching, Returning };
+  // Searching (fast, open loop) -> Approaching (closed loop to a point before the mark) ->
+  // Crawling (slow, open loop across it) -> Returning (closed loop onto it).
+  enum class MarkSearch : std::uint8_t { Off, Searching, Approaching, Crawling, Returning };
   MarkSearch mark_search_ = MarkSearch::Off;
-  bool mark_seen_ = false;      // a reading with the mark came in while searching
+  bool mark_seen_ = false;      // a reading with the mark came in while searching or crawling
   bool mark_reversed_ = false;  // the search met an end stop and drives the other way
   double mark_reading_m_ = 0;   // that reading (with the offset then in force)
+  Chunk crawl_;                 // the crawl's cell, and the cycles it may take
+  std::uint64_t crawl_cycles_ = 0;
+  int crawl_rung_ = -1;  // the crawl cell's rung (left out when it fails)
+  int crawl_tries_ = 0;  // crawls that failed
+  static constexpr int kCrawlTries = 4;
+  double crawl_start_m_ = 0;  // the point before the mark each crawl starts from
   double dwell_until_s_ = 0;
   bool hold_armed_ = false;                 // holding: at rest, watching the readings
   double hold_until_s_ = 0;                 // +inf: until the next command

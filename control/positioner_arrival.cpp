@@ -12,6 +12,10 @@ namespace idm::control {
 // ---- ending ----
 
 void Positioner::finish(double now_s, MoveResult result) {
+  if (mark_search_ == MarkSearch::Approaching && result == MoveResult::Ok) {
+    start_crawl(now_s);  // before the mark: the slow pass across it (the motion goes on)
+    return;
+  }
   phase_ = Phase::Idle;
   status_.state = MotionState::Idle;
   stop_requested_ = false;
@@ -187,9 +191,28 @@ void Positioner::mark_found(double now_s) {
   status_.eot_position_m += shift;
   chunk_lo_m_ += shift;
   chunk_hi_m_ += shift;
-  status_.target_m = reference_position_m_;
-  // The chunk played on past the mark: a closed-loop move brings the slider back onto it.
-  mark_search_ = MarkSearch::Returning;
+  // The marked word is the first past the mark: at the search's speed the mark may lie up to a
+  // sample's travel behind it. Back off before it and cross it again slowly (the crawl); after
+  // the crawl, or without a crawl cell, back onto the mark.
+  const int sign = open_loop_.predicted_m >= 0 ? 1 : -1;
+  if (mark_search_ == MarkSearch::Searching && crawl_chunk(sign, crawl_)) {
+    const double back = sample_travel_m(open_loop_) + 10.0 * count_m_;
+    const double cycles =
+        std::ceil(10.0 * (back + 10.0 * count_m_) / std::fabs(crawl_.predicted_m));
+    crawl_cycles_ = static_cast<std::uint64_t>(std::clamp(cycles, 1.0, 1e9));
+    crawl_tries_ = 0;
+    crawl_start_m_ = reference_position_m_ - sign * back;
+    mark_search_ = MarkSearch::Approaching;
+    move_onto(now_s, crawl_start_m_);
+  } else {
+    mark_search_ = MarkSearch::Returning;
+    move_onto(now_s, reference_position_m_);
+  }
+}
+
+void Positioner::move_onto(double now_s, double target_m) {
+  // A closed-loop move within the reference (the chunk played on past the mark).
+  status_.target_m = target_m;
   referencing_ = false;
   status_.eot = 0;
   status_.closed_loop = true;
@@ -202,6 +225,83 @@ void Positioner::mark_found(double now_s) {
   eot_count_ = 0;
   eot_next_ = 0;
   plan_next_chunk(now_s);
+}
+
+double Positioner::sample_travel_m(const Chunk& c) const {
+  // The slider steps in the fast phase, at up to the velocity jump m/(M+m) times the phase's
+  // rate, and never farther than about its step in one cycle.
+  const double fast_s = std::min(c.duty, 1.0 - c.duty) / c.freq_hz;
+  const double jump_m_s = map_.config().stage.mass_ratio() * c.stroke_m / fast_s;
+  return std::min(jump_m_s / device_.stream_rate_hz, std::fabs(c.predicted_m));
+}
+
+bool Positioner::crawl_chunk(int sign, Chunk& out) {
+  // Among the live rungs that way, by their learned step: one whose slider moves at most the
+  // final class's step (final_step_counts) between two stream samples before one that moves
+  // more, a proven one before one that is not, then the largest step (the slowest, when none is
+  // fine enough).
+  bool found = false, fine = false, proven = false;
+  double best_step = 0, best_travel = 0;
+  const std::vector<Rung>& ladder = ladder_[direction_index(sign)];
+  for (std::size_t i = 0; i < ladder.size(); ++i) {
+    const Rung& r = ladder[i];
+    if (r.dead || !(r.est.step_m >= config_.min_step_counts * count_m_)) continue;
+    const RegionCell& cell = map_.cells()[r.cell];
+    Chunk c;
+    c.freq_hz = cell.freq_hz;
+    c.duty = cell.duty;
+    c.stroke_m = cell.stroke_m;
+    c.period_samples = cell.period_samples;
+    c.extension_samples = cell.extension_samples;
+    c.predicted_m = sign * r.est.step_m;
+    const double travel = sample_travel_m(c), step = r.est.step_m;
+    const bool c_fine = travel <= config_.final_step_counts * count_m_;
+    bool better = !found || c_fine > fine;
+    if (found && c_fine == fine)
+      better = c_fine ? (r.proven > proven || (r.proven == proven && step > best_step))
+                      : travel < best_travel;
+    if (!better) continue;
+    found = true;
+    fine = c_fine;
+    proven = r.proven;
+    best_step = step;
+    best_travel = travel;
+    out = c;
+    crawl_rung_ = static_cast<int>(i);
+  }
+  return found;
+}
+
+void Positioner::start_crawl(double now_s) {
+  // At the point before the mark: open loop across it with the crawl cell, watching for it.
+  open_loop_ = crawl_;
+  open_loop_remaining_ = crawl_cycles_;
+  status_.closed_loop = false;
+  status_.target_m = reference_position_m_;
+  mark_search_ = MarkSearch::Crawling;
+  mark_seen_ = false;
+  stall_count_ = 0;
+  eot_count_ = 0;
+  eot_next_ = 0;
+  move_chunks_ = 0;
+  next_open_loop_chunk(now_s);
+}
+
+void Positioner::crawl_failed(double now_s) {
+  // The crawl's cell did not carry the slider across the mark (it stalled, or stepped less than
+  // it should): its rung is left out and the next one tries from the point before the mark, a
+  // few times; then the search's reading stands.
+  const int sign = crawl_.predicted_m >= 0 ? 1 : -1;
+  std::vector<Rung>& ladder = ladder_[direction_index(sign)];
+  if (crawl_rung_ >= 0 && static_cast<std::size_t>(crawl_rung_) < ladder.size())
+    kill_rung(ladder[static_cast<std::size_t>(crawl_rung_)]);
+  if (++crawl_tries_ < kCrawlTries && crawl_chunk(sign, crawl_)) {
+    mark_search_ = MarkSearch::Approaching;
+    move_onto(now_s, crawl_start_m_);
+    return;
+  }
+  mark_search_ = MarkSearch::Returning;
+  move_onto(now_s, reference_position_m_);
 }
 
 void Positioner::mark_search_end_stop(double now_s, int sign) {
