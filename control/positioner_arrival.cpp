@@ -211,7 +211,7 @@ void Positioner::mark_found(double now_s) {
 }
 
 void Positioner::move_onto(double now_s, double target_m) {
-  // A closed-loop move within the reference (the chunk played on past the mark).
+  // A closed-loop move of the mark search: to the point before the mark, or onto it.
   status_.target_m = target_m;
   referencing_ = false;
   status_.eot = 0;
