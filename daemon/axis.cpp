@@ -60,7 +60,11 @@ const char* trial_failure_text(TrialFailure why) {
 }
 
 Axis::Axis(const AxisConfig& config, drivers::DeviceLink& link, std::size_t link_index)
-    : config_(config), link_(link), link_index_(link_index), port_(link.port(link_index)) {
+    : config_(config),
+      link_(link),
+      link_index_(link_index),
+      port_(link.port(link_index)),
+      has_reference_mark_(link.interferometer_capabilities(link_index).reference_mark) {
   soft_lower_m_ = config_.control.positioner.soft_lower_m;
   soft_upper_m_ = config_.control.positioner.soft_upper_m;
 }
@@ -80,7 +84,6 @@ void Axis::build(const ControlConfig& control) {
   const drivers::OutputCapabilities& oc = link_.output_capabilities(channel());
   const drivers::InterferometerCapabilities& ic = link_.interferometer_capabilities(channel());
   count_m_ = ic.word.count_m();
-  has_reference_mark_ = ic.reference_mark;
   if (!next_map_ && (!map_ || grid_changed(control_, control))) prepare(control);
   const control::MotionStatus previous =
       positioner_ ? positioner_->status() : control::MotionStatus{};

@@ -154,7 +154,7 @@ class Axis {
   std::size_t link_index_;
   drivers::ChannelPort& port_;
   double count_m_ = 0;
-  bool has_reference_mark_ = false;
+  const bool has_reference_mark_;  // the device's, fixed at construction (any thread reads it)
   ControlConfig control_;
   control::DeviceLimits limits_;
   std::unique_ptr<control::RegionMap> map_, next_map_;
