@@ -286,9 +286,9 @@ CommandError Daemon::reference(int axis, ReferenceMethod method) {
       return {error_code::kSettingsConflict,
               "REFerence MARK: axis " + cfg.name +
                   "'s interferometer reports no reference mark; use NEGative or POSitive"};
-    // The search drives toward negative first (and turns at the end stop); the mark reads
+    // The search drives the configured way first (and turns at an end stop); the mark reads
     // reference_position_m, 0 when not configured.
-    c.n = -1;
+    c.n = cfg.reference_mark_search == AxisConfig::Reference::Positive ? 1 : -1;
     c.b = 1;
     c.a = std::isnan(cfg.reference_position_m) ? 0.0 : cfg.reference_position_m;
     return submit(c);

@@ -49,6 +49,7 @@ struct AxisSections {
   bool require_reference = false;
   AxisConfig::Reference reference = AxisConfig::Reference::Negative;
   double reference_position_m = std::numeric_limits<double>::quiet_NaN();
+  AxisConfig::Reference reference_mark_search = AxisConfig::Reference::Negative;
   Node stage, interferometer, sim, control;
 };
 
@@ -86,6 +87,12 @@ const model::ParamTable<AxisSections>& axis_params() {
                        "the position REFerence sets where it finds the reference",
                        [](auto& a) -> auto& { return a.reference_position_m; }),
                    "the end of stage.travel_m it lies at (the mark: 0)"),
+      choice<AxisSections, AxisConfig::Reference>(
+          "reference_mark_search",
+          {{"negative", AxisConfig::Reference::Negative},
+           {"positive", AxisConfig::Reference::Positive}},
+          "which way REFerence MARK drives first (it turns at an end stop before the mark)",
+          [](auto& a) -> auto& { return a.reference_mark_search; }),
       section<AxisSections>("stage", "the stage (below), travel_m required", &AxisSections::stage),
       section<AxisSections>("interferometer", "the position words (below)",
                             &AxisSections::interferometer),
@@ -201,6 +208,7 @@ AxisConfig parse_axis(const AxisSections& a, const std::string& name, std::size_
   axis.require_reference = a.require_reference;
   axis.reference = a.reference;
   axis.reference_position_m = a.reference_position_m;
+  axis.reference_mark_search = a.reference_mark_search;
   axis.document = axis_document(a, c.devices[device]);
   axis.stage =
       model::parse_stage_yaml(axis.document, f, {.strict = true, .require_dataset_keys = false});
@@ -255,7 +263,8 @@ void parse_single_axis(const Node& root, DaemonConfig& c) {
   a.channel = 0;
   // The axis's own keys, at the top in this form.
   for (const model::Param<AxisSections>& p : axis_params().params())
-    if (p.name == "require_reference" || p.name == "reference" || p.name == "reference_position_m")
+    if (p.name == "require_reference" || p.name == "reference" ||
+        p.name == "reference_position_m" || p.name == "reference_mark_search")
       if (const Node v = child(root, p.name.c_str()); present(v)) p.read(a, v, c.file, p.name);
   c.axes.push_back(parse_axis(a, "x", 0, c, root, ""));
   c.axes.back().channel = 0;
@@ -325,9 +334,15 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
   model::require_unique_keys(root, f);
   const bool multi = present(child(root, "axes")) || present(child(root, "devices"));
   static const char* const kCommon[] = {"server", "realtime", "logging", "recording"};
-  static const char* const kSingle[] = {
-      "stage", "interferometer",    "daq",       "control",
-      "sim",   "require_reference", "reference", "reference_position_m"};
+  static const char* const kSingle[] = {"stage",
+                                        "interferometer",
+                                        "daq",
+                                        "control",
+                                        "sim",
+                                        "require_reference",
+                                        "reference",
+                                        "reference_position_m",
+                                        "reference_mark_search"};
   for (const auto& kv : root) {
     const std::string name = kv.first.as<std::string>();
     const bool common =
@@ -344,7 +359,7 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
         f, kv.first, name,
         multi ? "unknown section, allowed devices, axes, server, realtime, logging, recording"
               : "unknown section, allowed stage, interferometer, daq, control, sim, "
-                "require_reference, reference, reference_position_m, "
+                "require_reference, reference, reference_position_m, reference_mark_search, "
                 "server, realtime, logging, recording (or devices: and axes:)"));
   }
   DaemonConfig c;

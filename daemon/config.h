@@ -133,6 +133,8 @@ struct AxisConfig {
   enum class Reference : std::uint8_t { Negative, Positive, Mark };
   Reference reference = Reference::Negative;
   double reference_position_m = std::numeric_limits<double>::quiet_NaN();
+  // REFerence MARK drives this way first (Negative or Positive; it turns at an end stop).
+  Reference reference_mark_search = Reference::Negative;
   // The axis's sections as one document (stage, interferometer, sim, daq.<driver>) for the
   // backend's factory (drivers::make_backend).
   YAML::Node document;

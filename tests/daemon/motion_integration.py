@@ -272,18 +272,22 @@ def case_reference_mark():
               "absolute moves allowed once referenced")
         c.send("REF NEG\n")
         check(c.ask("*OPC?") == "1" and c.ask("REF?") == "1", "REF NEG still finds the stop")
-    # A mark outside the travel: the search meets both end stops and fails, truthfully.
+    # A mark outside the travel: the search meets both end stops and fails, truthfully. It drives
+    # negative first unless reference_mark_search says positive: it ends at the other stop.
     beyond = ("  noise_m: 1e-9\n",
               "  noise_m: 1e-9\n  end_stops_m: [-0.3e-3, 0.3e-3]\n  reference_mark_m: 1e-3\n")
-    with Daemon(config(edits=[beyond])) as d:
-        c = Client(d)
-        c.send("REF MARK\n")
-        check(c.ask("*OPC?") == "1", "REF MARK ends")
-        check(c.ask("REF?") == "0", "not referenced")
-        check(result(c)[0] == "END_OF_TRAVEL", "MOVE:RES? END_OF_TRAVEL: %s" % (result(c),))
-        e = errors(c)
-        check(any(x.startswith("112,") and "reference" in x for x in e), "112 queued: %s" % e)
-        check(c.status()["eot"] == "high", "at the high stop (the second one it met)")
+    first = ("stage:                          # Table 1",
+             "reference_mark_search: positive\nstage:                          # Table 1")
+    for edits, last in (([beyond], "high"), ([beyond, first], "low")):
+        with Daemon(config(edits=edits)) as d:
+            c = Client(d)
+            c.send("REF MARK\n")
+            check(c.ask("*OPC?") == "1", "REF MARK ends")
+            check(c.ask("REF?") == "0", "not referenced")
+            check(result(c)[0] == "END_OF_TRAVEL", "MOVE:RES? END_OF_TRAVEL: %s" % (result(c),))
+            e = errors(c)
+            check(any(x.startswith("112,") and "reference" in x for x in e), "112 queued: %s" % e)
+            check(c.status()["eot"] == last, "at the %s stop (the second one it met)" % last)
     # The default configuration's simulated stage has no mark: refused, nothing moves.
     with Daemon(config()) as d:
         c = Client(d)
