@@ -393,12 +393,17 @@ bool Positioner::rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign,
   // moved before and is not of the final class, or is one of the coarse rungs (within half of
   // the largest live step): a fine rung near cut-off that does not move is the map being
   // wrong, or a stretch of the guide with more friction (where it moved before), not the
-  // slider stuck.
+  // slider stuck. A rung that moved the slider the wrong way is left out too, but says nothing
+  // of a stall or an end stop: the slider moved (a compliant stage's cell near cut-off can step
+  // backwards on a stretch of the guide); if every rung that way fails, the ladder is empty and
+  // that is the stall.
   double largest = 0;
   for (const Rung& x : ladder)
     if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
   const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
-  const bool counts = (r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
+  const bool stuck = along >= -2.0 * count_m_;
+  const bool counts =
+      stuck && ((r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0);
   kill_rung(r);
   r.killed_in_streak = true;
   if (counts) {

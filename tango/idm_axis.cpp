@@ -381,49 +381,24 @@ IdmAxis* axis_of(Tango::DeviceImpl* dev) {
   return static_cast<IdmAxis*>(dev);
 }
 
-class PositionAttr : public Tango::Attr {
+// One attribute of the axis: read (and, with a writer, write) through the device's methods.
+class AxisAttr : public Tango::Attr {
  public:
-  PositionAttr() : Attr("Position", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Position(a); }
-  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Position(a); }
+  using Reader = void (IdmAxis::*)(Tango::Attribute&);
+  using Writer = void (IdmAxis::*)(Tango::WAttribute&);
+  AxisAttr(const char* name, long type, Reader reader, Writer writer = nullptr)
+      : Attr(name, type, writer != nullptr ? Tango::READ_WRITE : Tango::READ),
+        reader_(reader),
+        writer_(writer) {}
+  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { (axis_of(d)->*reader_)(a); }
+  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override {
+    if (writer_ != nullptr) (axis_of(d)->*writer_)(a);
+  }
   bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
 
-class TargetAttr : public Tango::Attr {
- public:
-  TargetAttr() : Attr("Target", Tango::DEV_DOUBLE, Tango::READ) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Target(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
-
-class ReferencedAttr : public Tango::Attr {
- public:
-  ReferencedAttr() : Attr("Referenced", Tango::DEV_BOOLEAN, Tango::READ) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Referenced(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
-
-class WindowAttr : public Tango::Attr {
- public:
-  WindowAttr() : Attr("Window", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Window(a); }
-  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Window(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
-
-class HoldAttr : public Tango::Attr {
- public:
-  HoldAttr() : Attr("Hold", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Hold(a); }
-  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Hold(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
-
-class StatusBitsAttr : public Tango::Attr {
- public:
-  StatusBitsAttr() : Attr("StatusBits", Tango::DEV_LONG, Tango::READ) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_StatusBits(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
+ private:
+  Reader reader_;
+  Writer writer_;
 };
 
 class StopCmd : public Tango::Command {
@@ -501,23 +476,31 @@ void IdmAxisClass::command_factory() {
 }
 
 void IdmAxisClass::attribute_factory(std::vector<Tango::Attr*>& attrs) {
-  attrs.push_back(with_properties(new PositionAttr(), "m",
+  attrs.push_back(with_properties(new AxisAttr("Position", Tango::DEV_DOUBLE,
+                                               &IdmAxis::read_Position, &IdmAxis::write_Position),
+                                  "m",
                                   "Position of the axis (write: a closed-loop move there); "
                                   "min/max are the daemon's soft limits",
                                   "%.9e"));
-  attrs.push_back(with_properties(new TargetAttr(), "m", "Target of the last move", "%.9e"));
-  attrs.push_back(with_properties(new ReferencedAttr(), "", "The axis is referenced", ""));
+  attrs.push_back(with_properties(new AxisAttr("Target", Tango::DEV_DOUBLE, &IdmAxis::read_Target),
+                                  "m", "Target of the last move", "%.9e"));
   attrs.push_back(
-      with_properties(new WindowAttr(), "m", "In-position window (MOVE:WINDow)", "%.3e"));
-  attrs.push_back(with_properties(new HoldAttr(), "s",
-                                  "Hold after the moves that follow (HOLD; 0 none, -1 until "
-                                  "the next motion)",
-                                  "%.3f"));
-  attrs.push_back(with_properties(new StatusBitsAttr(), "",
-                                  "STATus:OPERation?: 0 moving, 1 in position, 2 holding, 3 "
-                                  "referenced, 4/5 at lower/upper soft limit, 6 end of travel, 7 "
-                                  "fault, 8 position valid, 9 referencing",
-                                  ""));
+      with_properties(new AxisAttr("Referenced", Tango::DEV_BOOLEAN, &IdmAxis::read_Referenced), "",
+                      "The axis is referenced", ""));
+  attrs.push_back(with_properties(
+      new AxisAttr("Window", Tango::DEV_DOUBLE, &IdmAxis::read_Window, &IdmAxis::write_Window), "m",
+      "In-position window (MOVE:WINDow)", "%.3e"));
+  attrs.push_back(with_properties(
+      new AxisAttr("Hold", Tango::DEV_DOUBLE, &IdmAxis::read_Hold, &IdmAxis::write_Hold), "s",
+      "Hold after the moves that follow (HOLD; 0 none, -1 until "
+      "the next motion)",
+      "%.3f"));
+  attrs.push_back(
+      with_properties(new AxisAttr("StatusBits", Tango::DEV_LONG, &IdmAxis::read_StatusBits), "",
+                      "STATus:OPERation?: 0 moving, 1 in position, 2 holding, 3 "
+                      "referenced, 4/5 at lower/upper soft limit, 6 end of travel, 7 "
+                      "fault, 8 position valid, 9 referencing",
+                      ""));
 }
 
 void IdmAxisClass::device_factory(const Tango::DevVarStringArray* devlist) {

@@ -385,9 +385,10 @@ TEST(Positioner, IsPureEventsInRequestsOut) {
   // It wants fresh readings taken after the command, then plays a chunk toward the target.
   ASSERT_TRUE(p.tick(0.001, r));
   EXPECT_EQ(r.kind, model::OutputRequest::Kind::Read);
-  EXPECT_EQ(r.readings, 4u);
+  const int words = PositionerConfig{}.latch_words;
+  EXPECT_EQ(r.readings, static_cast<std::uint32_t>(words));
   EXPECT_FALSE(p.tick(0.0011, r));
-  for (int i = 0; i < 4; ++i) p.on_event(reading(0.0012, 1e-6));
+  for (int i = 0; i < words; ++i) p.on_event(reading(0.0012, 1e-6));
   ASSERT_TRUE(p.tick(0.0013, r));
   ASSERT_EQ(r.kind, model::OutputRequest::Kind::Play);
   EXPECT_GT(r.segment.cycles, 0u);
@@ -407,6 +408,87 @@ TEST(Positioner, IsPureEventsInRequestsOut) {
   failed.seq = 12345;
   p.on_event(failed);
   EXPECT_EQ(p.status().state, MotionState::Idle);
+}
+
+TEST(RestMean, TheMeanOfTheLatestWordsWithoutDrift) {
+  RestMean m;
+  m.reset(4);
+  EXPECT_DOUBLE_EQ(m.add(1.0), 1.0);
+  EXPECT_DOUBLE_EQ(m.add(2.0), 1.5);
+  EXPECT_DOUBLE_EQ(m.add(3.0), 2.0);
+  EXPECT_DOUBLE_EQ(m.add(4.0), 2.5);
+  EXPECT_DOUBLE_EQ(m.add(5.0), 3.5);  // the oldest left
+  EXPECT_EQ(m.count(), 4);
+  // Large values then small ones: the running sum would keep their rounding, the mean does not.
+  for (int i = 0; i < 1001; ++i) m.add(1e3 + 0.1 * i);
+  // (the sum is summed afresh once a round: a round after the last large value, none is left).
+  for (int i = 0; i < 8; ++i) m.add(1e-9 * (i + 1));
+  EXPECT_NEAR(m.add(9e-9), 7.5e-9, 1e-22);
+  m.reset(0);  // clamped to one word
+  m.add(7.0);
+  EXPECT_DOUBLE_EQ(m.add(8.0), 8.0);
+  m.reset(1 << 20);  // clamped to kMaxWords
+  for (int i = 0; i < RestMean::kMaxWords + 10; ++i) m.add(i < 10 ? 1e6 : 2.0);
+  EXPECT_EQ(m.count(), RestMean::kMaxWords);
+  EXPECT_DOUBLE_EQ(m.add(2.0), 2.0);
+}
+
+// At rest the position shown is the mean of the latest latch_words readings (a slider at a
+// count's edge reads one count or the next: the mean does not jump); moving, the latest reading;
+// a motion starts the mean over.
+TEST(Positioner, AtRestThePositionShownIsTheMeanOfTheLatestReadings) {
+  AxisDeviceInfo device;
+  device.count_m = 9.8906e-9;
+  device.max_velocity_m_s = 1.0;
+  PositionerConfig cfg;
+  cfg.latch_words = 4;
+  Positioner p(ideal_map(), PlannerConfig{}, cfg, device);
+  const auto reading = [&p](double t, double x, bool in_segment = false) {
+    model::AxisEvent e;
+    e.kind = model::AxisEvent::Kind::Reading;
+    e.t_s = t;
+    e.position_m = x;
+    e.in_segment = in_segment;
+    p.on_event(e);
+  };
+  const double a = 1e-6, b = a + device.count_m;
+  reading(0.0, a);
+  EXPECT_DOUBLE_EQ(p.status().position_m, a);
+  reading(0.001, b);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 0.5 * (a + b));
+  reading(0.002, b);
+  reading(0.003, b);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 0.25 * (a + 3 * b));
+  reading(0.004, b);  // the first reading has left the mean
+  EXPECT_DOUBLE_EQ(p.status().position_m, b);
+  // A move: its readings are shown as they come.
+  ASSERT_EQ(p.move_relative(50e-6), Refusal::None);
+  model::OutputRequest r;
+  ASSERT_TRUE(p.tick(0.005, r));
+  ASSERT_EQ(r.kind, model::OutputRequest::Kind::Read);
+  for (int i = 0; i < 4; ++i) reading(0.0051, b);
+  ASSERT_TRUE(p.tick(0.0052, r));
+  ASSERT_EQ(r.kind, model::OutputRequest::Kind::Play);
+  reading(0.006, 3e-6, true);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 3e-6);
+  reading(0.007, 4e-6, true);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 4e-6);
+  // Stopped: at rest again, the mean starts from the readings at rest.
+  p.stop();
+  model::AxisEvent done;
+  done.kind = model::AxisEvent::Kind::SegmentDone;
+  done.seq = r.seq;
+  done.t_s = 0.008;
+  p.on_event(done);
+  for (double t = 0.008; t < 0.05 && !p.at_rest(); t += 0.001) {
+    if (p.tick(t, r) && r.kind == model::OutputRequest::Kind::Read)
+      for (std::uint32_t i = 0; i < r.readings; ++i) reading(t, 5e-6);
+  }
+  ASSERT_TRUE(p.at_rest());
+  reading(0.06, 5e-6 + device.count_m);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 5e-6 + device.count_m);  // no reading of the move in it
+  reading(0.061, 5e-6);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 5e-6 + 0.5 * device.count_m);
 }
 
 TEST(Positioner, RetryLimitFaultsWhenTheStageNeverArrives) {
