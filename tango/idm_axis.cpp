@@ -10,6 +10,7 @@ namespace idm::tango {
 namespace {
 
 constexpr double kTimeoutS = 5;
+constexpr int kMaxAxis = 1000;
 constexpr auto kMonitorPeriod = std::chrono::milliseconds(100);
 
 std::string number_text(double v) {
@@ -34,14 +35,25 @@ Tango::DevState tango_state(AxisState s) {
   return Tango::UNKNOWN;
 }
 
+// An axis number 1..kMaxAxis written in decimal digits alone; 0 when `text` is none.
+int axis_number(const std::string& text) {
+  if (text.empty() || text.size() > 4 || text.find_first_not_of("0123456789") != std::string::npos)
+    return 0;
+  const int n = std::stoi(text);
+  return n <= kMaxAxis ? n : 0;
+}
+
 // The axis a device name stands for: idm/axis/<n> is axis n; 0 when the last member is no number.
 int axis_from_name(const std::string& name) {
   const std::size_t slash = name.rfind('/');
-  const std::string member = slash == std::string::npos ? name : name.substr(slash + 1);
-  if (member.empty() || member.size() > 4 ||
-      member.find_first_not_of("0123456789") != std::string::npos)
-    return 0;
-  return std::stoi(member);
+  return axis_number(slash == std::string::npos ? name : name.substr(slash + 1));
+}
+
+// A property's text (its first value); false when the database holds none.
+bool property_text(Tango::DbDatum& datum, std::string& text) {
+  if (datum.is_empty()) return false;
+  datum >> text;
+  return true;
 }
 
 }  // namespace
@@ -57,39 +69,18 @@ IdmAxis::~IdmAxis() {
 void IdmAxis::init_device() {
   set_state(Tango::INIT);
   config_error_.clear();
+  address_ = client::Address{};
   axis_ = axis_from_name(get_name());
-  try {
-    address_ = client::address_from_environment();
-  } catch (const client::AddressError& e) {
-    config_error_ = e.what();
-  }
   // With a database, the device's properties override the environment and the name.
-  if (Tango::Util::_UseDb) {
-    Tango::DbData props;
-    props.push_back(Tango::DbDatum("IdmdAddress"));
-    props.push_back(Tango::DbDatum("IdmdSocket"));
-    props.push_back(Tango::DbDatum("Axis"));
-    get_db_device()->get_property(props);
-    std::string text;
+  const bool address_from_property = Tango::Util::_UseDb && read_properties();
+  if (!address_from_property) {
     try {
-      if (!props[1].is_empty()) {
-        props[1] >> text;
-        address_ = client::Address{};
-        address_.unix_path = text;
-      } else if (!props[0].is_empty()) {
-        props[0] >> text;
-        address_ = client::parse_host_port(text);
-      }
+      address_ = client::address_from_environment();
     } catch (const client::AddressError& e) {
-      config_error_ = std::string("property IdmdAddress: ") + e.what();
-    }
-    if (!props[2].is_empty()) {
-      Tango::DevLong axis = 0;
-      props[2] >> axis;
-      axis_ = axis;
+      if (config_error_.empty()) config_error_ = e.what();
     }
   }
-  if (config_error_.empty() && (axis_ < 1 || axis_ > 1000))
+  if (config_error_.empty() && axis_ == 0)
     config_error_ = "device " + get_name() +
                     ": the name does not end in an axis number (idm/axis/<n>) and no Axis property "
                     "says which axis it is";
@@ -99,6 +90,43 @@ void IdmAxis::init_device() {
   apply_status();
   stopping_ = false;
   monitor_ = std::thread([this] { monitor_loop(); });
+}
+
+bool IdmAxis::read_properties() {
+  Tango::DbData props;
+  props.push_back(Tango::DbDatum("IdmdAddress"));
+  props.push_back(Tango::DbDatum("IdmdSocket"));
+  props.push_back(Tango::DbDatum("Axis"));
+  try {
+    get_db_device()->get_property(props);
+  } catch (const Tango::DevFailed& e) {
+    config_error_ = "cannot read the device's properties: " + std::string(e.errors[0].desc.in());
+    return false;
+  }
+  std::string address_text, socket_path, axis_text;
+  const bool has_address = property_text(props[0], address_text);
+  const bool has_socket = property_text(props[1], socket_path);
+  if (property_text(props[2], axis_text)) {
+    axis_ = axis_number(axis_text);
+    if (axis_ == 0)
+      config_error_ = "property Axis: '" + axis_text.substr(0, 40) +
+                      "' is not an axis number (1.." + std::to_string(kMaxAxis) + ")";
+  }
+  std::string address_error;
+  if (has_socket && has_address) {
+    address_error = "properties IdmdSocket and IdmdAddress are both set: set one";
+  } else if (has_socket) {
+    address_.unix_path = socket_path;
+    if (socket_path.empty()) address_error = "property IdmdSocket: an empty path";
+  } else if (has_address) {
+    try {
+      address_ = client::parse_host_port(address_text);
+    } catch (const client::AddressError& e) {
+      address_error = std::string("property IdmdAddress: ") + e.what();
+    }
+  }
+  if (config_error_.empty()) config_error_ = address_error;
+  return has_socket || has_address;
 }
 
 void IdmAxis::delete_device() {

@@ -47,6 +47,10 @@ class IdmAxis : public TANGO_BASE_CLASS {
   void step(Tango::DevLong cycles);
 
  private:
+  // With a database: the properties IdmdSocket or IdmdAddress (idmd's address, both set is an
+  // error) and Axis, over the environment and the name; a bad one (or none readable) sets
+  // config_error_. Returns whether a property gave the address.
+  bool read_properties();
   // One protocol line to this device's axis ("AXIS<n>:" put in front), under the connection's
   // lock; the daemon's errors and a lost connection as Tango exceptions.
   std::string query(const std::string& header, const char* origin);
