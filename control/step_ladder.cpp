@@ -418,10 +418,11 @@ bool Positioner::rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign,
           x.dead = false;
           x.killed_in_streak = false;
         }
-    // Driven and not moving: at an end stop when the mean step over the run collapsed.
+    // Driven and not moving: at an end stop when the mean step over the run collapsed (to
+    // nothing: a run that crept the wrong way is friction along the guide, not a stop).
     if (config_.eot_step_m > 0 && streak_cycles_ > 0 &&
         (status_.moved_dirs & (1u << direction_index(sign))) &&
-        streak_along_m_ / static_cast<double>(streak_cycles_) < config_.eot_step_m) {
+        std::fabs(streak_along_m_ / static_cast<double>(streak_cycles_)) < config_.eot_step_m) {
       end_of_travel(now_s_, sign);
       return false;
     }
