@@ -491,6 +491,71 @@ TEST(Positioner, AtRestThePositionShownIsTheMeanOfTheLatestReadings) {
   EXPECT_DOUBLE_EQ(p.status().position_m, 5e-6 + 0.5 * device.count_m);
 }
 
+// A scripted stage on the pure interface: every chunk played moves the slider by what
+// `moved_by(segment)` says; readings at rest answer the positioner's requests.
+struct ScriptedStage {
+  Positioner& p;
+  double x_m = 1e-6;
+  double t_s = 0;
+  void reading(bool in_segment = false) {
+    model::AxisEvent e;
+    e.kind = model::AxisEvent::Kind::Reading;
+    e.t_s = t_s;
+    e.position_m = x_m;
+    e.in_segment = in_segment;
+    p.on_event(e);
+  }
+  template <class MovedBy>
+  void run(MovedBy&& moved_by) {
+    model::OutputRequest r;
+    for (int k = 0; k < 200000 && !(k > 0 && p.at_rest()); ++k) {
+      t_s += 1e-4;
+      if (!p.tick(t_s, r)) continue;
+      if (r.kind == model::OutputRequest::Kind::Read) {
+        for (std::uint32_t i = 0; i < r.readings; ++i) reading();
+      } else if (r.kind == model::OutputRequest::Kind::Play) {
+        x_m += moved_by(r.segment);
+        model::AxisEvent done;
+        done.kind = model::AxisEvent::Kind::SegmentDone;
+        done.seq = r.seq;
+        done.t_s = t_s;
+        p.on_event(done);
+      }
+    }
+  }
+};
+
+// Mid-travel the stage creeps the wrong way on every chunk one way (friction along the guide
+// defeating the cells the ladder tries): the rungs are left out, and the move ends as a
+// stall or with every rung gone, never as an end of travel (which would refuse every later move
+// that way though nothing stops the slider there).
+TEST(Positioner, CreepingTheWrongWayIsNotAnEndOfTravel) {
+  AxisDeviceInfo device;
+  device.count_m = 9.8906e-9;
+  device.max_velocity_m_s = 1.0;
+  Positioner p(ideal_map(), PlannerConfig{}, PositionerConfig{}, device);
+  ScriptedStage stage{p};
+  stage.reading();
+  // Negative moves work at first (the slider has moved that way).
+  const auto as_predicted = [&](const model::Segment& seg) {
+    const RegionMap& map = ideal_map();
+    for (const RegionCell& c : map.cells())
+      if (c.freq_hz == seg.freq_hz && c.duty == seg.duty && c.stroke_m == seg.stroke_m)
+        return c.step_m * static_cast<double>(seg.cycles);
+    return 0.0;
+  };
+  ASSERT_EQ(p.move_absolute(stage.x_m - 30e-6), Refusal::None);
+  stage.run(as_predicted);
+  ASSERT_EQ(p.status().result, MoveResult::Ok) << motion_fault_name(p.status().fault);
+  // Then every negative chunk creeps the wrong way, 3 nm a cycle (more than eot_step_m: a slider
+  // at a stop does not move, a slider moving back is not at one).
+  ASSERT_EQ(p.move_absolute(stage.x_m - 2e-6), Refusal::None);
+  stage.run([](const model::Segment& seg) { return 3e-9 * static_cast<double>(seg.cycles); });
+  EXPECT_NE(p.status().result, MoveResult::Ok);
+  EXPECT_NE(p.status().result, MoveResult::EndOfTravel);
+  EXPECT_EQ(p.status().eot, 0);
+}
+
 TEST(Positioner, RetryLimitFaultsWhenTheStageNeverArrives) {
   // The map believes steps are 4x smaller than the plant makes them (alpha 0.25 vs 1): the
   // last bursts always overshoot; without retries left that is a fault, not an endless loop.
