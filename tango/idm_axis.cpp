@@ -351,26 +351,32 @@ void IdmAxis::read_Referenced(Tango::Attribute& att) {
   att.set_value(&referenced_);
 }
 
+void IdmAxis::read_setting(Tango::Attribute& att, const std::string& header,
+                           Tango::DevDouble& value, const char* origin) {
+  value = client::parse_reply_number(query(header + "?", origin));
+  att.set_value(&value);
+}
+
+void IdmAxis::write_setting(Tango::WAttribute& att, const std::string& header, const char* origin) {
+  Tango::DevDouble v = 0;
+  att.get_write_value(v);
+  command(header + " " + number_text(v), origin);
+}
+
 void IdmAxis::read_Window(Tango::Attribute& att) {
-  window_ = client::parse_reply_number(query("MOVE:WIND?", "IdmAxis::read_Window"));
-  att.set_value(&window_);
+  read_setting(att, "MOVE:WIND", window_, "IdmAxis::read_Window");
 }
 
 void IdmAxis::write_Window(Tango::WAttribute& att) {
-  Tango::DevDouble v = 0;
-  att.get_write_value(v);
-  command("MOVE:WIND " + number_text(v), "IdmAxis::write_Window");
+  write_setting(att, "MOVE:WIND", "IdmAxis::write_Window");
 }
 
 void IdmAxis::read_Hold(Tango::Attribute& att) {
-  hold_ = client::parse_reply_number(query("HOLD?", "IdmAxis::read_Hold"));
-  att.set_value(&hold_);
+  read_setting(att, "HOLD", hold_, "IdmAxis::read_Hold");
 }
 
 void IdmAxis::write_Hold(Tango::WAttribute& att) {
-  Tango::DevDouble v = 0;
-  att.get_write_value(v);
-  command("HOLD " + number_text(v), "IdmAxis::write_Hold");
+  write_setting(att, "HOLD", "IdmAxis::write_Hold");
 }
 
 void IdmAxis::read_StatusBits(Tango::Attribute& att) {
