@@ -54,23 +54,10 @@ class SetFits {
 
   // Screens every set not screened yet (spread over the threads), and returns them all.
   std::vector<SetFit> screen(const std::vector<std::vector<MemberFit>>& sets) {
-    std::vector<std::size_t> todo;
-    for (std::size_t i = 0; i < sets.size(); ++i)
-      if (!screened_.count(key_of(sets[i])) && !finished_.count(key_of(sets[i]))) todo.push_back(i);
-    std::vector<SetFit> done(todo.size());
-    FitOptions one = options_;
-    one.threads = 1;
     const SweepCells coarse = spread_subset(sweep_, kCoarseCells);
-    parallel_for(todo.size(), options_.threads, [&](std::size_t i) {
-      done[i] = fit_joint(coarse, library_, sets[todo[i]], baseline_, one, JointStage::Search);
+    return screen_each(sets, [&](std::size_t i, const FitOptions& one) {
+      return fit_joint(coarse, library_, sets[i], baseline_, one, JointStage::Search);
     });
-    for (SetFit& f : done) screened_[key_of(f.members)] = std::move(f);
-    std::vector<SetFit> out;
-    for (const auto& m : sets) {
-      const std::string k = key_of(m);
-      out.push_back(finished_.count(k) ? finished_.at(k) : screened_.at(k));
-    }
-    return out;
   }
 
   // Each effect of `specs` added to `base` (fit_on_top), screened; cached like screen().
@@ -82,22 +69,9 @@ class SetFits {
       m.push_back({spec->effect, {}, {}, {}});
       sets.push_back(m);
     }
-    std::vector<std::size_t> todo;
-    for (std::size_t i = 0; i < sets.size(); ++i)
-      if (!screened_.count(key_of(sets[i])) && !finished_.count(key_of(sets[i]))) todo.push_back(i);
-    std::vector<SetFit> done(todo.size());
-    FitOptions one = options_;
-    one.threads = 1;
-    parallel_for(todo.size(), options_.threads, [&](std::size_t i) {
-      done[i] = fit_on_top(sweep_, library_, base, *specs[todo[i]], baseline_, one);
+    return screen_each(sets, [&](std::size_t i, const FitOptions& one) {
+      return fit_on_top(sweep_, library_, base, *specs[i], baseline_, one);
     });
-    for (SetFit& f : done) screened_[key_of(f.members)] = std::move(f);
-    std::vector<SetFit> out;
-    for (const auto& m : sets) {
-      const std::string k = key_of(m);
-      out.push_back(finished_.count(k) ? finished_.at(k) : screened_.at(k));
-    }
-    return out;
   }
 
   // The finished fit of a set (from its screened optimum when there is one).
@@ -125,6 +99,27 @@ class SetFits {
   }
 
  private:
+  // The sets not screened or finished yet fitted by fit(i, options) (one thread each, spread
+  // over the threads), cached; every set's fit returned, the finished one where there is one.
+  template <class Fit>
+  std::vector<SetFit> screen_each(const std::vector<std::vector<MemberFit>>& sets, Fit&& fit) {
+    std::vector<std::size_t> todo;
+    for (std::size_t i = 0; i < sets.size(); ++i)
+      if (!screened_.count(key_of(sets[i])) && !finished_.count(key_of(sets[i]))) todo.push_back(i);
+    std::vector<SetFit> done(todo.size());
+    FitOptions one = options_;
+    one.threads = 1;
+    parallel_for(todo.size(), options_.threads,
+                 [&](std::size_t i) { done[i] = fit(todo[i], one); });
+    for (SetFit& f : done) screened_[key_of(f.members)] = std::move(f);
+    std::vector<SetFit> out;
+    for (const auto& m : sets) {
+      const std::string k = key_of(m);
+      out.push_back(finished_.count(k) ? finished_.at(k) : screened_.at(k));
+    }
+    return out;
+  }
+
   const SweepCells& sweep_;
   const std::vector<CandidateSpec>& library_;
   const FittedModel& baseline_;

@@ -110,11 +110,13 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
     finish(r, rig, target);
     if (g_trace)
       std::printf(
-          "move %3zu  %+11.4g um  %-8s %-12s err %+7.2f counts  t %.4f s  chunks %3llu  corr %2u  "
-          "over %.1f nm\n",
+          "move %3zu  %+11.4g um  %-8s %-12s %-10s err %+7.2f fresh %+7.2f true %+7.2f counts  "
+          "t %.4f s  chunks %3llu  corr %2u  over %.1f nm\n",
           s.moves.size(), (target - start) * 1e6, motion_state_name(p.status().state),
-          motion_fault_name(p.status().fault), (p.status().position_m - target) / p.count_m(),
-          r.time_s, static_cast<unsigned long long>(p.move_chunks()), p.status().corrections,
+          motion_fault_name(p.status().fault), move_result_name(p.status().result),
+          r.done_error_m / p.count_m(), r.fresh_error_m / p.count_m(),
+          (rig.sim->true_position_m() - target) / p.count_m(), r.time_s,
+          static_cast<unsigned long long>(p.move_chunks()), p.status().corrections,
           r.overshoot_m * 1e9);
     s.moves.push_back(r);
   }

@@ -114,12 +114,14 @@ void finish(MoveOutcome& r, daemon::SimAxis& rig, double target_m) {
   r.within_count =
       p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
   r.within_count_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
+  r.done_error_m = p.status().position_m - target_m;
   r.not_ok = p.status().kind == MotionKind::Move && p.status().result != control::MoveResult::Ok;
   // A moment later, as a client's POS? after *OPC?: the latest single reading at rest.
   rig.run_for(5e-3);
   r.within_count_fresh =
       p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
   r.within_count_fresh_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
+  r.fresh_error_m = p.status().position_m - target_m;
 }
 
 }  // namespace idm::bench

@@ -26,6 +26,8 @@ struct MoveOutcome {
   bool within_count_fresh =
       false;  // by a fresh reading 5 ms after done (what POS? after *OPC? sees)
   bool within_count_fresh_true = false;  // by the true position then
+  double done_error_m = 0;               // the reading the move ended on - the target
+  double fresh_error_m = 0;              // the fresh reading - the target
   bool not_ok = false;                   // ours: MOVE:RESult? other than OK
   bool faulted = false;
   double time_s = 0;

@@ -43,7 +43,8 @@ std::vector<model::Param<P>> move_params() {
           "the longest piece played at once: what a STOP waits for (must fit the capture)",
           [](auto& c) -> auto& { return c.max_chunk_s; }),
       integer<P>(
-          "latch_words", "count", 1, 1000, "readings averaged for a position at rest",
+          "latch_words", "count", 1, RestMean::kMaxWords,
+          "readings averaged for a position at rest (the landing's, and the one shown)",
           [](auto& c) -> auto& { return c.latch_words; }),
       with_default(real<P>(
                        "soft_lower_m", "m", {-10, 10},
@@ -232,6 +233,7 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
   if (!(device_.count_m > 0))
     throw model::InputError("control: the interferometer's count must be > 0");
   count_m_ = device_.count_m;
+  rest_mean_.reset(config_.latch_words);
   const DeviceLimits& limits = map_.config().limits;
   buffered_ = device_.buffered;
   if (buffered_) {
@@ -352,6 +354,7 @@ void Positioner::on_reading(const model::AxisEvent& e) {
   if (device_lost_) return;
   if (!e.valid()) {
     status_.position_valid = false;
+    rest_mean_.reset(config_.latch_words);
     invalid_sample_status_ = e.status;
     // An overrun is the capture being too small for the chunk, not the beam: say so.
     if (phase_ != Phase::Fault)
@@ -364,7 +367,8 @@ void Positioner::on_reading(const model::AxisEvent& e) {
     mark_seen_ = true;
     mark_reading_m_ = position;
   }
-  status_.position_m = position;
+  // At rest the position shown is the mean of the latest latch_words readings; else the latest.
+  status_.position_m = at_rest() && !e.in_segment ? rest_mean_.add(position) : position;
   chunk_lo_m_ = std::min(chunk_lo_m_, position);
   chunk_hi_m_ = std::max(chunk_hi_m_, position);
   status_.position_valid = true;
@@ -453,6 +457,7 @@ void Positioner::start_chunk() {
   request_due_ = true;
   chunk_start_position_m_ = status_.position_m;
   chunk_lo_m_ = chunk_hi_m_ = status_.position_m;
+  rest_mean_.reset(config_.latch_words);
   ++status_.bursts;
   ++move_chunks_;
   status_.cycles += c.cycles;

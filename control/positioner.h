@@ -29,6 +29,7 @@
 #include "control/calibration.h"
 #include "control/planner.h"
 #include "control/region_map.h"
+#include "control/rest_mean.h"
 #include "model/axis_io.h"
 #include "model/param_table.h"
 
@@ -47,8 +48,9 @@ struct PositionerConfig {
   double settle_s = 2e-3;
   // Longest chunk played in one piece (whole cycles; at least one cycle).
   double max_chunk_s = 0.05;
-  // Words latched and averaged for a position at rest.
-  int latch_words = 4;
+  // Readings averaged for a position at rest: the landing judges their mean, and at rest the
+  // position shown is the mean of the latest latch_words readings.
+  int latch_words = 8;
   // Soft limits: a move whose target lies outside is refused before anything moves.
   double soft_lower_m = -std::numeric_limits<double>::infinity();
   double soft_upper_m = std::numeric_limits<double>::infinity();
@@ -145,15 +147,16 @@ struct MotionStatus {
   MotionState state = MotionState::Idle;
   MotionFault fault = MotionFault::None;
   bool position_valid = false;
-  double position_m = 0.0;        // last position read at rest (or during a burst, from the stream)
-  double target_m = 0.0;          // of the current or last move
-  bool closed_loop = false;       // the current/last motion is a move (not an open-loop STEP)
-  std::uint64_t moves = 0;        // moves started since construction
-  std::uint64_t bursts = 0;       // chunks played since construction
-  std::uint64_t cycles = 0;       // cycles played since construction
-  std::uint32_t corrections = 0;  // correction rounds of the current/last move
-  double last_move_time_s = 0.0;  // time the last finished move took
-  MotionKind kind = MotionKind::None;    // the current/last motion
+  double position_m =
+      0.0;  // at rest: the mean of the latest latch_words readings; moving: the latest
+  double target_m = 0.0;               // of the current or last move
+  bool closed_loop = false;            // the current/last motion is a move (not an open-loop STEP)
+  std::uint64_t moves = 0;             // moves started since construction
+  std::uint64_t bursts = 0;            // chunks played since construction
+  std::uint64_t cycles = 0;            // cycles played since construction
+  std::uint32_t corrections = 0;       // correction rounds of the current/last move
+  double last_move_time_s = 0.0;       // time the last finished move took
+  MotionKind kind = MotionKind::None;  // the current/last motion
   MoveResult result = MoveResult::None;  // why the last motion ended (None while one runs)
   double result_distance_m = 0.0;        // target - position when it ended
   int eot = 0;                           // -1 / +1: stopped at the end of travel that way; 0: not
@@ -451,6 +454,7 @@ class Positioner {
   double hold_until_s_ = 0;                 // +inf: until the next command
   bool hold_correcting_ = false;            // a correction of a hold is playing
   double chunk_lo_m_ = 0, chunk_hi_m_ = 0;  // the readings' extent during the chunk
+  RestMean rest_mean_;                      // the position shown at rest
   double hold_sum_m_ = 0;
   int hold_n_ = 0;
   bool hold_correction_due_ = false;

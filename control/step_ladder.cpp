@@ -393,12 +393,17 @@ bool Positioner::rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign,
   // moved before and is not of the final class, or is one of the coarse rungs (within half of
   // the largest live step): a fine rung near cut-off that does not move is the map being
   // wrong, or a stretch of the guide with more friction (where it moved before), not the
-  // slider stuck.
+  // slider stuck. A rung that moved the slider the wrong way is left out too, but says nothing
+  // of a stall or an end stop: the slider moved (a compliant stage's cell near cut-off can step
+  // backwards on a stretch of the guide); if every rung that way fails, the ladder is empty and
+  // that is the stall.
   double largest = 0;
   for (const Rung& x : ladder)
     if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
   const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
-  const bool counts = (r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0;
+  const bool stuck = along >= -2.0 * count_m_;
+  const bool counts =
+      stuck && ((r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0);
   kill_rung(r);
   r.killed_in_streak = true;
   if (counts) {
@@ -413,10 +418,11 @@ bool Positioner::rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign,
           x.dead = false;
           x.killed_in_streak = false;
         }
-    // Driven and not moving: at an end stop when the mean step over the run collapsed.
+    // Driven and not moving: at an end stop when the mean step over the run collapsed (to
+    // nothing: a run that crept the wrong way is friction along the guide, not a stop).
     if (config_.eot_step_m > 0 && streak_cycles_ > 0 &&
         (status_.moved_dirs & (1u << direction_index(sign))) &&
-        streak_along_m_ / static_cast<double>(streak_cycles_) < config_.eot_step_m) {
+        std::fabs(streak_along_m_ / static_cast<double>(streak_cycles_)) < config_.eot_step_m) {
       end_of_travel(now_s_, sign);
       return false;
     }

@@ -5,6 +5,16 @@
 
 namespace idm::model {
 
+bool is_blank(char c) {
+  return c == ' ' || c == '\t';
+}
+
+std::string_view trim(std::string_view s) {
+  while (!s.empty() && is_blank(s.front())) s.remove_prefix(1);
+  while (!s.empty() && is_blank(s.back())) s.remove_suffix(1);
+  return s;
+}
+
 bool split_range(std::string_view text, std::string_view (&parts)[3]) {
   const std::size_t c1 = text.find(':');
   if (c1 == std::string_view::npos) return false;

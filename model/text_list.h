@@ -1,6 +1,8 @@
-// "start:stop:step" ranges: one expansion for idmd's command protocol (daemon/protocol.cpp,
-// SWEEP lists) and the command-line tools (tools/cli.cpp, --freqs ...). Each caller keeps its
-// own error format (a SCPI error code, a model::InputError); this says only what went wrong.
+// Text that outside input shares: fields trimmed of blanks (the command protocol's lines, the
+// dataset's CSV fields), and "start:stop:step" ranges, one expansion for idmd's command protocol
+// (daemon/protocol.cpp, SWEEP lists) and the command-line tools (tools/cli.cpp, --freqs ...).
+// Each caller keeps its own error format (a SCPI error code, a model::InputError); this says only
+// what went wrong.
 #pragma once
 
 #include <cstddef>
@@ -8,6 +10,10 @@
 #include <vector>
 
 namespace idm::model {
+
+// The blanks a field is trimmed of: spaces and tabs.
+bool is_blank(char c);
+std::string_view trim(std::string_view s);
 
 // Splits "start:stop:step" at its two ':' into parts (not trimmed). False unless there are
 // exactly two ':'.

@@ -39,16 +39,6 @@ void append_number(std::string& out, double value) {
   out.append(buf, ec == std::errc() ? end : buf);
 }
 
-bool is_blank(char c) {
-  return c == ' ' || c == '\t';
-}
-
-std::string_view trim(std::string_view s) {
-  while (!s.empty() && is_blank(s.front())) s.remove_prefix(1);
-  while (!s.empty() && is_blank(s.back())) s.remove_suffix(1);
-  return s;
-}
-
 std::string in_quotes(const std::string& s) {
   return "'" + s + "'";
 }

@@ -8,6 +8,7 @@
 #include <string>
 #include <string_view>
 
+#include "model/text_list.h"
 #include "recording/dataset.h"
 
 namespace idm::recording::format {
@@ -37,8 +38,8 @@ std::string format_number(double value);
 void append_number(std::string& out, double value);
 
 // The blanks a CSV field is trimmed of: spaces and tabs.
-bool is_blank(char c);
-std::string_view trim(std::string_view s);
+using model::is_blank;
+using model::trim;
 
 std::string in_quotes(const std::string& s);
 

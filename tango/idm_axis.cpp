@@ -10,6 +10,7 @@ namespace idm::tango {
 namespace {
 
 constexpr double kTimeoutS = 5;
+constexpr int kMaxAxis = 1000;
 constexpr auto kMonitorPeriod = std::chrono::milliseconds(100);
 
 std::string number_text(double v) {
@@ -34,14 +35,25 @@ Tango::DevState tango_state(AxisState s) {
   return Tango::UNKNOWN;
 }
 
+// An axis number 1..kMaxAxis written in decimal digits alone; 0 when `text` is none.
+int axis_number(const std::string& text) {
+  if (text.empty() || text.size() > 4 || text.find_first_not_of("0123456789") != std::string::npos)
+    return 0;
+  const int n = std::stoi(text);
+  return n <= kMaxAxis ? n : 0;
+}
+
 // The axis a device name stands for: idm/axis/<n> is axis n; 0 when the last member is no number.
 int axis_from_name(const std::string& name) {
   const std::size_t slash = name.rfind('/');
-  const std::string member = slash == std::string::npos ? name : name.substr(slash + 1);
-  if (member.empty() || member.size() > 4 ||
-      member.find_first_not_of("0123456789") != std::string::npos)
-    return 0;
-  return std::stoi(member);
+  return axis_number(slash == std::string::npos ? name : name.substr(slash + 1));
+}
+
+// A property's text (its first value); false when the database holds none.
+bool property_text(Tango::DbDatum& datum, std::string& text) {
+  if (datum.is_empty()) return false;
+  datum >> text;
+  return true;
 }
 
 }  // namespace
@@ -57,39 +69,18 @@ IdmAxis::~IdmAxis() {
 void IdmAxis::init_device() {
   set_state(Tango::INIT);
   config_error_.clear();
+  address_ = client::Address{};
   axis_ = axis_from_name(get_name());
-  try {
-    address_ = client::address_from_environment();
-  } catch (const client::AddressError& e) {
-    config_error_ = e.what();
-  }
   // With a database, the device's properties override the environment and the name.
-  if (Tango::Util::_UseDb) {
-    Tango::DbData props;
-    props.push_back(Tango::DbDatum("IdmdAddress"));
-    props.push_back(Tango::DbDatum("IdmdSocket"));
-    props.push_back(Tango::DbDatum("Axis"));
-    get_db_device()->get_property(props);
-    std::string text;
+  const bool address_from_property = Tango::Util::_UseDb && read_properties();
+  if (!address_from_property) {
     try {
-      if (!props[1].is_empty()) {
-        props[1] >> text;
-        address_ = client::Address{};
-        address_.unix_path = text;
-      } else if (!props[0].is_empty()) {
-        props[0] >> text;
-        address_ = client::parse_host_port(text);
-      }
+      address_ = client::address_from_environment();
     } catch (const client::AddressError& e) {
-      config_error_ = std::string("property IdmdAddress: ") + e.what();
-    }
-    if (!props[2].is_empty()) {
-      Tango::DevLong axis = 0;
-      props[2] >> axis;
-      axis_ = axis;
+      if (config_error_.empty()) config_error_ = e.what();
     }
   }
-  if (config_error_.empty() && (axis_ < 1 || axis_ > 1000))
+  if (config_error_.empty() && axis_ == 0)
     config_error_ = "device " + get_name() +
                     ": the name does not end in an axis number (idm/axis/<n>) and no Axis property "
                     "says which axis it is";
@@ -99,6 +90,43 @@ void IdmAxis::init_device() {
   apply_status();
   stopping_ = false;
   monitor_ = std::thread([this] { monitor_loop(); });
+}
+
+bool IdmAxis::read_properties() {
+  Tango::DbData props;
+  props.push_back(Tango::DbDatum("IdmdAddress"));
+  props.push_back(Tango::DbDatum("IdmdSocket"));
+  props.push_back(Tango::DbDatum("Axis"));
+  try {
+    get_db_device()->get_property(props);
+  } catch (const Tango::DevFailed& e) {
+    config_error_ = "cannot read the device's properties: " + std::string(e.errors[0].desc.in());
+    return false;
+  }
+  std::string address_text, socket_path, axis_text;
+  const bool has_address = property_text(props[0], address_text);
+  const bool has_socket = property_text(props[1], socket_path);
+  if (property_text(props[2], axis_text)) {
+    axis_ = axis_number(axis_text);
+    if (axis_ == 0)
+      config_error_ = "property Axis: '" + axis_text.substr(0, 40) +
+                      "' is not an axis number (1.." + std::to_string(kMaxAxis) + ")";
+  }
+  std::string address_error;
+  if (has_socket && has_address) {
+    address_error = "properties IdmdSocket and IdmdAddress are both set: set one";
+  } else if (has_socket) {
+    address_.unix_path = socket_path;
+    if (socket_path.empty()) address_error = "property IdmdSocket: an empty path";
+  } else if (has_address) {
+    try {
+      address_ = client::parse_host_port(address_text);
+    } catch (const client::AddressError& e) {
+      address_error = std::string("property IdmdAddress: ") + e.what();
+    }
+  }
+  if (config_error_.empty()) config_error_ = address_error;
+  return has_socket || has_address;
 }
 
 void IdmAxis::delete_device() {
@@ -323,26 +351,32 @@ void IdmAxis::read_Referenced(Tango::Attribute& att) {
   att.set_value(&referenced_);
 }
 
+void IdmAxis::read_setting(Tango::Attribute& att, const std::string& header,
+                           Tango::DevDouble& value, const char* origin) {
+  value = client::parse_reply_number(query(header + "?", origin));
+  att.set_value(&value);
+}
+
+void IdmAxis::write_setting(Tango::WAttribute& att, const std::string& header, const char* origin) {
+  Tango::DevDouble v = 0;
+  att.get_write_value(v);
+  command(header + " " + number_text(v), origin);
+}
+
 void IdmAxis::read_Window(Tango::Attribute& att) {
-  window_ = client::parse_reply_number(query("MOVE:WIND?", "IdmAxis::read_Window"));
-  att.set_value(&window_);
+  read_setting(att, "MOVE:WIND", window_, "IdmAxis::read_Window");
 }
 
 void IdmAxis::write_Window(Tango::WAttribute& att) {
-  Tango::DevDouble v = 0;
-  att.get_write_value(v);
-  command("MOVE:WIND " + number_text(v), "IdmAxis::write_Window");
+  write_setting(att, "MOVE:WIND", "IdmAxis::write_Window");
 }
 
 void IdmAxis::read_Hold(Tango::Attribute& att) {
-  hold_ = client::parse_reply_number(query("HOLD?", "IdmAxis::read_Hold"));
-  att.set_value(&hold_);
+  read_setting(att, "HOLD", hold_, "IdmAxis::read_Hold");
 }
 
 void IdmAxis::write_Hold(Tango::WAttribute& att) {
-  Tango::DevDouble v = 0;
-  att.get_write_value(v);
-  command("HOLD " + number_text(v), "IdmAxis::write_Hold");
+  write_setting(att, "HOLD", "IdmAxis::write_Hold");
 }
 
 void IdmAxis::read_StatusBits(Tango::Attribute& att) {
@@ -381,49 +415,24 @@ IdmAxis* axis_of(Tango::DeviceImpl* dev) {
   return static_cast<IdmAxis*>(dev);
 }
 
-class PositionAttr : public Tango::Attr {
+// One attribute of the axis: read (and, with a writer, write) through the device's methods.
+class AxisAttr : public Tango::Attr {
  public:
-  PositionAttr() : Attr("Position", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Position(a); }
-  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Position(a); }
+  using Reader = void (IdmAxis::*)(Tango::Attribute&);
+  using Writer = void (IdmAxis::*)(Tango::WAttribute&);
+  AxisAttr(const char* name, long type, Reader reader, Writer writer = nullptr)
+      : Attr(name, type, writer != nullptr ? Tango::READ_WRITE : Tango::READ),
+        reader_(reader),
+        writer_(writer) {}
+  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { (axis_of(d)->*reader_)(a); }
+  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override {
+    if (writer_ != nullptr) (axis_of(d)->*writer_)(a);
+  }
   bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
 
-class TargetAttr : public Tango::Attr {
- public:
-  TargetAttr() : Attr("Target", Tango::DEV_DOUBLE, Tango::READ) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Target(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
-
-class ReferencedAttr : public Tango::Attr {
- public:
-  ReferencedAttr() : Attr("Referenced", Tango::DEV_BOOLEAN, Tango::READ) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Referenced(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
-
-class WindowAttr : public Tango::Attr {
- public:
-  WindowAttr() : Attr("Window", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Window(a); }
-  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Window(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
-
-class HoldAttr : public Tango::Attr {
- public:
-  HoldAttr() : Attr("Hold", Tango::DEV_DOUBLE, Tango::READ_WRITE) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_Hold(a); }
-  void write(Tango::DeviceImpl* d, Tango::WAttribute& a) override { axis_of(d)->write_Hold(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
-};
-
-class StatusBitsAttr : public Tango::Attr {
- public:
-  StatusBitsAttr() : Attr("StatusBits", Tango::DEV_LONG, Tango::READ) {}
-  void read(Tango::DeviceImpl* d, Tango::Attribute& a) override { axis_of(d)->read_StatusBits(a); }
-  bool is_allowed(Tango::DeviceImpl*, Tango::AttReqType) override { return true; }
+ private:
+  Reader reader_;
+  Writer writer_;
 };
 
 class StopCmd : public Tango::Command {
@@ -501,23 +510,31 @@ void IdmAxisClass::command_factory() {
 }
 
 void IdmAxisClass::attribute_factory(std::vector<Tango::Attr*>& attrs) {
-  attrs.push_back(with_properties(new PositionAttr(), "m",
+  attrs.push_back(with_properties(new AxisAttr("Position", Tango::DEV_DOUBLE,
+                                               &IdmAxis::read_Position, &IdmAxis::write_Position),
+                                  "m",
                                   "Position of the axis (write: a closed-loop move there); "
                                   "min/max are the daemon's soft limits",
                                   "%.9e"));
-  attrs.push_back(with_properties(new TargetAttr(), "m", "Target of the last move", "%.9e"));
-  attrs.push_back(with_properties(new ReferencedAttr(), "", "The axis is referenced", ""));
+  attrs.push_back(with_properties(new AxisAttr("Target", Tango::DEV_DOUBLE, &IdmAxis::read_Target),
+                                  "m", "Target of the last move", "%.9e"));
   attrs.push_back(
-      with_properties(new WindowAttr(), "m", "In-position window (MOVE:WINDow)", "%.3e"));
-  attrs.push_back(with_properties(new HoldAttr(), "s",
-                                  "Hold after the moves that follow (HOLD; 0 none, -1 until "
-                                  "the next motion)",
-                                  "%.3f"));
-  attrs.push_back(with_properties(new StatusBitsAttr(), "",
-                                  "STATus:OPERation?: 0 moving, 1 in position, 2 holding, 3 "
-                                  "referenced, 4/5 at lower/upper soft limit, 6 end of travel, 7 "
-                                  "fault, 8 position valid, 9 referencing",
-                                  ""));
+      with_properties(new AxisAttr("Referenced", Tango::DEV_BOOLEAN, &IdmAxis::read_Referenced), "",
+                      "The axis is referenced", ""));
+  attrs.push_back(with_properties(
+      new AxisAttr("Window", Tango::DEV_DOUBLE, &IdmAxis::read_Window, &IdmAxis::write_Window), "m",
+      "In-position window (MOVE:WINDow)", "%.3e"));
+  attrs.push_back(with_properties(
+      new AxisAttr("Hold", Tango::DEV_DOUBLE, &IdmAxis::read_Hold, &IdmAxis::write_Hold), "s",
+      "Hold after the moves that follow (HOLD; 0 none, -1 until "
+      "the next motion)",
+      "%.3f"));
+  attrs.push_back(
+      with_properties(new AxisAttr("StatusBits", Tango::DEV_LONG, &IdmAxis::read_StatusBits), "",
+                      "STATus:OPERation?: 0 moving, 1 in position, 2 holding, 3 "
+                      "referenced, 4/5 at lower/upper soft limit, 6 end of travel, 7 "
+                      "fault, 8 position valid, 9 referencing",
+                      ""));
 }
 
 void IdmAxisClass::device_factory(const Tango::DevVarStringArray* devlist) {

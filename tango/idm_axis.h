@@ -47,10 +47,18 @@ class IdmAxis : public TANGO_BASE_CLASS {
   void step(Tango::DevLong cycles);
 
  private:
+  // With a database: the properties IdmdSocket or IdmdAddress (idmd's address, both set is an
+  // error) and Axis, over the environment and the name; a bad one (or none readable) sets
+  // config_error_. Returns whether a property gave the address.
+  bool read_properties();
   // One protocol line to this device's axis ("AXIS<n>:" put in front), under the connection's
   // lock; the daemon's errors and a lost connection as Tango exceptions.
   std::string query(const std::string& header, const char* origin);
   void command(const std::string& line, const char* origin);
+  // A setting of the axis as a double attribute: read `header?`, write `header <value>`.
+  void read_setting(Tango::Attribute& att, const std::string& header, Tango::DevDouble& value,
+                    const char* origin);
+  void write_setting(Tango::WAttribute& att, const std::string& header, const char* origin);
   // STATus? now; on failure the reason is kept and the state is FAULT.
   void refresh();
   // From the last refresh: Tango's state and status, and the Position's min/max from the soft

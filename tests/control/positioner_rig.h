@@ -25,6 +25,12 @@ inline RegionMapConfig rig_map_config(double step_correction) {
   return c;
 }
 
+// The map of the ideal plant (alpha 1), built once.
+inline const RegionMap& ideal_map() {
+  static const RegionMap map(rig_map_config(1.0));
+  return map;
+}
+
 using Rig = daemon::SimAxis;
 
 // The ideal plant: the rigid plant is the impulse model's event simulation (alpha = 1).

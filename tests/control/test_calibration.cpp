@@ -16,10 +16,7 @@ using namespace idm::control;
 
 namespace {
 
-const RegionMap& ideal_map() {
-  static const RegionMap map(test_rig::rig_map_config(1.0));
-  return map;
-}
+using test_rig::ideal_map;
 
 std::string temp_path(const std::string& name) {
   return std::string(::testing::TempDir()) + "idm_calibration_" + name;

@@ -15,10 +15,7 @@ using idm::control::test_rig::Rig;
 
 namespace {
 
-const RegionMap& ideal_map() {
-  static const RegionMap map(test_rig::rig_map_config(1.0));
-  return map;
-}
+using test_rig::ideal_map;
 
 TEST(Positioner, ConvergesOnTheIdealPlantBothDirections) {
   Rig rig(ideal_map(), ideal_device());
@@ -385,9 +382,10 @@ TEST(Positioner, IsPureEventsInRequestsOut) {
   // It wants fresh readings taken after the command, then plays a chunk toward the target.
   ASSERT_TRUE(p.tick(0.001, r));
   EXPECT_EQ(r.kind, model::OutputRequest::Kind::Read);
-  EXPECT_EQ(r.readings, 4u);
+  const int words = PositionerConfig{}.latch_words;
+  EXPECT_EQ(r.readings, static_cast<std::uint32_t>(words));
   EXPECT_FALSE(p.tick(0.0011, r));
-  for (int i = 0; i < 4; ++i) p.on_event(reading(0.0012, 1e-6));
+  for (int i = 0; i < words; ++i) p.on_event(reading(0.0012, 1e-6));
   ASSERT_TRUE(p.tick(0.0013, r));
   ASSERT_EQ(r.kind, model::OutputRequest::Kind::Play);
   EXPECT_GT(r.segment.cycles, 0u);

@@ -1,0 +1,162 @@
+// The position a client sees at rest (the mean of the latest readings) and what a run of chunks
+// that did not move says (never an end of travel when the slider moved back), on the pure
+// interface: the positioner fed by hand.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "positioner_rig.h"
+
+using namespace idm;
+using namespace idm::control;
+using idm::control::test_rig::ideal_map;
+
+namespace {
+
+TEST(RestMean, TheMeanOfTheLatestWordsWithoutDrift) {
+  RestMean m;
+  m.reset(4);
+  EXPECT_DOUBLE_EQ(m.add(1.0), 1.0);
+  EXPECT_DOUBLE_EQ(m.add(2.0), 1.5);
+  EXPECT_DOUBLE_EQ(m.add(3.0), 2.0);
+  EXPECT_DOUBLE_EQ(m.add(4.0), 2.5);
+  EXPECT_DOUBLE_EQ(m.add(5.0), 3.5);  // the oldest left
+  EXPECT_EQ(m.count(), 4);
+  // Large values then small ones: the running sum would keep their rounding, the mean does not.
+  for (int i = 0; i < 1001; ++i) m.add(1e3 + 0.1 * i);
+  // (the sum is summed afresh once a round: a round after the last large value, none is left).
+  for (int i = 0; i < 8; ++i) m.add(1e-9 * (i + 1));
+  EXPECT_NEAR(m.add(9e-9), 7.5e-9, 1e-22);
+  m.reset(0);  // clamped to one word
+  m.add(7.0);
+  EXPECT_DOUBLE_EQ(m.add(8.0), 8.0);
+  m.reset(1 << 20);  // clamped to kMaxWords
+  for (int i = 0; i < RestMean::kMaxWords + 10; ++i) m.add(i < 10 ? 1e6 : 2.0);
+  EXPECT_EQ(m.count(), RestMean::kMaxWords);
+  EXPECT_DOUBLE_EQ(m.add(2.0), 2.0);
+}
+
+// At rest the position shown is the mean of the latest latch_words readings (a slider at a
+// count's edge reads one count or the next: the mean does not jump); moving, the latest reading;
+// a motion starts the mean over.
+TEST(Positioner, AtRestThePositionShownIsTheMeanOfTheLatestReadings) {
+  AxisDeviceInfo device;
+  device.count_m = 9.8906e-9;
+  device.max_velocity_m_s = 1.0;
+  PositionerConfig cfg;
+  cfg.latch_words = 4;
+  Positioner p(ideal_map(), PlannerConfig{}, cfg, device);
+  const auto reading = [&p](double t, double x, bool in_segment = false) {
+    model::AxisEvent e;
+    e.kind = model::AxisEvent::Kind::Reading;
+    e.t_s = t;
+    e.position_m = x;
+    e.in_segment = in_segment;
+    p.on_event(e);
+  };
+  const double a = 1e-6, b = a + device.count_m;
+  reading(0.0, a);
+  EXPECT_DOUBLE_EQ(p.status().position_m, a);
+  reading(0.001, b);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 0.5 * (a + b));
+  reading(0.002, b);
+  reading(0.003, b);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 0.25 * (a + 3 * b));
+  reading(0.004, b);  // the first reading has left the mean
+  EXPECT_DOUBLE_EQ(p.status().position_m, b);
+  // A move: its readings are shown as they come.
+  ASSERT_EQ(p.move_relative(50e-6), Refusal::None);
+  model::OutputRequest r;
+  ASSERT_TRUE(p.tick(0.005, r));
+  ASSERT_EQ(r.kind, model::OutputRequest::Kind::Read);
+  for (int i = 0; i < 4; ++i) reading(0.0051, b);
+  ASSERT_TRUE(p.tick(0.0052, r));
+  ASSERT_EQ(r.kind, model::OutputRequest::Kind::Play);
+  reading(0.006, 3e-6, true);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 3e-6);
+  reading(0.007, 4e-6, true);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 4e-6);
+  // Stopped: at rest again, the mean starts from the readings at rest.
+  p.stop();
+  model::AxisEvent done;
+  done.kind = model::AxisEvent::Kind::SegmentDone;
+  done.seq = r.seq;
+  done.t_s = 0.008;
+  p.on_event(done);
+  for (double t = 0.008; t < 0.05 && !p.at_rest(); t += 0.001) {
+    if (p.tick(t, r) && r.kind == model::OutputRequest::Kind::Read)
+      for (std::uint32_t i = 0; i < r.readings; ++i) reading(t, 5e-6);
+  }
+  ASSERT_TRUE(p.at_rest());
+  reading(0.06, 5e-6 + device.count_m);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 5e-6 + device.count_m);  // no reading of the move in it
+  reading(0.061, 5e-6);
+  EXPECT_DOUBLE_EQ(p.status().position_m, 5e-6 + 0.5 * device.count_m);
+}
+
+// A scripted stage on the pure interface: every chunk played moves the slider by what
+// `moved_by(segment)` says; readings at rest answer the positioner's requests.
+struct ScriptedStage {
+  Positioner& p;
+  double x_m = 1e-6;
+  double t_s = 0;
+  void reading(bool in_segment = false) {
+    model::AxisEvent e;
+    e.kind = model::AxisEvent::Kind::Reading;
+    e.t_s = t_s;
+    e.position_m = x_m;
+    e.in_segment = in_segment;
+    p.on_event(e);
+  }
+  template <class MovedBy>
+  void run(MovedBy&& moved_by) {
+    model::OutputRequest r;
+    for (int k = 0; k < 200000 && !(k > 0 && p.at_rest()); ++k) {
+      t_s += 1e-4;
+      if (!p.tick(t_s, r)) continue;
+      if (r.kind == model::OutputRequest::Kind::Read) {
+        for (std::uint32_t i = 0; i < r.readings; ++i) reading();
+      } else if (r.kind == model::OutputRequest::Kind::Play) {
+        x_m += moved_by(r.segment);
+        model::AxisEvent done;
+        done.kind = model::AxisEvent::Kind::SegmentDone;
+        done.seq = r.seq;
+        done.t_s = t_s;
+        p.on_event(done);
+      }
+    }
+  }
+};
+
+// Mid-travel the stage creeps the wrong way on every chunk one way (friction along the guide
+// defeating the cells the ladder tries): the rungs are left out, and the move ends as a
+// stall or with every rung gone, never as an end of travel (which would refuse every later move
+// that way though nothing stops the slider there).
+TEST(Positioner, CreepingTheWrongWayIsNotAnEndOfTravel) {
+  AxisDeviceInfo device;
+  device.count_m = 9.8906e-9;
+  device.max_velocity_m_s = 1.0;
+  Positioner p(ideal_map(), PlannerConfig{}, PositionerConfig{}, device);
+  ScriptedStage stage{p};
+  stage.reading();
+  // Negative moves work at first (the slider has moved that way).
+  const auto as_predicted = [&](const model::Segment& seg) {
+    const RegionMap& map = ideal_map();
+    for (const RegionCell& c : map.cells())
+      if (c.freq_hz == seg.freq_hz && c.duty == seg.duty && c.stroke_m == seg.stroke_m)
+        return c.step_m * static_cast<double>(seg.cycles);
+    return 0.0;
+  };
+  ASSERT_EQ(p.move_absolute(stage.x_m - 30e-6), Refusal::None);
+  stage.run(as_predicted);
+  ASSERT_EQ(p.status().result, MoveResult::Ok) << motion_fault_name(p.status().fault);
+  // Then every negative chunk creeps the wrong way, 3 nm a cycle (more than eot_step_m: a slider
+  // at a stop does not move, a slider moving back is not at one).
+  ASSERT_EQ(p.move_absolute(stage.x_m - 2e-6), Refusal::None);
+  stage.run([](const model::Segment& seg) { return 3e-9 * static_cast<double>(seg.cycles); });
+  EXPECT_NE(p.status().result, MoveResult::Ok);
+  EXPECT_NE(p.status().result, MoveResult::EndOfTravel);
+  EXPECT_EQ(p.status().eot, 0);
+}
+
+}  // namespace
