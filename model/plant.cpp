@@ -69,7 +69,12 @@ void RigidPlant::step(double dt_s, double xi_end_m) {
     }
   }
   slide(dt_s);
-  apply_end_stops(x_m_, v_m_s_);
+  // On a stop the slider stays, but its slip velocity into the stop is kept (friction still
+  // takes it down): the return corner's jump then cancels it as it would in free motion, instead
+  // of launching the slider off the stop (the stop takes the slip phase's displacement, not the
+  // momentum exchange between the two masses that the corners make).
+  const double v_into = v_m_s_;
+  if (apply_end_stops(x_m_, v_m_s_)) v_m_s_ = v_into;
 }
 
 void RigidPlant::slide(double dt_s) {

@@ -247,3 +247,30 @@ TEST(CompliantPlant, LongStepsSeeTheRingingThatShortStepsSee) {
       EXPECT_NEAR(run(7), fine, 10e-9) << f_res << " Hz, zeta " << zeta;
     }
 }
+
+// Driven into a hard stop, the rigid plant stays on it: the stop takes the slip phase's travel,
+// and the return corner, which in free motion cancels the slip velocity, does not launch the
+// slider off the stop (it used to fly off by tens of um a cycle).
+TEST(RigidPlant, DrivenIntoAStopTheSliderStaysOnIt) {
+  const StageParams s;
+  const double stop_m = 10e-6;
+  for (double freq : {1000.0, 2000.0}) {
+    for (double duty : {0.05, 0.1, 0.9, 0.95}) {  // duty < 0.5 steps one way, > 0.5 the other
+      RigidPlant plant(s, FrictionLaw::coulomb(s));
+      plant.set_end_stops(-stop_m, stop_m);
+      plant.reset(0, 0);
+      const TriangleWave w{freq, duty, s.stroke_m, 200};
+      const auto ends = cycle_ends(plant, w, 1e-6, true);
+      const double stop = steady_step_ideal_m(s, freq, duty, s.stroke_m) < 0 ? -stop_m : stop_m;
+      std::size_t arrived = ends.size();
+      for (std::size_t k = 0; k < ends.size(); ++k)
+        if (std::fabs(ends[k] - stop) < 0.1e-6) {
+          arrived = k;
+          break;
+        }
+      ASSERT_LT(arrived, ends.size() / 2) << freq << " Hz duty " << duty;
+      for (std::size_t k = arrived; k < ends.size(); ++k)
+        ASSERT_NEAR(ends[k], stop, 0.1e-6) << freq << " Hz duty " << duty << " cycle " << k + 1;
+    }
+  }
+}
