@@ -13,6 +13,16 @@ using idm::control::test_rig::ideal_map;
 
 namespace {
 
+// One valid reading of x_m at t_s, as the device link delivers it.
+void feed_reading(Positioner& p, double t_s, double x_m, bool in_segment = false) {
+  model::AxisEvent e;
+  e.kind = model::AxisEvent::Kind::Reading;
+  e.t_s = t_s;
+  e.position_m = x_m;
+  e.in_segment = in_segment;
+  p.on_event(e);
+}
+
 TEST(RestMean, TheMeanOfTheLatestWordsWithoutDrift) {
   RestMean m;
   m.reset(4);
@@ -47,12 +57,7 @@ TEST(Positioner, AtRestThePositionShownIsTheMeanOfTheLatestReadings) {
   cfg.latch_words = 4;
   Positioner p(ideal_map(), PlannerConfig{}, cfg, device);
   const auto reading = [&p](double t, double x, bool in_segment = false) {
-    model::AxisEvent e;
-    e.kind = model::AxisEvent::Kind::Reading;
-    e.t_s = t;
-    e.position_m = x;
-    e.in_segment = in_segment;
-    p.on_event(e);
+    feed_reading(p, t, x, in_segment);
   };
   const double a = 1e-6, b = a + device.count_m;
   reading(0.0, a);
@@ -100,14 +105,7 @@ struct ScriptedStage {
   Positioner& p;
   double x_m = 1e-6;
   double t_s = 0;
-  void reading(bool in_segment = false) {
-    model::AxisEvent e;
-    e.kind = model::AxisEvent::Kind::Reading;
-    e.t_s = t_s;
-    e.position_m = x_m;
-    e.in_segment = in_segment;
-    p.on_event(e);
-  }
+  void reading(bool in_segment = false) { feed_reading(p, t_s, x_m, in_segment); }
   template <class MovedBy>
   void run(MovedBy&& moved_by) {
     model::OutputRequest r;

@@ -156,12 +156,17 @@ class FakeBridge {
   }
 
  private:
+  // The reply goes out after the mutex is released: once the client has it, the test may go
+  // on to destroy this bridge, and the worker thread must not touch it any more.
   static gboolean on_ioctl(UMockdevIoctlBase*, UMockdevIoctlClient* client, gpointer self) {
-    static_cast<FakeBridge*>(self)->handle(client);
+    long result = 0;
+    int err = 0;
+    static_cast<FakeBridge*>(self)->handle(client, result, err);
+    umockdev_ioctl_client_complete(client, result, err);
     return TRUE;
   }
 
-  void handle(UMockdevIoctlClient* client) {
+  void handle(UMockdevIoctlClient* client, long& result, int& err) {
     std::lock_guard lock(mutex_);
     const unsigned long request = umockdev_ioctl_client_get_request(client);
     UMockdevIoctlData* arg = umockdev_ioctl_client_get_arg(client);
@@ -172,11 +177,9 @@ class FakeBridge {
     if (error) {
       errors_ += std::string("resolve: ") + error->message + "; ";
       g_error_free(error);
-      umockdev_ioctl_client_complete(client, -1, EFAULT);
+      result = -1, err = EFAULT;
       return;
     }
-    long result = 0;
-    int err = 0;
     switch (request) {
       case USBDEVFS_GET_CAPABILITIES:
         // As an xHCI host: with scatter-gather libusb submits a bulk transfer as one URB
@@ -241,7 +244,6 @@ class FakeBridge {
         break;
     }
     if (data) g_object_unref(data);
-    umockdev_ioctl_client_complete(client, result, err);
   }
 
   void submit(UMockdevIoctlData* data, int& err) {
@@ -460,9 +462,10 @@ class FakeBridge {
 class Testbed {
  public:
   Testbed() : testbed_(umockdev_testbed_new()) {}
+  // The testbed (and its worker thread, which calls into the bridges) goes first.
   ~Testbed() {
-    bridges_.clear();
     g_object_unref(testbed_);
+    bridges_.clear();
   }
   FakeBridge& add(const std::string& serial) {
     bridges_.push_back(std::make_unique<FakeBridge>(serial, static_cast<int>(bridges_.size()) + 2));

@@ -21,7 +21,8 @@ What 9.3.6's sqlite3 backend gets wrong, and what is replaced here (the rest is 
   * DbUnExportServer, DbUnExportDevice: MySQL's NOW().
   * exporting a device server notifies Starter devices (none here): off.
 DbAddServer is not repaired ('/' for '//' under Python 3): add the devices one by one
-(tango.Database.add_device). DbGetDataForServerCache is a stub; Tango then asks for each item.
+(tango.Database.add_device). PyTango's own DbGetDataForServerCache answers nothing (left so: a
+server then asks for each item on its own, as it does without a cache).
 """
 import logging
 import os
