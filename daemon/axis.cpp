@@ -116,6 +116,16 @@ void Axis::build(const ControlConfig& control) {
   published_.store(pub_);
 }
 
+void Axis::restore_reference(double offset_m) {
+  control::MotionStatus status = positioner_->status();
+  status.offset_m = offset_m;
+  positioner_->continue_from(status);
+  referenced_ = true;
+  pub_.referenced = true;
+  pub_.motion = positioner_->status();
+  published_.store(pub_);
+}
+
 void Axis::set_soft_limits_now(double lower_m, double upper_m) {
   soft_lower_m_ = lower_m;
   soft_upper_m_ = upper_m;

@@ -108,6 +108,9 @@ class Axis {
   // A map for `control` built ahead (allocates; outside the park), installed by build().
   void prepare(const ControlConfig& control);
   void set_soft_limits_now(double lower_m, double upper_m);
+  // Before the loop starts: the axis is referenced with a reference an earlier run found (its
+  // offset, control::MotionStatus::offset_m; daemon/reference_file.h says when it holds).
+  void restore_reference(double offset_m);
 
   // ---- the loop thread ----
   control::Refusal apply(const AxisCommand& command);

@@ -50,6 +50,7 @@ struct AxisSections {
   AxisConfig::Reference reference = AxisConfig::Reference::Negative;
   double reference_position_m = std::numeric_limits<double>::quiet_NaN();
   AxisConfig::Reference reference_mark_search = AxisConfig::Reference::Negative;
+  std::string reference_file;
   Node stage, interferometer, sim, control;
 };
 
@@ -93,6 +94,11 @@ const model::ParamTable<AxisSections>& axis_params() {
            {"positive", AxisConfig::Reference::Positive}},
           "which way REFerence MARK drives first (it turns at an end stop before the mark)",
           [](auto& a) -> auto& { return a.reference_mark_search; }),
+      text<AxisSections>(
+          "reference_file",
+          "the interferometer keeps its count while idmd is down: the reference is saved here and "
+          "restored at start when the device's count epoch is unchanged (\"\": never restored)",
+          [](auto& a) -> auto& { return a.reference_file; }, "a path"),
       section<AxisSections>("stage", "the stage (below), travel_m required", &AxisSections::stage),
       section<AxisSections>("interferometer", "the position words (below)",
                             &AxisSections::interferometer),
@@ -101,6 +107,22 @@ const model::ParamTable<AxisSections>& axis_params() {
                             &AxisSections::control),
   });
   return table;
+}
+
+// The single-axis form has the axis's keys at the top (but device and channel) and `daq`.
+bool single_axis_key(const std::string& name) {
+  if (name == "daq") return true;
+  if (name == "device" || name == "channel") return false;
+  for (const model::Param<AxisSections>& p : axis_params().params())
+    if (p.name == name) return true;
+  return false;
+}
+
+std::string single_axis_keys() {
+  std::string out;
+  for (const model::Param<AxisSections>& p : axis_params().params())
+    if (single_axis_key(p.name)) out += (out.empty() ? "" : ", ") + p.name;
+  return out + ", daq";
 }
 
 void check_range_order(double lo, double hi, const std::string& f, const Node& node,
@@ -209,6 +231,7 @@ AxisConfig parse_axis(const AxisSections& a, const std::string& name, std::size_
   axis.reference = a.reference;
   axis.reference_position_m = a.reference_position_m;
   axis.reference_mark_search = a.reference_mark_search;
+  axis.reference_file = a.reference_file;
   axis.document = axis_document(a, c.devices[device]);
   axis.stage =
       model::parse_stage_yaml(axis.document, f, {.strict = true, .require_dataset_keys = false});
@@ -263,8 +286,7 @@ void parse_single_axis(const Node& root, DaemonConfig& c) {
   a.channel = 0;
   // The axis's own keys, at the top in this form.
   for (const model::Param<AxisSections>& p : axis_params().params())
-    if (p.name == "require_reference" || p.name == "reference" ||
-        p.name == "reference_position_m" || p.name == "reference_mark_search")
+    if (p.unit != "map" && single_axis_key(p.name))
       if (const Node v = child(root, p.name.c_str()); present(v)) p.read(a, v, c.file, p.name);
   c.axes.push_back(parse_axis(a, "x", 0, c, root, ""));
   c.axes.back().channel = 0;
@@ -334,21 +356,11 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
   model::require_unique_keys(root, f);
   const bool multi = present(child(root, "axes")) || present(child(root, "devices"));
   static const char* const kCommon[] = {"server", "realtime", "logging", "recording"};
-  static const char* const kSingle[] = {"stage",
-                                        "interferometer",
-                                        "daq",
-                                        "control",
-                                        "sim",
-                                        "require_reference",
-                                        "reference",
-                                        "reference_position_m",
-                                        "reference_mark_search"};
   for (const auto& kv : root) {
     const std::string name = kv.first.as<std::string>();
     const bool common =
         std::find(std::begin(kCommon), std::end(kCommon), name) != std::end(kCommon);
-    const bool single =
-        std::find(std::begin(kSingle), std::end(kSingle), name) != std::end(kSingle);
+    const bool single = single_axis_key(name);
     const bool axes = name == "axes" || name == "devices";
     if (common || (multi ? axes : single)) continue;
     if (multi && single)
@@ -358,9 +370,8 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
     throw InputError(located(
         f, kv.first, name,
         multi ? "unknown section, allowed devices, axes, server, realtime, logging, recording"
-              : "unknown section, allowed stage, interferometer, daq, control, sim, "
-                "require_reference, reference, reference_position_m, reference_mark_search, "
-                "server, realtime, logging, recording (or devices: and axes:)"));
+              : "unknown section, allowed " + single_axis_keys() +
+                    ", server, realtime, logging, recording (or devices: and axes:)"));
   }
   DaemonConfig c;
   c.file = f;

@@ -135,6 +135,8 @@ struct AxisConfig {
   double reference_position_m = std::numeric_limits<double>::quiet_NaN();
   // REFerence MARK drives this way first (Negative or Positive; it turns at an end stop).
   Reference reference_mark_search = Reference::Negative;
+  // Where the reference is kept across restarts ("": nowhere; daemon/reference_file.h).
+  std::string reference_file;
   // The axis's sections as one document (stage, interferometer, sim, daq.<driver>) for the
   // backend's factory (drivers::make_backend).
   YAML::Node document;

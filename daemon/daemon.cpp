@@ -10,6 +10,7 @@
 #include <map>
 #include <thread>
 
+#include "daemon/reference_file.h"
 #include "drivers/backends.h"
 #include "drivers/clock.h"
 #include "drivers/sim/sim_backend.h"
@@ -112,6 +113,28 @@ void Daemon::build_axes() {
       else
         axis->build(axis->config().control);  // the snapshot from the loaded state
     }
+    restore_reference(*axis);
+  }
+}
+
+void Daemon::restore_reference(Axis& axis) {
+  const std::string& file = axis.config().reference_file;
+  if (file.empty() || !std::filesystem::exists(file)) return;
+  const std::string name = "axis " + axis.config().name + ": ";
+  try {
+    const SavedReference saved = load_reference(file);
+    const drivers::CountOrigin now = axis.link().count_origin(axis.channel());
+    if (const std::string why = reference_holds(saved, now); !why.empty()) {
+      start_notes_.push_back({saved.referenced, name + "not referenced (" + file + "): " + why});
+      return;
+    }
+    axis.link().continue_count(axis.channel(), saved.origin.offset_counts);
+    axis.restore_reference(saved.offset_m);
+    start_notes_.push_back({false, name + "referenced as before the restart (" + file +
+                                       "; the device kept its count, epoch " +
+                                       std::to_string(now.epoch) + ")"});
+  } catch (const model::InputError& e) {
+    start_notes_.push_back({true, name + "not referenced: " + e.what()});
   }
 }
 

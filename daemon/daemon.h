@@ -119,6 +119,8 @@ class Daemon final : public Instrument {
   void build_devices();
   void open_devices();
   void build_axes();
+  // The axis's reference_file: restored when it holds, else a note says why not.
+  void restore_reference(Axis& axis);
   void wait_until_ready();
   CommandError submit(AxisCommand command);
   CommandError refusal_error(int axis, control::Refusal refusal, double target_m,

@@ -18,6 +18,9 @@ Housekeeping::Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceL
       reload_(std::move(reload)),
       saved_updates_(axes_.size(), 0),
       save_errors_(axes_.size()),
+      saved_references_(axes_.size()),
+      reference_errors_(axes_.size()),
+      reference_reconnects_(axes_.size(), 0),
       errors_(axes_.size()) {
   for (std::size_t i = 0; i < axes_.size(); ++i)
     saved_updates_[i] = axes_[i]->calibration_snapshot().total_updates;
@@ -41,7 +44,10 @@ void Housekeeping::quit() {
   cv_.notify_all();
   if (thread_.joinable()) thread_.join();
   watch_links();
-  for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, true);
+  for (std::size_t i = 0; i < axes_.size(); ++i) {
+    save_calibration(i, true);
+    save_reference(i);
+  }
 }
 
 std::vector<Housekeeping::Note> Housekeeping::take_notes() {
@@ -90,6 +96,7 @@ void Housekeeping::cycle() {
   }
   if (supervisor_.at_rest())
     for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, false);
+  for (std::size_t i = 0; i < axes_.size(); ++i) save_reference(i);
 }
 
 void Housekeeping::save_calibration(std::size_t i, bool force) {
@@ -115,14 +122,44 @@ void Housekeeping::save_calibration(std::size_t i, bool force) {
   } catch (const std::exception& e) {
     error = e.what();
   }
-  if (error.empty()) {
+  if (error.empty())
     save_errors_[i].clear();
-    return;
-  }
-  const std::string text = "cannot save the calibration to " + path + ": " + error;
+  else
+    save_failed(i, save_errors_[i], "cannot save the calibration to " + path + ": " + error);
+}
+
+void Housekeeping::save_failed(std::size_t i, std::string& last, const std::string& text) {
   set_error(i, text);
-  if (text != save_errors_[i]) add_note(true, text);  // once per distinct failure
-  save_errors_[i] = text;
+  if (text != last) add_note(true, text);  // once per distinct failure
+  last = text;
+}
+
+void Housekeeping::save_reference(std::size_t i) {
+  Axis& axis = *axes_[i];
+  const std::string& path = axis.config().reference_file;
+  if (path.empty()) return;
+  // Just reconnected: the loop may not have seen yet whether the count was kept (and cleared the
+  // referenced flag if not). The next look, 50 ms on, has.
+  const drivers::LinkHealth h = axis.link().health();
+  const bool settled =
+      h.state == drivers::LinkState::Up && h.reconnects == reference_reconnects_[i];
+  reference_reconnects_[i] = h.reconnects;
+  if (!settled) return;
+  const AxisPublished p = axis.published();
+  SavedReference now;
+  now.referenced = p.referenced;
+  if (now.referenced) {
+    now.origin = axis.link().count_origin(axis.channel());
+    now.offset_m = p.motion.offset_m;
+  }
+  if (saved_references_[i] && *saved_references_[i] == now) return;
+  try {
+    daemon::save_reference(path, now, axis.config().name);
+    saved_references_[i] = now;
+    reference_errors_[i].clear();
+  } catch (const std::exception& e) {
+    save_failed(i, reference_errors_[i], "cannot save the reference to " + path + ": " + e.what());
+  }
 }
 
 void Housekeeping::watch_links() {

@@ -1,6 +1,7 @@
 // Housekeeping: the daemon's slow thread. Every 50 ms it saves each axis's calibration once the
 // motion that changed it is done (crash-safe, control::Calibration::save; a failure is logged
-// once per distinct failure and kept as the axis's daemon error), watches the device links'
+// once per distinct failure and kept as the axis's daemon error), saves each axis's reference to
+// its reference_file when it changed (daemon/reference_file.h), watches the device links'
 // health (a device lost or back becomes a log line naming the device, and the axes' error), hands
 // the sweep runner's report to the log, and finishes a *RST that had to wait for a sweep to wind
 // down. It touches no device and never blocks the loop; idmd's main thread takes its notes.
@@ -10,10 +11,12 @@
 #include <condition_variable>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "daemon/axis.h"
+#include "daemon/reference_file.h"
 #include "daemon/supervisor.h"
 #include "daemon/sweep_runner.h"
 #include "drivers/link.h"
@@ -52,6 +55,9 @@ class Housekeeping {
   void main();
   void cycle();
   void save_calibration(std::size_t axis, bool force);
+  void save_reference(std::size_t axis);
+  // A failed save: the axis's error, logged once per distinct failure.
+  void save_failed(std::size_t axis, std::string& last, const std::string& text);
   void watch_links();
   void add_note(bool warning, std::string text);
   void set_error(std::size_t axis, const std::string& text, double t_s = -1);
@@ -64,6 +70,9 @@ class Housekeeping {
   std::function<std::string()> reload_;
   std::vector<std::uint64_t> saved_updates_;
   std::vector<std::string> save_errors_;
+  std::vector<std::optional<SavedReference>> saved_references_;  // nullopt: not written yet
+  std::vector<std::string> reference_errors_;
+  std::vector<std::uint32_t> reference_reconnects_;  // the link's reconnects at the last look
   std::vector<drivers::LinkHealth> seen_health_;
   std::string seen_report_;
   std::atomic<bool> reset_pending_{false};

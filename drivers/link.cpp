@@ -77,6 +77,8 @@ struct DeviceLink::Channel {
   std::int64_t offset_counts = 0;  // added to the device's count (after a lost count)
   std::int64_t last_count = 0;     // the last valid reading's count, offset included
   bool has_count = false;
+  std::unique_ptr<Seqlock<CountOrigin>> origin = std::make_unique<Seqlock<CountOrigin>>();
+  void publish_origin() const { origin->store({has_epoch, epoch, offset_counts}); }
 };
 
 DeviceLink::DeviceLink(std::string name, std::vector<Device> devices, LinkConfig config)
@@ -115,6 +117,16 @@ const InterferometerCapabilities& DeviceLink::interferometer_capabilities(std::s
   return channels_.at(ch).device.interferometer->capabilities();
 }
 
+CountOrigin DeviceLink::count_origin(std::size_t ch) const {
+  return channels_.at(ch).origin->load();
+}
+
+void DeviceLink::continue_count(std::size_t ch, std::int64_t offset_counts) {
+  Channel& c = channels_.at(ch);
+  c.offset_counts = offset_counts;
+  c.publish_origin();
+}
+
 DriverStatus DeviceLink::open() {
   for (Channel& c : channels_) {
     if (DriverStatus s = c.device.configure(); !s.ok()) {
@@ -140,6 +152,7 @@ DriverStatus DeviceLink::open() {
     std::uint64_t epoch = 0;
     c.has_epoch = c.device.interferometer->count_epoch(epoch).ok();
     c.epoch = epoch;
+    c.publish_origin();
   }
   opened_ = true;
   state_ = LinkHealth{};
@@ -491,6 +504,7 @@ void DeviceLink::try_reconnect(double now_s) {
         c.latch_decoder->reset();
       }
     }
+    c.publish_origin();
     model::AxisEvent e;
     e.kind = Kind::DeviceBack;
     e.count_kept = kept;

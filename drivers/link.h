@@ -92,6 +92,16 @@ struct ChannelPort {
   SpscRing<CaptureRecord, 1u << 16> capture;    // link -> recorder (record = true segments)
 };
 
+// Where a channel's count comes from: the device's count epoch (when it reports one: it changes
+// when the device's count started over) and the counts the link adds to the device's after a
+// reconnect that lost the count. A reference saved with it holds in a later run only while both
+// are the same (daemon/reference_file.h).
+struct CountOrigin {
+  bool has_epoch = false;
+  std::uint64_t epoch = 0;
+  std::int64_t offset_counts = 0;
+};
+
 class DeviceLink {
  public:
   // `channels`: the device's channels (each an output and an interferometer sharing the
@@ -122,6 +132,11 @@ class DeviceLink {
   const OutputCapabilities& output_capabilities(std::size_t channel) const;
   const InterferometerCapabilities& interferometer_capabilities(std::size_t channel) const;
   LinkHealth health() const { return health_.load(); }
+  // Any thread: the channel's count origin as the I/O side last set it (at open and reconnect).
+  CountOrigin count_origin(std::size_t channel) const;
+  // After open(), before start_thread(): the count goes on from an earlier run's (its
+  // offset_counts), when the device kept counting meanwhile (the same epoch).
+  void continue_count(std::size_t channel, std::int64_t offset_counts);
   // Queues a simulated fault or push (any one thread); false when the channel is not simulated or
   // the queue is full. The link's thread applies it at its next cycle.
   bool inject(const SimAction& action);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <sstream>
 
 #include "drivers/clock.h"
@@ -185,6 +186,11 @@ void SimBackend::disconnect() {
     abort_burst();
   }
   faults_.disconnected = true;
+}
+
+std::uint64_t SimBackend::fresh_count_epoch() {
+  std::random_device entropy;
+  return (static_cast<std::uint64_t>(entropy()) << 32) ^ entropy();
 }
 
 void SimBackend::power_cycle() {

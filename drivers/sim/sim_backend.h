@@ -107,6 +107,7 @@ class SimBackend {
   // at sim.start_position_m, the count from there) with a new count_epoch.
   void power_cycle();
   std::uint64_t count_epoch() const { return count_epoch_; }
+  static std::uint64_t fresh_count_epoch();
   // An external push (SIMulation:PUSH): the slider moves by dx_m at once, stops permitting.
   void push(double dx_m);
   // Crosstalk (stacked stages): every move of this slider displaces the others of the group.
@@ -165,7 +166,9 @@ class SimBackend {
 
   int users_ = 0;         // open interfaces
   bool powered_ = false;  // opened since construction or the last power cycle
-  std::uint64_t count_epoch_ = 1;
+  // Drawn at construction: the simulated device lives inside its process, so a restarted idmd's
+  // device counts afresh and must not look like the one an earlier run saved a reference with.
+  std::uint64_t count_epoch_ = fresh_count_epoch();
   std::shared_ptr<class SimCrosstalk> crosstalk_;
   double epoch_s_ = 0.0;   // CLOCK_MONOTONIC at open (wall clock)
   double t_s_ = 0.0;       // simulated time

@@ -206,9 +206,11 @@ DriverStatus UsbInterferometer::do_count_epoch(std::uint64_t& epoch) {
   const double tick_hz = static_cast<double>(shared_->transport.info().tick_hz);
   const double power_up = monotonic_s() - static_cast<double>(status.device_time_ticks) / tick_hz;
   // More than a second apart: the bridge's clock started over (drift and USB latency are far
-  // below that).
-  if (shared_->have_power_up && std::fabs(power_up - shared_->power_up_host_s) > 1.0)
-    ++shared_->count_epoch;
+  // below that). The epoch is the power-up's second on the host's CLOCK_MONOTONIC, so that a
+  // restarted idmd finds the same one while the bridge kept running (unless its clock drifted
+  // across a second's edge meanwhile: then the reference is not restored, never wrongly kept).
+  if (!shared_->have_power_up || std::fabs(power_up - shared_->power_up_host_s) > 1.0)
+    shared_->count_epoch = static_cast<std::uint64_t>(std::llround(power_up));
   shared_->have_power_up = true;
   shared_->power_up_host_s = power_up;
   epoch = shared_->count_epoch;

@@ -52,7 +52,7 @@ struct UsbShared {
   // power-up moves when (and only when) the bridge restarted (and its axis board with it).
   bool have_power_up = false;
   double power_up_host_s = 0;
-  std::uint64_t count_epoch = 1;
+  std::uint64_t count_epoch = 0;  // the power-up's second (as an unsigned of the signed value)
   DriverStatus open();
   void close();
 };

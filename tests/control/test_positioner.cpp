@@ -347,6 +347,9 @@ TEST(Positioner, APowerCycledDeviceContinuesFromTheLastPositionAndStaysFaulted) 
   ASSERT_EQ(p.move_relative(40e-6), Refusal::None);
   ASSERT_EQ(rig.run(), MotionState::Idle);
   const double before = p.status().position_m;
+  const drivers::CountOrigin origin = rig.link->count_origin(0);
+  EXPECT_TRUE(origin.has_epoch);
+  EXPECT_EQ(origin.offset_counts, 0);
   rig.sim->power_cycle();  // the device restarts counting from its start position
   rig.run_for(0.01);
   rig.sim->reconnect();
@@ -356,6 +359,23 @@ TEST(Positioner, APowerCycledDeviceContinuesFromTheLastPositionAndStaysFaulted) 
   EXPECT_TRUE(p.status().position_valid);
   EXPECT_NEAR(p.status().position_m, before, 2 * p.count_m());
   EXPECT_EQ(p.status().fault, MotionFault::DeviceLost);
+  // The count's origin says so: a new epoch, and the link's offset is the 40 um it re-based.
+  const drivers::CountOrigin after = rig.link->count_origin(0);
+  EXPECT_TRUE(after.has_epoch);
+  EXPECT_NE(after.epoch, origin.epoch);
+  EXPECT_NEAR(static_cast<double>(after.offset_counts) * p.count_m(), before, 2 * p.count_m());
+}
+
+TEST(Positioner, ASimulatedDeviceCountsAfreshInEveryProcessAndSaysSo) {
+  // Two devices built alike (as two runs of idmd would build them) have different epochs: the
+  // simulated stage lives in idmd, so a reference saved by one run never holds in the next.
+  Rig a(ideal_map(), ideal_device()), b(ideal_map(), ideal_device());
+  EXPECT_NE(a.link->count_origin(0).epoch, b.link->count_origin(0).epoch);
+  a.link->continue_count(0, 1234);
+  EXPECT_EQ(a.link->count_origin(0).offset_counts, 1234);
+  a.run_for(0.05);
+  EXPECT_NEAR(a.positioner->status().position_m, 1234 * a.positioner->count_m(),
+              2 * a.positioner->count_m());
 }
 
 // The controller on its own, fed by hand: no device, no link. What it asks of the output, and

@@ -7,6 +7,7 @@ referenced flag, hold against pushes, and what POS? reads after a move on a real
 usage: motion_integration.py BUILD_DIR SOURCE_DIR CASE
 """
 import math
+import os
 import random
 import time
 
@@ -377,6 +378,65 @@ def case_fresh_reading():
               % (n - len(misses), n, worst * 1e9, misses))
 
 
+def case_reference_kept():
+    """reference_file: the reference outlives idmd while the device keeps its count (a Modbus
+    device, a process of its own, its boot_id unchanged); not once the device restarted, nor on
+    the simulated device (it lives in idmd and counts afresh)."""
+    port = harness.free_port()
+    ref = os.path.join(harness.TMP, "reference-kept.yaml")
+    if os.path.exists(ref):
+        os.remove(ref)
+    # The device's stop 0.3 mm below its zero (idm-simdev reads the sim: section too); its plant
+    # is the ideal model (alpha 1).
+    cfg = harness.modbus_config(port, [("stage:\n", "reference_file: %s\nstage:\n" % ref),
+                                       ("step_correction: 0.35", "step_correction: 1.0"),
+                                       ("daq:\n", "sim:\n  end_stops_m: [-0.3e-3, 5e-3]\ndaq:\n")],
+                                out="reference-kept.yaml.cfg")
+    with harness.SimDev(port, cfg) as dev:
+        with Daemon(cfg) as d:
+            c = Client(d)
+            check(c.ask("REF?") == "0", "not referenced at the first start")
+            c.send("REF NEG\n")
+            check(c.ask("*OPC?") == "1" and c.ask("REF?") == "1", "REF NEG over Modbus")
+            c.send("MOVE:ABS -4.9e-3\n")
+            check(c.ask("*OPC?") == "1" and result(c)[0] == "OK",
+                  "MOVE:ABS -4.9 mm: %s %s" % (result(c), errors(c)))
+            before = c.mean_position()
+        with open(ref) as f:
+            text = f.read()
+        check("referenced: true" in text, "the file says referenced:\n" + text)
+        with Daemon(cfg) as d:
+            c = Client(d)
+            check(c.ask("REF?") == "1", "referenced after the restart\n" + d.log())
+            check("referenced as before the restart" in d.log(), "the log says so")
+            p = c.mean_position()
+            check(abs(p - before) <= 2 * COUNT_M,
+                  "the same position: %.4g before, %.4g after the restart" % (before, p))
+            c.send("MOVE:ABS -4.8e-3\n")
+            check(c.ask("*OPC?") == "1" and result(c)[0] == "OK" and errors(c) == [],
+                  "absolute moves go on")
+        dev.kill()
+        dev.start()  # the device restarted: a new boot_id, its count from zero
+        with Daemon(cfg) as d:
+            c = Client(d)
+            check(c.ask("REF?") == "0", "not referenced once the device restarted")
+            check("count started over" in d.log(), "the log says why:\n" + d.log())
+    with open(ref) as f:
+        check("referenced: false" in f.read(), "the file follows")
+    sim_ref = os.path.join(harness.TMP, "reference-sim.yaml")
+    cfg = config(edits=[STOPS, ("stage:                          # Table 1",
+                                "reference_file: %s\nstage:                          # Table 1"
+                                % sim_ref)], out="reference-sim.yaml.cfg")
+    with Daemon(cfg) as d:
+        c = Client(d)
+        c.send("REF NEG\n")
+        check(c.ask("*OPC?") == "1" and c.ask("REF?") == "1", "REF NEG on the simulated stage")
+    with Daemon(cfg) as d:
+        c = Client(d)
+        check(c.ask("REF?") == "0" and "count started over" in d.log(),
+              "the simulated stage is not referenced after a restart:\n" + d.log())
+
+
 CASES = {
     "fresh_reading": case_fresh_reading,
     "status_bits": case_status_bits,
@@ -388,6 +448,7 @@ CASES = {
     "reference": case_reference,
     "reference_positive": case_reference_positive,
     "reference_mark": case_reference_mark,
+    "reference_kept": case_reference_kept,
     "hold": case_hold,
 }
 
