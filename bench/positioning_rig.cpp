@@ -16,16 +16,7 @@ using control::Positioner;
 bool g_trace = false;
 
 drivers::sim::SimDeviceConfig realistic_device(std::uint64_t seed) {
-  drivers::sim::SimDeviceConfig c;
-  c.sim.plant = model::PlantKind::MassDamperSpring;
-  c.sim.effects = {
-      model::complete_effect({"amplifier", {{"cutoff_hz", 3000}}}, "bench"),
-      model::complete_effect({"stribeck", {{"static_over_kinetic", 1.15}}}, "bench"),
-      model::complete_effect({"friction_spread", {{"relative_sd", 0.05}}}, "bench"),
-  };
-  c.sim.seed = seed;
-  c.sim.noise_m = 2e-9;
-  c.interferometer.word.max_velocity_m_s = 1.0;  // above the slider's fastest velocity jump
+  drivers::sim::SimDeviceConfig c = daemon::realistic_sim_device(seed);
   c.stream_rate_hz = 1e5;
   return c;
 }

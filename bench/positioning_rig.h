@@ -16,8 +16,8 @@ namespace idm::bench {
 constexpr double kSoftLimitM = 8e-3;
 extern bool g_trace;  // --trace: one line per move of ours, and the ladder at the end
 
-// The plant: mass-damper-spring actuator, amplifier 3 kHz, Stribeck friction, friction varying
-// along the guide, 2 nm rms noise, 100 kHz output and stream.
+// The plant: daemon::realistic_sim_device (mass-damper-spring actuator, amplifier 3 kHz, Stribeck
+// friction, friction varying along the guide, 2 nm rms noise), its stream at 100 kHz.
 drivers::sim::SimDeviceConfig realistic_device(std::uint64_t seed);
 
 struct MoveOutcome {

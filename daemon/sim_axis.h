@@ -4,6 +4,7 @@
 // want the daemon's motion without its threads.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <stdexcept>
 #include <vector>
@@ -13,8 +14,26 @@
 #include "daemon/axis_step.h"
 #include "drivers/link.h"
 #include "drivers/sim/sim_backend.h"
+#include "model/simulation.h"
 
 namespace idm::daemon {
+
+// The realistic plant the positioning benchmark and the controller's tests run on: a
+// mass-damper-spring actuator, an amplifier of 3 kHz, Stribeck 1.15, friction varying along the
+// guide (relative sd 0.05), 2 nm rms noise; velocity jumps up to 1 m/s accepted by the decoder.
+inline drivers::sim::SimDeviceConfig realistic_sim_device(std::uint64_t seed) {
+  drivers::sim::SimDeviceConfig c;
+  c.sim.plant = model::PlantKind::MassDamperSpring;
+  c.sim.effects = {
+      model::complete_effect({"amplifier", {{"cutoff_hz", 3000}}}, "realistic_sim_device"),
+      model::complete_effect({"stribeck", {{"static_over_kinetic", 1.15}}}, "realistic_sim_device"),
+      model::complete_effect({"friction_spread", {{"relative_sd", 0.05}}}, "realistic_sim_device"),
+  };
+  c.sim.seed = seed;
+  c.sim.noise_m = 2e-9;
+  c.interferometer.word.max_velocity_m_s = 1.0;
+  return c;
+}
 
 class SimAxis {
  public:

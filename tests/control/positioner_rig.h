@@ -42,20 +42,9 @@ inline drivers::sim::SimDeviceConfig ideal_device() {
   return c;
 }
 
-// The realistic plant of bench/positioning_bench.cpp: mass-damper-spring actuator, amplifier
-// 3 kHz, Stribeck 1.15, friction varying along the guide (relative sd 0.05), 2 nm rms noise.
+// The realistic plant (daemon::realistic_sim_device, as the positioning benchmark's).
 inline drivers::sim::SimDeviceConfig realistic_device(std::uint64_t seed) {
-  drivers::sim::SimDeviceConfig c;
-  c.sim.plant = model::PlantKind::MassDamperSpring;
-  c.sim.effects = {
-      model::complete_effect({"amplifier", {{"cutoff_hz", 3000}}}, "test"),
-      model::complete_effect({"stribeck", {{"static_over_kinetic", 1.15}}}, "test"),
-      model::complete_effect({"friction_spread", {{"relative_sd", 0.05}}}, "test"),
-  };
-  c.sim.seed = seed;
-  c.sim.noise_m = 2e-9;
-  c.interferometer.word.max_velocity_m_s = 1.0;
-  return c;
+  return daemon::realistic_sim_device(seed);
 }
 // The map for it: alpha 0.763 (what one 200-cycle burst at 200 Hz / duty 0.1 measures there).
 inline RegionMapConfig realistic_map_config() {
