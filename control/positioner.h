@@ -371,6 +371,9 @@ class Positioner {
   bool end_of_travel_seen(double moved_m);  // after a chunk: the mean step collapsed
   void end_of_travel(double now_s, int sign);
   void start_motion(MotionKind kind);
+  // A new motion, or a new leg of the mark search: the stall, streak, chunk and end-of-travel
+  // counts start afresh.
+  void reset_progress();
   void hold_tick(double now_s);
   void dwell_tick(double now_s);
   bool toward_eot(double end_m) const;

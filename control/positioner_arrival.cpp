@@ -217,13 +217,7 @@ void Positioner::move_onto(double now_s, double target_m) {
   status_.eot = 0;
   status_.closed_loop = true;
   load_rung_estimates();
-  last_try_done_ = false;
-  stall_count_ = 0;
-  streak_cycles_ = 0;
-  streak_along_m_ = 0;
-  move_chunks_ = 0;
-  eot_count_ = 0;
-  eot_next_ = 0;
+  reset_progress();
   plan_next_chunk(now_s);
 }
 

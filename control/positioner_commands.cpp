@@ -12,6 +12,16 @@ namespace idm::control {
 
 // ---- commands ----
 
+void Positioner::reset_progress() {
+  last_try_done_ = false;
+  stall_count_ = 0;
+  streak_cycles_ = 0;
+  streak_along_m_ = 0;
+  move_chunks_ = 0;
+  eot_count_ = 0;
+  eot_next_ = 0;
+}
+
 void Positioner::start_motion(MotionKind kind) {
   status_.kind = kind;
   status_.result = MoveResult::None;
@@ -25,15 +35,9 @@ void Positioner::start_motion(MotionKind kind) {
   mark_search_ = MarkSearch::Off;
   stop_requested_ = false;
   stop_result_ = MoveResult::Stopped;
-  last_try_done_ = false;
-  stall_count_ = 0;
-  streak_cycles_ = 0;
-  streak_along_m_ = 0;
-  move_chunks_ = 0;
+  reset_progress();
   move_cycles_ = 0;
   move_started_ = false;
-  eot_count_ = 0;
-  eot_next_ = 0;
   dwell_failures_ = 0;
   phase_ = Phase::Pending;
   status_.state = MotionState::Moving;

@@ -2,6 +2,7 @@
 // backend: bursts through the plant read back through the codec, clocks, determinism, faults.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -50,6 +51,7 @@ std::vector<double> sampled(const TriangleWave& w, double rate_hz) {
 struct Decoded {
   std::vector<double> t_s, x_m;
   std::vector<std::uint8_t> status;
+  std::vector<std::size_t> marks;  // indices of the words with the reference mark
 };
 Decoded drain(Device& d, std::size_t chunk = 64) {
   Decoded out;
@@ -61,6 +63,7 @@ Decoded drain(Device& d, std::size_t chunk = 64) {
     if (n == 0) break;
     for (std::size_t i = 0; i < n; ++i) {
       const PositionSample s = decoder.decode(buf[i].word);
+      if (s.mark) out.marks.push_back(out.x_m.size());
       out.t_s.push_back(buf[i].t_s);
       out.x_m.push_back(s.position_m);
       out.status.push_back(s.status);
@@ -507,29 +510,6 @@ TEST(SimFaults, AFullStreamMarksTheOverrun) {
 
 namespace {
 
-// The stream of the last burst: the decoded positions and which words carried the mark.
-struct MarkedStream {
-  std::vector<double> x_m;
-  std::vector<std::size_t> marks;  // indices of the words with the reference mark
-};
-MarkedStream drain_marks(Device& d) {
-  MarkedStream out;
-  PositionDecoder decoder(d.interferometer->capabilities().word);
-  std::vector<TimedWord> buf(256);
-  for (;;) {
-    std::size_t n = 0;
-    EXPECT_TRUE(d.interferometer->read_stream(buf.data(), buf.size(), n).ok());
-    if (n == 0) break;
-    for (std::size_t i = 0; i < n; ++i) {
-      const PositionSample s = decoder.decode(buf[i].word);
-      EXPECT_TRUE(s.valid());
-      if (s.mark) out.marks.push_back(out.x_m.size());
-      out.x_m.push_back(s.position_m);
-    }
-  }
-  return out;
-}
-
 bool latch_marked(Device& d) {
   std::uint64_t word = 0;
   EXPECT_TRUE(d.interferometer->latch(word).ok());
@@ -554,7 +534,10 @@ TEST(SimReferenceMark, TheWordAfterACrossingCarriesTheMarkEitherWay) {
     ASSERT_TRUE(d.output->start().ok());
     const int sign = duty < 0.5 ? -1 : 1;
     EXPECT_GT(sign * (d.sim->true_position_m() - mark), 1e-7) << "the burst crossed the mark";
-    const MarkedStream s = drain_marks(d);
+    const Decoded s = drain(d);
+    EXPECT_EQ(static_cast<std::size_t>(std::count(s.status.begin(), s.status.end(), 0)),
+              s.status.size())
+        << "all valid";
     ASSERT_EQ(s.marks.size(), 1u) << "duty " << duty;
     const std::size_t k = s.marks[0];
     ASSERT_GT(k, 0u);
@@ -565,7 +548,7 @@ TEST(SimReferenceMark, TheWordAfterACrossingCarriesTheMarkEitherWay) {
   // A burst that stays on one side: no mark.
   ASSERT_TRUE(d.output->write_burst_parameters(TriangleWave{200, 0.9, 20.35e-6, 3}).ok());
   ASSERT_TRUE(d.output->start().ok());
-  EXPECT_TRUE(drain_marks(d).marks.empty());
+  EXPECT_TRUE(drain(d).marks.empty());
   // A push across it: the next latch carries the mark, the one after does not.
   d.sim->push(mark - d.sim->true_position_m() - 50e-9);
   EXPECT_TRUE(latch_marked(d));
@@ -582,7 +565,7 @@ TEST(SimReferenceMark, NoMarkConfiguredNoMarkBitAndNoCapability) {
   for (double duty : {0.1, 0.9, 0.9}) {
     ASSERT_TRUE(d.output->write_burst_parameters(TriangleWave{200, duty, 20.35e-6, 10}).ok());
     ASSERT_TRUE(d.output->start().ok());
-    EXPECT_TRUE(drain_marks(d).marks.empty());
+    EXPECT_TRUE(drain(d).marks.empty());
     EXPECT_FALSE(latch_marked(d));
   }
 }
