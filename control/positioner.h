@@ -300,6 +300,16 @@ class Positioner {
     int rung = -1;                      // index into the ladder of `direction`; -1 open loop
     double predicted_along_m = 0;       // the rung's estimate for the chunk (closed loop)
   };
+  // A chunk that plays the map cell's wave (the rest of it unset).
+  static Chunk cell_chunk(const RegionCell& cell) {
+    Chunk c;
+    c.freq_hz = cell.freq_hz;
+    c.duty = cell.duty;
+    c.stroke_m = cell.stroke_m;
+    c.period_samples = cell.period_samples;
+    c.extension_samples = cell.extension_samples;
+    return c;
+  }
   struct Rung {
     std::size_t cell = 0;
     int direction = 0;

@@ -240,13 +240,7 @@ bool Positioner::crawl_chunk(int sign, Chunk& out) {
   for (std::size_t i = 0; i < ladder.size(); ++i) {
     const Rung& r = ladder[i];
     if (r.dead || !(r.est.step_m >= config_.min_step_counts * count_m_)) continue;
-    const RegionCell& cell = map_.cells()[r.cell];
-    Chunk c;
-    c.freq_hz = cell.freq_hz;
-    c.duty = cell.duty;
-    c.stroke_m = cell.stroke_m;
-    c.period_samples = cell.period_samples;
-    c.extension_samples = cell.extension_samples;
+    Chunk c = cell_chunk(map_.cells()[r.cell]);
     c.predicted_m = sign * r.est.step_m;
     const double travel = sample_travel_m(c), step = r.est.step_m;
     const bool c_fine = travel <= config_.final_step_counts * count_m_;

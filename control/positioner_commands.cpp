@@ -106,12 +106,8 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
     // The map's largest-step cell moving that way (positive cycles: positive) at the stroke.
     const int d = direction_index(sign);
     if (!has_largest_cell_[d]) return Refusal::OutOfRange;
-    const RegionCell& cell = map_.cells()[largest_cell_[d]];
-    c.freq_hz = cell.freq_hz;
-    c.duty = cell.duty;
-    c.stroke_m = std::min(stroke_m, cell.stroke_m);
-    c.period_samples = cell.period_samples;
-    c.extension_samples = cell.extension_samples;
+    c = cell_chunk(map_.cells()[largest_cell_[d]]);
+    c.stroke_m = std::min(stroke_m, c.stroke_m);
   } else {
     if (!(duty > 0 && duty < 1) || duty == 0.5) return Refusal::OutOfRange;
     if (cycles < 0) duty = 1.0 - duty;
@@ -158,13 +154,7 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
 bool Positioner::reference_drive(int sign) {
   const int d = direction_index(sign);
   if (!has_largest_cell_[d]) return false;
-  const RegionCell& cell = map_.cells()[largest_cell_[d]];
-  Chunk c;
-  c.freq_hz = cell.freq_hz;
-  c.duty = cell.duty;
-  c.stroke_m = cell.stroke_m;
-  c.period_samples = cell.period_samples;
-  c.extension_samples = cell.extension_samples;
+  Chunk c = cell_chunk(map_.cells()[largest_cell_[d]]);
   const double step = nominal_open_loop_step_m(c.freq_hz, c.duty, c.stroke_m);
   if (!(std::fabs(step) > 0)) return false;
   // Enough cycles to cross the soft range four times at the nominal step (a real stage steps
