@@ -267,7 +267,17 @@ DriverStatus SimBackend::check_timeout() {
 }
 
 void SimBackend::sync() {
-  if (config_.clock == ClockMode::Wall) advance_to(monotonic_s() - epoch_s_);
+  if (config_.clock != ClockMode::Wall) return;
+  // A plant that cannot keep up with the wall clock (the compliant actuator on a loaded machine,
+  // or under a sanitizer) would fall ever further behind, and every call, a stop and the last one
+  // at shutdown included, would wait for all of it to be simulated. It runs slow instead: never
+  // more than kMaxLagS behind; the wall time beyond that is dropped (wall_time_dropped_s()).
+  const double behind_s = monotonic_s() - epoch_s_ - t_s_;
+  if (behind_s > kMaxLagS) {
+    epoch_s_ += behind_s - kMaxLagS;
+    dropped_s_ += behind_s - kMaxLagS;
+  }
+  advance_to(monotonic_s() - epoch_s_);
 }
 
 double SimBackend::command_at(double t_s) const {

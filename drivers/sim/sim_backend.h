@@ -127,6 +127,10 @@ class SimBackend {
   bool running() const { return running_; }
   // Stream samples dropped because the buffer was full since the last start().
   std::uint64_t stream_dropped() const { return stream_dropped_; }
+  // Wall clock: how far the simulation may fall behind it before it runs slow, and the wall time
+  // it has dropped so far (0 while it keeps up).
+  static constexpr double kMaxLagS = 0.1;
+  double wall_time_dropped_s() const { return dropped_s_; }
 
  private:
   friend class SimOutput;
@@ -170,7 +174,8 @@ class SimBackend {
   // device counts afresh and must not look like the one an earlier run saved a reference with.
   std::uint64_t count_epoch_ = fresh_count_epoch();
   std::shared_ptr<class SimCrosstalk> crosstalk_;
-  double epoch_s_ = 0.0;   // CLOCK_MONOTONIC at open (wall clock)
+  double epoch_s_ = 0.0;  // CLOCK_MONOTONIC at open (wall clock), plus the time dropped
+  double dropped_s_ = 0.0;
   double t_s_ = 0.0;       // simulated time
   double xi_cmd_m_ = 0.0;  // output now
 

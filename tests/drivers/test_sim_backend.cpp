@@ -3,8 +3,10 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "drivers/backends.h"
@@ -355,6 +357,31 @@ TEST(SimBackend, WallClockGivesTheSameMotionAsTheSyntheticClock) {
   // which moves the last digits (seen: 5e-20 m apart). 1e-12 m is a thousandth of a nanometre, far
   // below one count (9.9 nm), and far above rounding.
   EXPECT_NEAR(final_position("wall"), final_position("synthetic"), 1e-12);
+}
+
+TEST(SimBackend, AWallClockSimulationThatFallsBehindRunsSlowInsteadOfCatchingUp) {
+  // The caller away for 0.4 s (as when the plant cannot keep up): the simulation does not owe
+  // the wall clock more than kMaxLagS, so the next call (a stop at shutdown, say) simulates at
+  // most that much, and the burst simply plays later.
+  Device d = sim_device("sim: {plant: rigid}\ndaq: {sim: {clock: wall}}");
+  ASSERT_TRUE(d.configure().ok());
+  ASSERT_TRUE(d.activate().ok());
+  const TriangleWave w{200, 0.1, 20.35e-6, 400};  // 2 s
+  const std::vector<double> xi = sampled(w, 1e5);
+  ASSERT_TRUE(d.output->write_burst(xi.data(), xi.size(), 1e5).ok());
+  ASSERT_TRUE(d.output->start().ok());
+  const double t0 = d.sim->now_s();
+  EXPECT_EQ(d.sim->wall_time_dropped_s(), 0.0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));
+  bool done = true;
+  ASSERT_TRUE(d.output->is_done(done).ok());
+  EXPECT_FALSE(done);
+  const double simulated_s = d.sim->now_s() - t0;
+  EXPECT_LE(simulated_s, sim::SimBackend::kMaxLagS + 0.2);  // 0.2: the call's own time, generously
+  EXPECT_GE(d.sim->wall_time_dropped_s(), 0.4 - simulated_s - 1e-9);
+  ASSERT_TRUE(d.output->stop().ok());
+  ASSERT_TRUE(d.output->is_done(done).ok());
+  EXPECT_TRUE(done);
 }
 
 TEST(SimBackend, StopEndsABurstWithTheOutputAtZero) {
