@@ -239,6 +239,19 @@ TEST(ModbusRegisterMap, PositionRecordsCarryCountAndStatus) {
   EXPECT_NE(d.decode(mb::decode_position(r, WordWidth::Bits36, mb::WordOrder::HighFirst)).status &
                 sample_status::kReservedBitsSet,
             0);
+  // The mark and an undefined bit together (the fuzzer's find: the round trip drops only the
+  // reserved bit the undefined one became, and keeps the mark).
+  const std::uint16_t both[4] = {0x0000, 0x0001, 0xFFFF, 0x03E8};  // status: mark, bits 3, 6..9
+  const std::uint64_t word = mb::decode_position(both, WordWidth::Bits36, mb::WordOrder::LowFirst);
+  EXPECT_NE(word & position_word::kReferenceMark, 0u);
+  EXPECT_NE(word & (std::uint64_t{1} << 46), 0u);
+  std::uint16_t again[4] = {0, 0, 0, 0};
+  mb::encode_position(word, WordWidth::Bits36, mb::WordOrder::LowFirst, again);
+  EXPECT_EQ(mb::decode_position(again, WordWidth::Bits36, mb::WordOrder::LowFirst),
+            word & ~(std::uint64_t{1} << 46));
+  const PositionSample s = d.decode(word);
+  EXPECT_FALSE(s.valid());
+  EXPECT_TRUE(s.mark);
 }
 
 TEST(ModbusConfig, MapAndKeysAreCheckedWithFileAndLine) {

@@ -6,10 +6,10 @@
 // the scale (10^(k-6), k = 0..15); then 2 bytes per register (little-endian).
 //
 // Invariants:
-//  * a decoded position word carries only the count field, the status bits and, for a status
-//    register with undefined bits, reserved bit 45; encode_position carries all but that bit, so
-//    decode . encode . decode == decode less bit 45;
-//  * the word goes through a PositionDecoder without harm and is invalid when bit 45 is set;
+//  * a decoded position word carries only the count field, the status bits, the reference mark
+//    (bit 45) and, for a status register with undefined bits, reserved bit 46; encode_position
+//    carries all but that bit, so decode . encode . decode == decode less bit 46;
+//  * the word goes through a PositionDecoder without harm and is invalid when bit 46 is set;
 //  * a decoded value that is finite encodes back (encode_value succeeds) into registers that
 //    decode to the same value.
 #include <cmath>
@@ -57,8 +57,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   // Position records, one after another as in the capture area.
   const std::size_t per_record = RegisterMap::position_registers(width);
   const unsigned bits = static_cast<unsigned>(width);
+  const std::uint64_t undefined_status = std::uint64_t{1} << 46;  // reserved: undefined status
   const std::uint64_t allowed =
-      ((std::uint64_t{1} << bits) - 1) | position_word::kDefinedBits | (std::uint64_t{1} << 46);
+      ((std::uint64_t{1} << bits) - 1) | position_word::kDefinedBits | undefined_status;
   PositionWordConfig config;
   config.width = width;
   PositionDecoder decoder(config);
@@ -68,10 +69,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     if (word & ~allowed) fail("a decoded word with bits outside the layout", record, per_record);
     std::uint16_t again[4] = {};
     encode_position(word, width, order, again);
-    if (decode_position(again, width, order) != (word & ~(std::uint64_t{1} << 45)))
+    if (decode_position(again, width, order) != (word & ~undefined_status))
       fail("decode(encode(word)) != word without its reserved bits", record, per_record);
     const PositionSample s = decoder.decode(word);
-    if ((word >> 45) & 1 && s.valid())
+    if ((word & undefined_status) != 0 && s.valid())
       fail("a malformed record decoded as valid", record, per_record);
   }
 
