@@ -191,29 +191,35 @@ std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
   return s.str();
 }
 
-// Forward from `first`: every plausible candidate joins the set in a joint fit (screened at the
-// search rate, the best polished and scored) while the gap is above kFurtherGap and the addition
-// shrinks it by kMinFurtherShrink; then backward: every member taken out and the rest refitted
-// from the set's own parameters (SetFits::refit); a member without which the gap grows by less
-// than kBackwardTolerance (or stays within the noise) goes.
-SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool,
+// Forward from `first`: every identifiable candidate (`joiners`) joins the set in a joint fit
+// (screened at the search rate, the best polished and scored) while the gap is above kFurtherGap
+// and the addition shrinks it by kMinFurtherShrink; then backward: every member taken out and the
+// rest refitted from the set's own parameters (SetFits::refit); a member without which the gap
+// grows by less than kBackwardTolerance (or stays within the noise) goes.
+SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiners,
                    const std::vector<CandidateSpec>& library, SetFits& fits,
                    std::vector<SelectionStep>& steps) {
   SetFit current = first;
   steps.push_back({"add", current.names(), current.gap});
   while (current.members.size() < kMaxEffects && current.gap > kFurtherGap) {
     std::vector<const CandidateSpec*> tries;
-    for (const SetFit* c : pool)
+    for (const SetFit* c : joiners)
       if (!contains(current, c->members.front().effect))
         tries.push_back(&spec_of(library, c->members.front().effect));
     if (tries.empty()) break;
     const std::vector<SetFit> screened = fits.screen_on_top(current.members, tries);
-    const SetFit* lead = &screened.front();
-    for (const SetFit& t : screened)
-      if (t.train_gap < lead->train_gap) lead = &t;
-    const SetFit& best = fits.finish(lead->members);
-    if (!best.plausible || best.gap > (1 - kMinFurtherShrink) * current.gap) break;
-    current = best;
+    std::vector<const SetFit*> leads;
+    for (const SetFit& t : screened) leads.push_back(&t);
+    std::stable_sort(leads.begin(), leads.end(),
+                     [](const SetFit* a, const SetFit* b) { return a->train_gap < b->train_gap; });
+    // the best screened set that is plausible once finished (a joiner may end on a bound)
+    const SetFit* best = nullptr;
+    for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads && !best; ++k) {
+      const SetFit& f = fits.finish(leads[k]->members);
+      if (f.plausible) best = &f;
+    }
+    if (!best || best->gap > (1 - kMinFurtherShrink) * current.gap) break;
+    current = *best;
     steps.push_back({"add", current.names(), current.gap});
   }
   while (current.members.size() >= 2) {
@@ -293,8 +299,9 @@ void fit_candidates(const SweepCells& sweep, const std::vector<CandidateSpec>& l
 // The set search (select_from) from the best plausible candidate that shrinks the gap, and from
 // the runner-up when it comes close (an amplifier and a compliant actuator trade places): the set
 // that ends with the smaller held-out gap, its steps in d.steps; none when the baseline's gap is
-// not significant or no candidate shrinks it enough.
+// not significant or no candidate shrinks it enough. Every candidate in `joiners` may join.
 std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
+                                 const std::vector<const SetFit*>& joiners,
                                  const std::vector<CandidateSpec>& library, SetFits& fits,
                                  Diagnosis& d) {
   if (!significant_gap(d.baseline) || pool.empty() || pool.front()->shrink < kMinShrink)
@@ -306,7 +313,7 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
   std::optional<SetFit> current;
   for (const SetFit* first : firsts) {
     std::vector<SelectionStep> steps;
-    const SetFit end = select_from(*first, pool, library, fits, steps);
+    const SetFit end = select_from(*first, joiners, library, fits, steps);
     if (!current || end.gap < current->gap) {
       current = end;
       d.steps = steps;
@@ -404,13 +411,16 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   fit_candidates(sweep, library, identifiable_specs(sweep, library, options, d), options.fit,
                  threads, d);
 
-  // The set starts with the best plausible candidate that shrinks the gap; every plausible
-  // candidate may join it (an effect hidden under a larger one shrinks little alone).
-  std::vector<const SetFit*> pool;
-  for (const SetFit& c : d.candidates)
+  // The set starts with the best plausible candidate that shrinks the gap; every candidate may
+  // join it (an effect hidden under a larger one shrinks little alone, and alone its fit may end
+  // on a bound of its range: the set's fit is judged once it is in).
+  std::vector<const SetFit*> pool, joiners;
+  for (const SetFit& c : d.candidates) {
+    joiners.push_back(&c);
     if (c.plausible) pool.push_back(&c);
+  }
   SetFits fits(sweep, library, d.baseline, options.fit, d.candidates);
-  const std::optional<SetFit> found = search_set(pool, library, fits, d);
+  const std::optional<SetFit> found = search_set(pool, joiners, library, fits, d);
   // honesty: a set that leaves a significant remainder must explain most of the gap
   if (found) {
     d.best = *found;

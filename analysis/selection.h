@@ -35,6 +35,7 @@ constexpr double kExplainedGap = 2.0;
 constexpr double kSystematicGap = 1.5;
 constexpr double kMinShrink = 0.3;
 constexpr double kMinFurtherShrink = 0.4;
+constexpr std::size_t kFinishedLeads = 2;  // screened sets finished a step, best first
 constexpr double kSwapShrink = 0.1;     // a single that shrinks this much starts a pair's other way
 constexpr double kFurtherGap = 1.5;     // a set's gap above which another effect is looked for
 constexpr double kRunnerUpRatio = 1.5;  // a second start when the runner-up's gap is this close
