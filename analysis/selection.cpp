@@ -191,11 +191,17 @@ std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
   return s.str();
 }
 
+// The part of a gap above the noise: a model that explains everything leaves about 1 (gap.h), the
+// noise and a systematic part adding in squares.
+double excess(double gap) {
+  return std::sqrt(std::max(0.0, gap * gap - 1.0));
+}
+
 // Forward from `first`: every identifiable candidate (`joiners`) joins the set in a joint fit
 // (screened at the search rate, the best polished and scored) while the gap is above kFurtherGap
-// and the addition shrinks it by kMinFurtherShrink; then backward: every member taken out and the
-// rest refitted from the set's own parameters (SetFits::refit); a member without which the gap
-// grows by less than kBackwardTolerance (or stays within the noise) goes.
+// and the addition shrinks its excess over the noise by kMinFurtherShrink; then backward: every
+// member taken out and the rest refitted from the set's own parameters (SetFits::refit); a member
+// without which the gap grows by less than kBackwardTolerance (or stays within the noise) goes.
 SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiners,
                    const std::vector<CandidateSpec>& library, SetFits& fits,
                    std::vector<SelectionStep>& steps) {
@@ -218,7 +224,7 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
       const SetFit& f = fits.finish(leads[k]->members);
       if (f.plausible) best = &f;
     }
-    if (!best || best->gap > (1 - kMinFurtherShrink) * current.gap) break;
+    if (!best || excess(best->gap) > (1 - kMinFurtherShrink) * excess(current.gap)) break;
     current = *best;
     steps.push_back({"add", current.names(), current.gap});
   }
@@ -299,13 +305,14 @@ void fit_candidates(const SweepCells& sweep, const std::vector<CandidateSpec>& l
 // The set search (select_from) from the best plausible candidate that shrinks the gap, and from
 // the runner-up when it comes close (an amplifier and a compliant actuator trade places): the set
 // that ends with the smaller held-out gap, its steps in d.steps; none when the baseline's gap is
-// not significant or no candidate shrinks it enough. Every candidate in `joiners` may join.
+// not significant. Every candidate in `joiners` may join. A best single below kMinShrink still
+// starts a search (two effects can each explain little alone), but a set of one that ends there
+// below kMinShrink is none.
 std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
                                  const std::vector<const SetFit*>& joiners,
                                  const std::vector<CandidateSpec>& library, SetFits& fits,
                                  Diagnosis& d) {
-  if (!significant_gap(d.baseline) || pool.empty() || pool.front()->shrink < kMinShrink)
-    return std::nullopt;
+  if (!significant_gap(d.baseline) || pool.empty()) return std::nullopt;
   std::vector<const SetFit*> firsts{pool.front()};
   if (pool.size() > 1 && pool[1]->shrink >= kMinShrink &&
       pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
@@ -318,6 +325,10 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
       current = end;
       d.steps = steps;
     }
+  }
+  if (current->members.size() == 1 && current->shrink < kMinShrink) {
+    d.steps.clear();
+    return std::nullopt;
   }
   return current;
 }
