@@ -49,6 +49,10 @@ struct CandidateSpec {
   // 1 at each of scan_other.
   double scan_ratio = 0;
   std::vector<double> scan_other;
+  // The scan only for the effect alone (its narrow valley found where an evaluation is cheap); on
+  // top of a set, where the set is profiled at every point, the coarse grid.
+  bool scan_alone_only = false;
+  bool scans(bool alone) const { return scan_ratio > 1 && (alone || !scan_alone_only); }
   std::string physics;  // one line: what the coordinates mean (for the report)
 };
 

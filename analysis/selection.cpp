@@ -65,7 +65,8 @@ class SetFits {
   // of the newcomer's single (each single fit can have absorbed the other's signature and sit in
   // a basin the joint search does not leave); the lower training gap counts. A newcomer whose
   // single fit shrinks the gap by less than kSwapShrink is all but absent from it: the set's
-  // effect on top of it would repeat the set's own single fit.
+  // effect on top of it would repeat the set's own single fit (unless the set's single is weak
+  // too, weak_single).
   std::vector<SetFit> screen_on_top(const std::vector<MemberFit>& base,
                                     const std::vector<const CandidateSpec*>& specs) {
     std::vector<std::vector<MemberFit>> sets, swapped;
@@ -74,7 +75,8 @@ class SetFits {
       m.push_back({spec->effect, {}, {}, {}});
       sets.push_back(m);
       const auto single = finished_.find(key_of({m.back()}));
-      const bool informative = single != finished_.end() && single->second.shrink >= kSwapShrink;
+      const bool informative = single != finished_.end() && (single->second.shrink >= kSwapShrink ||
+                                                             weak_single(base));
       swapped.push_back(base.size() == 1 && informative ? single->second.members
                                                         : std::vector<MemberFit>{});
     }
@@ -91,6 +93,13 @@ class SetFits {
     });
   }
 
+  // A set of one whose single fit shrinks the gap by less than kMinShrink: the effects of a pair
+  // can each hide the other's signature, and every newcomer is searched both ways then.
+  bool weak_single(const std::vector<MemberFit>& base) const {
+    const auto single = finished_.find(key_of(base));
+    return base.size() == 1 && single != finished_.end() && single->second.shrink < kMinShrink;
+  }
+
   // The finished fit of a set (from its screened optimum when there is one).
   const SetFit& finish(const std::vector<MemberFit>& members) {
     const std::string k = key_of(members);
@@ -103,14 +112,27 @@ class SetFits {
     return finished_.at(k);
   }
 
+  // The finished fit of `members`, the set `current` with a newcomer last. The set with the
+  // newcomer holds the set without it (at the newcomer's zero), so a finished fit that trains
+  // worse than `current` has not converged: it is refitted from current's parameters and the
+  // newcomer's screened ones (refit), the better kept.
+  const SetFit& finish_nested(const std::vector<MemberFit>& members, const SetFit& current) {
+    const SetFit& f = finish(members);
+    if (f.plausible && f.fitted.train.gap <= current.fitted.train.gap) return f;
+    std::vector<MemberFit> start = current.members;
+    start.push_back(members.back());
+    return refit(start);
+  }
+
   // The set of `members` refitted from the parameters they carry (those of a larger set that held
   // them): a set fitted earlier from its own singles can sit in a local optimum that the larger
-  // set's fit left behind. The better of that and the finished fit becomes the set's fit.
+  // set's fit left behind. The better of that and the finished fit on the training trials, as
+  // scored (train_gap is the search's objective, at the mu each search held), becomes the set's fit.
   const SetFit& refit(const std::vector<MemberFit>& members) {
     const std::string k = key_of(members);
     const SetFit& known = finish(members);
     SetFit again = fit_joint(sweep_, library_, members, baseline_, options_, JointStage::Finish);
-    if (again.plausible && (!known.plausible || again.train_gap < known.train_gap))
+    if (again.plausible && (!known.plausible || again.fitted.train.gap < known.fitted.train.gap))
       finished_[k] = std::move(again);
     return finished_.at(k);
   }
@@ -218,11 +240,12 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     for (const SetFit& t : screened) leads.push_back(&t);
     std::stable_sort(leads.begin(), leads.end(),
                      [](const SetFit* a, const SetFit* b) { return a->train_gap < b->train_gap; });
-    // the best screened set that is plausible once finished (a joiner may end on a bound)
+    // the best screened sets finished; the best of them that is plausible (a joiner may end on
+    // a bound)
     const SetFit* best = nullptr;
-    for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads && !best; ++k) {
-      const SetFit& f = fits.finish(leads[k]->members);
-      if (f.plausible) best = &f;
+    for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads; ++k) {
+      const SetFit& f = fits.finish_nested(leads[k]->members, current);
+      if (f.plausible && (!best || f.gap < best->gap)) best = &f;
     }
     if (!best || excess(best->gap) > (1 - kMinFurtherShrink) * excess(current.gap)) break;
     current = *best;

@@ -235,12 +235,12 @@ void set_coordinates(std::vector<MemberFit>& members, const std::vector<double>&
 // scan_other), then stage.yaml's start when there is one; `spacing`: grid points per unit of u,
 // for telling neighbours apart.
 std::vector<std::vector<double>> grid_points(const CandidateSpec& spec, const FitOptions& opt,
-                                             int& spacing) {
+                                             bool alone, int& spacing) {
   const std::size_t n = spec.axes.size();
   const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
   std::vector<std::vector<double>> out;
   spacing = pts;
-  if (spec.scan_ratio > 1 && n == 2) {
+  if (spec.scans(alone) && n == 2) {
     const FitAxis& a = spec.axes[0];
     const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
     spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
@@ -280,6 +280,8 @@ class OnTop {
         u0_(coordinates_of(set)),
         evals_(profile && !u0_.empty() ? kProfileEvals * static_cast<int>(u0_.size()) + 2 : 0),
         step_(0.1 / (opt.grid_1d - 1)) {}
+
+  bool alone() const { return set_.empty(); }
 
   // The objective with `m` added, and the set's coordinates it was reached at.
   double value(const MemberFit& m, std::vector<double>& set_u) {
@@ -362,7 +364,7 @@ std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
   }
   const std::size_t n = spec.axes.size();
   int spacing = 0;
-  const std::vector<std::vector<double>> points = grid_points(spec, opt, spacing);
+  const std::vector<std::vector<double>> points = grid_points(spec, opt, on_top.alone(), spacing);
   for (const Params& fixed : spec.variants) {
     MemberFit m{spec.effect, fixed, std::vector<double>(n, 0.0), {}};
     std::vector<std::pair<double, std::vector<double>>> grid;
@@ -436,7 +438,7 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
     // The winner polished at the scoring rate, simulated at its own mu: with little noise the gap
     // is a sharp V around the optimum, and the search rate's error and the linearized mu move it.
     obj.recenter({best});
-    const double step = spec.scan_ratio > 1 ? 0.005 : 0.05 / (pts - 1);
+    const double step = spec.scans(true) ? 0.005 : 0.05 / (pts - 1);
     best.u = subplex(on_all(false), best.u, step, opt.polish_evals * n, 1e-4, best_value);
   }
   SetFit out = obj.score({best}, best_value);
@@ -455,7 +457,7 @@ SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   // evaluations in proportion to its coordinates at every point); then all of them jointly
   const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
   Objective coarse(coarse_cells, library, baseline, opt.threads);
-  OnTop on_top(coarse, base, base.size() == 1 && !(spec.scan_ratio > 1), opt);
+  OnTop on_top(coarse, base, base.size() == 1 && !spec.scans(base.empty()), opt);
   double value = 0;
   const std::vector<MemberFit> start = coarse_search(on_top, spec, opt, value);
   SetFit out = fit_joint(coarse_cells, library, start, baseline, opt, JointStage::Search);
