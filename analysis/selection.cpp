@@ -75,8 +75,8 @@ class SetFits {
       m.push_back({spec->effect, {}, {}, {}});
       sets.push_back(m);
       const auto single = finished_.find(key_of({m.back()}));
-      const bool informative = single != finished_.end() && (single->second.shrink >= kSwapShrink ||
-                                                             weak_single(base));
+      const bool informative =
+          single != finished_.end() && (single->second.shrink >= kSwapShrink || weak_single(base));
       swapped.push_back(base.size() == 1 && informative ? single->second.members
                                                         : std::vector<MemberFit>{});
     }
@@ -127,7 +127,8 @@ class SetFits {
   // The set of `members` refitted from the parameters they carry (those of a larger set that held
   // them): a set fitted earlier from its own singles can sit in a local optimum that the larger
   // set's fit left behind. The better of that and the finished fit on the training trials, as
-  // scored (train_gap is the search's objective, at the mu each search held), becomes the set's fit.
+  // scored (train_gap is the search's objective, at the mu each search held), becomes the set's
+  // fit.
   const SetFit& refit(const std::vector<MemberFit>& members) {
     const std::string k = key_of(members);
     const SetFit& known = finish(members);
@@ -173,14 +174,24 @@ std::vector<MemberFit> without(const SetFit& s, std::size_t index) {
 }
 
 // What the physics says about a pair that explains a sweep equally well.
+// Two effects that act alike: a low-pass amplifier and a damped actuator resonance both round
+// the velocity corners of the triangle, and below the resonance they look alike.
+bool alike(const std::string& a, const std::string& b) {
+  return (a == "amplifier" && b == "actuator_compliance") ||
+         (b == "amplifier" && a == "actuator_compliance");
+}
+
+bool any_alike(const std::vector<std::string>& a, const std::vector<std::string>& b) {
+  for (const std::string& x : a)
+    for (const std::string& y : b)
+      if (alike(x, y)) return true;
+  return false;
+}
+
 std::string why_alike(const std::vector<std::string>& a, const std::vector<std::string>& b,
                       double ga, double gb) {
-  auto has = [](const std::vector<std::string>& v, const char* e) {
-    return std::find(v.begin(), v.end(), e) != v.end();
-  };
   std::string s;
-  if ((has(a, "amplifier") && has(b, "actuator_compliance")) ||
-      (has(b, "amplifier") && has(a, "actuator_compliance")))
+  if (any_alike(a, b))
     s = "a low-pass amplifier and a damped actuator resonance both round the velocity corners of "
         "the triangle; "
         "below the resonance they look alike. ";
@@ -230,10 +241,14 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
   SetFit current = first;
   steps.push_back({"add", current.names(), current.gap});
   while (current.members.size() < kMaxEffects && current.gap > kFurtherGap) {
+    // an effect alike a member does not join: on top of it, it fits what the member's model
+    // misses (the other one is reported ambiguous instead)
     std::vector<const CandidateSpec*> tries;
-    for (const SetFit* c : joiners)
-      if (!contains(current, c->members.front().effect))
-        tries.push_back(&spec_of(library, c->members.front().effect));
+    for (const SetFit* c : joiners) {
+      const std::string& e = c->members.front().effect;
+      if (!contains(current, e) && !any_alike(current.names(), {e}))
+        tries.push_back(&spec_of(library, e));
+    }
     if (tries.empty()) break;
     const std::vector<SetFit> screened = fits.screen_on_top(current.members, tries);
     std::vector<const SetFit*> leads;
