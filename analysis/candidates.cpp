@@ -134,6 +134,9 @@ CandidateSpec stribeck_candidate(const SweepScales& sc) {
   str.axes = {{"stribeck_impulse_m_s", kExcessLo * v_lo, kExcessHi * v_hi, true},
               {"velocity_share", 0.0, 1.0, false}};
   str.variants = {{}};
+  str.scan_ratio = 1.3;  // the valley across the impulse is narrow: a 7-point grid steps over it
+  str.scan_other = {0.15, 0.5, 0.85};
+  str.scan_alone_only = true;
   str.params = [v_lo, v_hi, kExcessLo, kExcessHi](const std::vector<double>& x) {
     const double a = x[0];
     const double lo = std::max(v_lo, a / kExcessHi), hi = std::min(v_hi, a / kExcessLo);

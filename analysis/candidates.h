@@ -49,6 +49,10 @@ struct CandidateSpec {
   // 1 at each of scan_other.
   double scan_ratio = 0;
   std::vector<double> scan_other;
+  // The scan only for the effect alone (its narrow valley found where an evaluation is cheap); on
+  // top of a set, where the set is profiled at every point, the coarse grid.
+  bool scan_alone_only = false;
+  bool scans(bool alone) const { return scan_ratio > 1 && (alone || !scan_alone_only); }
   std::string physics;  // one line: what the coordinates mean (for the report)
 };
 
@@ -108,9 +112,12 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
                   const CandidateSpec& spec, const FittedModel& baseline,
                   const FitOptions& options);
 
-// `spec` added to the set `base`: its coarse search with the set held, then the whole set's joint
+// `spec` added to the set `base`: its coarse search on top of the set, then the whole set's joint
 // search, both on the subset of cells a coarse search uses (JointStage::Search: its train_gap
-// ranks sets screened alike; fit_joint(..., Finish) takes it to every cell).
+// ranks sets screened alike; fit_joint(..., Finish) takes it to every cell). A set of one is
+// profiled at every grid point of `spec` (its coordinates refitted by a short Subplex: fitted
+// alone it may have absorbed part of `spec`'s signature and sit beside the valley the two share);
+// a larger set, or one under a scan (hundreds of points), is held where it is.
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                   const std::vector<MemberFit>& base, const CandidateSpec& spec,
                   const FittedModel& baseline, const FitOptions& options);

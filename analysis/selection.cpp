@@ -60,18 +60,44 @@ class SetFits {
     });
   }
 
-  // Each effect of `specs` added to `base` (fit_on_top), screened; cached like screen().
+  // Each effect of `specs` added to `base` (fit_on_top), screened; cached like screen(). A pair
+  // is searched both ways: the newcomer on top of the set's single, and the set's effect on top
+  // of the newcomer's single (each single fit can have absorbed the other's signature and sit in
+  // a basin the joint search does not leave); the lower training gap counts. A newcomer whose
+  // single fit shrinks the gap by less than kSwapShrink is all but absent from it: the set's
+  // effect on top of it would repeat the set's own single fit (unless the set's single is weak
+  // too, weak_single).
   std::vector<SetFit> screen_on_top(const std::vector<MemberFit>& base,
                                     const std::vector<const CandidateSpec*>& specs) {
-    std::vector<std::vector<MemberFit>> sets;
+    std::vector<std::vector<MemberFit>> sets, swapped;
     for (const CandidateSpec* spec : specs) {
       std::vector<MemberFit> m = base;
       m.push_back({spec->effect, {}, {}, {}});
       sets.push_back(m);
+      const auto single = finished_.find(key_of({m.back()}));
+      const bool informative =
+          single != finished_.end() && (single->second.shrink >= kSwapShrink || weak_single(base));
+      swapped.push_back(base.size() == 1 && informative ? single->second.members
+                                                        : std::vector<MemberFit>{});
     }
     return screen_each(sets, [&](std::size_t i, const FitOptions& one) {
-      return fit_on_top(sweep_, library_, base, *specs[i], baseline_, one);
+      SetFit f = fit_on_top(sweep_, library_, base, *specs[i], baseline_, one);
+      if (swapped[i].empty()) return f;
+      SetFit g = fit_on_top(sweep_, library_, swapped[i], spec_of(library_, base[0].effect),
+                            baseline_, one);
+      if (!(g.train_gap < f.train_gap)) return f;
+      std::rotate(g.members.begin(), g.members.begin() + 1, g.members.end());  // the set first
+      g.effects = effects_of(library_, g.members);
+      g.evaluations += f.evaluations;
+      return g;
     });
+  }
+
+  // A set of one whose single fit shrinks the gap by less than kMinShrink: the effects of a pair
+  // can each hide the other's signature, and every newcomer is searched both ways then.
+  bool weak_single(const std::vector<MemberFit>& base) const {
+    const auto single = finished_.find(key_of(base));
+    return base.size() == 1 && single != finished_.end() && single->second.shrink < kMinShrink;
   }
 
   // The finished fit of a set (from its screened optimum when there is one).
@@ -86,14 +112,28 @@ class SetFits {
     return finished_.at(k);
   }
 
+  // The finished fit of `members`, the set `current` with a newcomer last. The set with the
+  // newcomer holds the set without it (at the newcomer's zero), so a finished fit that trains
+  // worse than `current` has not converged: it is refitted from current's parameters and the
+  // newcomer's screened ones (refit), the better kept.
+  const SetFit& finish_nested(const std::vector<MemberFit>& members, const SetFit& current) {
+    const SetFit& f = finish(members);
+    if (f.plausible && f.fitted.train.gap <= current.fitted.train.gap) return f;
+    std::vector<MemberFit> start = current.members;
+    start.push_back(members.back());
+    return refit(start);
+  }
+
   // The set of `members` refitted from the parameters they carry (those of a larger set that held
   // them): a set fitted earlier from its own singles can sit in a local optimum that the larger
-  // set's fit left behind. The better of that and the finished fit becomes the set's fit.
+  // set's fit left behind. The better of that and the finished fit on the training trials, as
+  // scored (train_gap is the search's objective, at the mu each search held), becomes the set's
+  // fit.
   const SetFit& refit(const std::vector<MemberFit>& members) {
     const std::string k = key_of(members);
     const SetFit& known = finish(members);
     SetFit again = fit_joint(sweep_, library_, members, baseline_, options_, JointStage::Finish);
-    if (again.plausible && (!known.plausible || again.train_gap < known.train_gap))
+    if (again.plausible && (!known.plausible || again.fitted.train.gap < known.fitted.train.gap))
       finished_[k] = std::move(again);
     return finished_.at(k);
   }
@@ -134,14 +174,24 @@ std::vector<MemberFit> without(const SetFit& s, std::size_t index) {
 }
 
 // What the physics says about a pair that explains a sweep equally well.
+// Two effects that act alike: a low-pass amplifier and a damped actuator resonance both round
+// the velocity corners of the triangle, and below the resonance they look alike.
+bool alike(const std::string& a, const std::string& b) {
+  return (a == "amplifier" && b == "actuator_compliance") ||
+         (b == "amplifier" && a == "actuator_compliance");
+}
+
+bool any_alike(const std::vector<std::string>& a, const std::vector<std::string>& b) {
+  for (const std::string& x : a)
+    for (const std::string& y : b)
+      if (alike(x, y)) return true;
+  return false;
+}
+
 std::string why_alike(const std::vector<std::string>& a, const std::vector<std::string>& b,
                       double ga, double gb) {
-  auto has = [](const std::vector<std::string>& v, const char* e) {
-    return std::find(v.begin(), v.end(), e) != v.end();
-  };
   std::string s;
-  if ((has(a, "amplifier") && has(b, "actuator_compliance")) ||
-      (has(b, "amplifier") && has(a, "actuator_compliance")))
+  if (any_alike(a, b))
     s = "a low-pass amplifier and a damped actuator resonance both round the velocity corners of "
         "the triangle; "
         "below the resonance they look alike. ";
@@ -174,29 +224,46 @@ std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
   return s.str();
 }
 
-// Forward from `first`: every plausible candidate joins the set in a joint fit (screened at the
-// search rate, the best polished and scored) while the gap is above kFurtherGap and the addition
-// shrinks it by kMinFurtherShrink; then backward: every member taken out and the rest refitted
-// from the set's own parameters (SetFits::refit); a member without which the gap grows by less
-// than kBackwardTolerance (or stays within the noise) goes.
-SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& pool,
+// The part of a gap above the noise: a model that explains everything leaves about 1 (gap.h), the
+// noise and a systematic part adding in squares.
+double excess(double gap) {
+  return std::sqrt(std::max(0.0, gap * gap - 1.0));
+}
+
+// Forward from `first`: every identifiable candidate (`joiners`) joins the set in a joint fit
+// (screened at the search rate, the best polished and scored) while the gap is above kFurtherGap
+// and the addition shrinks its excess over the noise by kMinFurtherShrink; then backward: every
+// member taken out and the rest refitted from the set's own parameters (SetFits::refit); a member
+// without which the gap grows by less than kBackwardTolerance (or stays within the noise) goes.
+SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiners,
                    const std::vector<CandidateSpec>& library, SetFits& fits,
                    std::vector<SelectionStep>& steps) {
   SetFit current = first;
   steps.push_back({"add", current.names(), current.gap});
   while (current.members.size() < kMaxEffects && current.gap > kFurtherGap) {
+    // an effect alike a member does not join: on top of it, it fits what the member's model
+    // misses (the other one is reported ambiguous instead)
     std::vector<const CandidateSpec*> tries;
-    for (const SetFit* c : pool)
-      if (!contains(current, c->members.front().effect))
-        tries.push_back(&spec_of(library, c->members.front().effect));
+    for (const SetFit* c : joiners) {
+      const std::string& e = c->members.front().effect;
+      if (!contains(current, e) && !any_alike(current.names(), {e}))
+        tries.push_back(&spec_of(library, e));
+    }
     if (tries.empty()) break;
     const std::vector<SetFit> screened = fits.screen_on_top(current.members, tries);
-    const SetFit* lead = &screened.front();
-    for (const SetFit& t : screened)
-      if (t.train_gap < lead->train_gap) lead = &t;
-    const SetFit& best = fits.finish(lead->members);
-    if (!best.plausible || best.gap > (1 - kMinFurtherShrink) * current.gap) break;
-    current = best;
+    std::vector<const SetFit*> leads;
+    for (const SetFit& t : screened) leads.push_back(&t);
+    std::stable_sort(leads.begin(), leads.end(),
+                     [](const SetFit* a, const SetFit* b) { return a->train_gap < b->train_gap; });
+    // the best screened sets finished; the best of them that is plausible (a joiner may end on
+    // a bound)
+    const SetFit* best = nullptr;
+    for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads; ++k) {
+      const SetFit& f = fits.finish_nested(leads[k]->members, current);
+      if (f.plausible && (!best || f.gap < best->gap)) best = &f;
+    }
+    if (!best || excess(best->gap) > (1 - kMinFurtherShrink) * excess(current.gap)) break;
+    current = *best;
     steps.push_back({"add", current.names(), current.gap});
   }
   while (current.members.size() >= 2) {
@@ -276,12 +343,14 @@ void fit_candidates(const SweepCells& sweep, const std::vector<CandidateSpec>& l
 // The set search (select_from) from the best plausible candidate that shrinks the gap, and from
 // the runner-up when it comes close (an amplifier and a compliant actuator trade places): the set
 // that ends with the smaller held-out gap, its steps in d.steps; none when the baseline's gap is
-// not significant or no candidate shrinks it enough.
+// not significant. Every candidate in `joiners` may join. A best single below kMinShrink still
+// starts a search (two effects can each explain little alone), but a set of one that ends there
+// below kMinShrink is none.
 std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
+                                 const std::vector<const SetFit*>& joiners,
                                  const std::vector<CandidateSpec>& library, SetFits& fits,
                                  Diagnosis& d) {
-  if (!significant_gap(d.baseline) || pool.empty() || pool.front()->shrink < kMinShrink)
-    return std::nullopt;
+  if (!significant_gap(d.baseline) || pool.empty()) return std::nullopt;
   std::vector<const SetFit*> firsts{pool.front()};
   if (pool.size() > 1 && pool[1]->shrink >= kMinShrink &&
       pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
@@ -289,11 +358,15 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
   std::optional<SetFit> current;
   for (const SetFit* first : firsts) {
     std::vector<SelectionStep> steps;
-    const SetFit end = select_from(*first, pool, library, fits, steps);
+    const SetFit end = select_from(*first, joiners, library, fits, steps);
     if (!current || end.gap < current->gap) {
       current = end;
       d.steps = steps;
     }
+  }
+  if (current->members.size() == 1 && current->shrink < kMinShrink) {
+    d.steps.clear();
+    return std::nullopt;
   }
   return current;
 }
@@ -387,13 +460,16 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   fit_candidates(sweep, library, identifiable_specs(sweep, library, options, d), options.fit,
                  threads, d);
 
-  // The set starts with the best plausible candidate that shrinks the gap; every plausible
-  // candidate may join it (an effect hidden under a larger one shrinks little alone).
-  std::vector<const SetFit*> pool;
-  for (const SetFit& c : d.candidates)
+  // The set starts with the best plausible candidate that shrinks the gap; every candidate may
+  // join it (an effect hidden under a larger one shrinks little alone, and alone its fit may end
+  // on a bound of its range: the set's fit is judged once it is in).
+  std::vector<const SetFit*> pool, joiners;
+  for (const SetFit& c : d.candidates) {
+    joiners.push_back(&c);
     if (c.plausible) pool.push_back(&c);
+  }
   SetFits fits(sweep, library, d.baseline, options.fit, d.candidates);
-  const std::optional<SetFit> found = search_set(pool, library, fits, d);
+  const std::optional<SetFit> found = search_set(pool, joiners, library, fits, d);
   // honesty: a set that leaves a significant remainder must explain most of the gap
   if (found) {
     d.best = *found;

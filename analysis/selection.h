@@ -3,10 +3,12 @@
 //
 // 1. Baseline: the impulse model with alpha and mu fitted (gap.h); its held-out gap is gap_before.
 // 2. Candidates: every identifiable effect fitted alone (candidates.h), ranked by shrink.
-// 3. Forward: the best plausible candidate that shrinks the gap by kMinShrink starts the set; every
-//    other plausible candidate is then fitted on top of the set (its own search with the set held,
-//    then all jointly, screened at the search rate), and the best is added while the set's gap is
-//    above kFurtherGap and the addition shrinks it by kMinFurtherShrink.
+// 3. Forward: the best plausible candidate starts the set (a set that ends as one effect below
+//    kMinShrink is no result); every other candidate is then fitted on top of the set (its own
+//    search with a set of one profiled, larger sets held, then all jointly, screened at the search
+//    rate; a pair also the other way round, from the newcomer's single when it shrinks the gap by
+//    kSwapShrink), and the best is added while the set's gap is above kFurtherGap and the addition
+//    shrinks its part above the noise, sqrt(gap^2 - 1), by kMinFurtherShrink.
 // 4. Backward: every member of a set of two or more is taken out and the rest refitted jointly,
 //    from the set's parameters as well as from the forward fit of the smaller set (the better
 //    counts); a member without which the gap grows by less than kBackwardTolerance goes.
@@ -33,6 +35,8 @@ constexpr double kExplainedGap = 2.0;
 constexpr double kSystematicGap = 1.5;
 constexpr double kMinShrink = 0.3;
 constexpr double kMinFurtherShrink = 0.4;
+constexpr std::size_t kFinishedLeads = 2;  // screened sets finished a step, best first
+constexpr double kSwapShrink = 0.1;     // a single that shrinks this much starts a pair's other way
 constexpr double kFurtherGap = 1.5;     // a set's gap above which another effect is looked for
 constexpr double kRunnerUpRatio = 1.5;  // a second start when the runner-up's gap is this close
 constexpr double kBackwardTolerance = 0.25;

@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <functional>
 #include <limits>
+#include <map>
 #include <nlopt.hpp>
 
 #include "analysis/candidates.h"
@@ -101,10 +102,11 @@ class Objective {
   double last_mu_ = 0;
 };
 
-// Bounded Subplex on [0, 1]^n from `start`; returns the best point met (and its value in `best`).
+// Bounded Subplex on [0, 1]^n from `start`, first steps `steps` (one a coordinate); returns the
+// best point met (and its value in `best`).
 std::vector<double> subplex(const std::function<double(const std::vector<double>&)>& f,
-                            std::vector<double> start, double step, int max_evals, double xtol,
-                            double& best) {
+                            std::vector<double> start, const std::vector<double>& steps,
+                            int max_evals, double xtol, double& best) {
   const std::size_t n = start.size();
   std::vector<double> best_x = start;
   best = std::numeric_limits<double>::infinity();
@@ -112,7 +114,7 @@ std::vector<double> subplex(const std::function<double(const std::vector<double>
   nlopt::opt solver(nlopt::LN_SBPLX, static_cast<unsigned>(n));
   solver.set_lower_bounds(std::vector<double>(n, 0.0));
   solver.set_upper_bounds(std::vector<double>(n, 1.0));
-  solver.set_initial_step(std::vector<double>(n, step));
+  solver.set_initial_step(steps);
   solver.set_maxeval(max_evals);
   solver.set_xtol_abs(xtol);
   std::function<double(const std::vector<double>&)> eval = [&](const std::vector<double>& x) {
@@ -135,6 +137,13 @@ std::vector<double> subplex(const std::function<double(const std::vector<double>
   } catch (const nlopt::forced_stop&) {
   }
   return best_x;
+}
+
+std::vector<double> subplex(const std::function<double(const std::vector<double>&)>& f,
+                            std::vector<double> start, double step, int max_evals, double xtol,
+                            double& best) {
+  const std::vector<double> steps(start.size(), step);
+  return subplex(f, std::move(start), steps, max_evals, xtol, best);
 }
 
 // Plausibility of a fitted set: no coordinate on a bound, a step scale some stage has.
@@ -207,78 +216,177 @@ std::vector<std::vector<double>> starts_from(
 
 namespace {
 
-// The coarse search for one effect, on top of `fixed` members (held where they are): its grid or
-// scan, then Subplex from the best points that are not neighbours. `value`: the objective there;
-// `per_variant`, when given, receives the best of each variant.
-MemberFit coarse_search(Objective& coarse, const CandidateSpec& spec,
-                        const std::vector<MemberFit>& fixed_members, const FitOptions& opt,
-                        double& value, std::vector<MemberFit>* per_variant = nullptr) {
-  MemberFit best{spec.effect, spec.variants.front(), {}, {}};
-  value = std::numeric_limits<double>::infinity();
-  auto with = [&](const MemberFit& m) {
-    std::vector<MemberFit> all = fixed_members;
+// The coordinates of a set's members in one vector (member by member), and back: `u` fills the
+// members in order until it runs out (a set's leading members alone may be given).
+std::vector<double> coordinates_of(const std::vector<MemberFit>& members) {
+  std::vector<double> u;
+  for (const MemberFit& m : members) u.insert(u.end(), m.u.begin(), m.u.end());
+  return u;
+}
+
+void set_coordinates(std::vector<MemberFit>& members, const std::vector<double>& u) {
+  std::size_t k = 0;
+  for (MemberFit& m : members)
+    for (double& v : m.u)
+      if (k < u.size()) v = u[k++];
+}
+
+// The points of a spec's grid, or of its scan (axis 0 in steps of scan_ratio at each of
+// scan_other), then stage.yaml's start when there is one; `spacing`: grid points per unit of u,
+// for telling neighbours apart.
+std::vector<std::vector<double>> grid_points(const CandidateSpec& spec, const FitOptions& opt,
+                                             bool alone, int& spacing) {
+  const std::size_t n = spec.axes.size();
+  const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
+  std::vector<std::vector<double>> out;
+  spacing = pts;
+  if (spec.scans(alone) && n == 2) {
+    const FitAxis& a = spec.axes[0];
+    const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
+    spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
+    for (double other : spec.scan_other)
+      for (double u0 = 0; u0 <= 1 + 1e-9; u0 += du)
+        out.push_back({std::min(u0, 1.0), spec.axes[1].coordinate(other)});
+  } else {
+    const int total = n == 1 ? pts : pts * pts;
+    for (int k = 0; k < total; ++k) {
+      // Point k of a pts x pts grid: column k % pts, row k / pts (integer division on purpose).
+      const int column = k % pts, row = k / pts;
+      std::vector<double> u(n);
+      u[0] = column / double(pts - 1);
+      if (n == 2) u[1] = row / double(pts - 1);
+      out.push_back(u);
+    }
+  }
+  if (!spec.start.empty()) {
+    std::vector<double> u;
+    for (std::size_t i = 0; i < n; ++i) u.push_back(spec.axes[i].coordinate(spec.start[i]));
+    out.push_back(u);
+  }
+  return out;
+}
+
+// The objective of a newcomer on top of a set of fitted members. Held: the set stays where its
+// own fit left it. Profiled: at every point the set's coordinates are refitted by a short Subplex
+// from there, the newcomer held (the profile of the objective over the newcomer's coordinates):
+// fitted without the newcomer, the set has absorbed part of its signature and sits beside the
+// narrow valley the two share, where the newcomer alone shows no basin. A refinement then moves
+// the set and the newcomer together.
+class OnTop {
+ public:
+  OnTop(Objective& obj, const std::vector<MemberFit>& set, bool profile, const FitOptions& opt)
+      : obj_(obj),
+        set_(set),
+        u0_(coordinates_of(set)),
+        evals_(profile && !u0_.empty() ? kProfileEvals * static_cast<int>(u0_.size()) + 2 : 0),
+        step_(0.1 / (opt.grid_1d - 1)) {}
+
+  bool alone() const { return set_.empty(); }
+
+  // The objective with `m` added, and the set's coordinates it was reached at.
+  double value(const MemberFit& m, std::vector<double>& set_u) {
+    std::vector<MemberFit> all = set_;
     all.push_back(m);
-    return coarse.train_gap(all, true);
-  };
+    set_u = u0_;
+    if (evals_ == 0) return obj_.train_gap(all, true);
+    double best = 0;
+    set_u = subplex(
+        [&](const std::vector<double>& u) {
+          set_coordinates(all, u);
+          return obj_.train_gap(all, true);
+        },
+        u0_, step_, evals_, 1e-4, best);
+    return best;
+  }
+
+  // A Subplex from (set_u, m.u), `evals` per coordinate it moves: the newcomer's coordinates
+  // (first step `step`) when the set is held, the set's too (the profile's step) when it is
+  // profiled; both updated, the value returned.
+  double refine(MemberFit& m, std::vector<double>& set_u, double step, int evals) {
+    std::vector<MemberFit> all = with(m, set_u);
+    const bool joint = evals_ > 0;
+    std::vector<double> steps(joint ? set_u.size() : 0, step_);
+    steps.resize(steps.size() + m.u.size(), step);
+    double best = 0;
+    const std::vector<double> u = subplex(
+        [&](const std::vector<double>& x) {
+          if (joint) set_coordinates(all, x);
+          if (!joint) all.back().u = x;
+          return obj_.train_gap(all, true);
+        },
+        joint ? coordinates_of(all) : m.u, steps, evals * static_cast<int>(steps.size()), 1e-3,
+        best);
+    if (joint) set_coordinates(all, u);
+    if (!joint) all.back().u = u;
+    m.u = all.back().u;
+    all.pop_back();
+    set_u = coordinates_of(all);
+    return best;
+  }
+
+  // The set at `set_u` with `m` added.
+  std::vector<MemberFit> with(const MemberFit& m, const std::vector<double>& set_u) const {
+    std::vector<MemberFit> all = set_;
+    set_coordinates(all, set_u);
+    all.push_back(m);
+    return all;
+  }
+
+ private:
+  static constexpr int kProfileEvals = 4;  // Subplex evaluations per coordinate of the set
+  Objective& obj_;
+  std::vector<MemberFit> set_;
+  std::vector<double> u0_;
+  int evals_;
+  double step_;
+};
+
+// The coarse search for one effect on top of a set (`on_top`; alone when it is empty): its grid
+// or scan, then Subplex from the best points that are not neighbours. Returns the set with the
+// effect added (the effect last); `value`: the objective there; `per_variant`, when given,
+// receives the best of each variant.
+std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
+                                     const FitOptions& opt, double& value,
+                                     std::vector<MemberFit>* per_variant = nullptr) {
+  std::vector<MemberFit> best = on_top.with({spec.effect, spec.variants.front(), {}, {}}, {});
+  value = std::numeric_limits<double>::infinity();
+  std::vector<double> set_u;
   if (!spec.grid.empty()) {
     for (const Params& g : spec.grid) {
       const MemberFit m{spec.effect, spec.variants.front(), {}, g};
-      const double v = with(m);
+      const double v = on_top.value(m, set_u);
       if (v < value) {
         value = v;
-        best = m;
+        best = on_top.with(m, set_u);
       }
     }
     return best;
   }
   const std::size_t n = spec.axes.size();
-  const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
+  int spacing = 0;
+  const std::vector<std::vector<double>> points = grid_points(spec, opt, on_top.alone(), spacing);
   for (const Params& fixed : spec.variants) {
     MemberFit m{spec.effect, fixed, std::vector<double>(n, 0.0), {}};
-    auto f = [&](const std::vector<double>& u) {
-      m.u = u;
-      return with(m);
-    };
     std::vector<std::pair<double, std::vector<double>>> grid;
-    int spacing = pts;  // grid points per unit of u, for telling neighbours apart
-    if (spec.scan_ratio > 1 && n == 2) {
-      const FitAxis& a = spec.axes[0];
-      const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
-      spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
-      for (double other : spec.scan_other)
-        for (double u0 = 0; u0 <= 1 + 1e-9; u0 += du) {
-          const std::vector<double> u{std::min(u0, 1.0), spec.axes[1].coordinate(other)};
-          grid.push_back({f(u), u});
-        }
-    } else {
-      const int total = n == 1 ? pts : pts * pts;
-      for (int k = 0; k < total; ++k) {
-        // Point k of a pts x pts grid: column k % pts, row k / pts (integer division on purpose).
-        const int column = k % pts, row = k / pts;
-        std::vector<double> u(n);
-        u[0] = column / double(pts - 1);
-        if (n == 2) u[1] = row / double(pts - 1);
-        grid.push_back({f(u), u});
-      }
+    std::map<std::vector<double>, std::vector<double>> set_at;  // the set's coordinates at a point
+    for (const std::vector<double>& u : points) {
+      m.u = u;
+      grid.push_back({on_top.value(m, set_u), u});
+      set_at[u] = set_u;
     }
-    if (!spec.start.empty()) {
-      std::vector<double> u;
-      for (std::size_t i = 0; i < n; ++i) u.push_back(spec.axes[i].coordinate(spec.start[i]));
-      grid.push_back({f(u), u});
-    }
-    MemberFit variant_best = m;
+    std::vector<MemberFit> variant_best = on_top.with(m, {});
     double variant_value = std::numeric_limits<double>::infinity();
     for (const std::vector<double>& start :
          starts_from(grid, spacing, n == 1 ? 1 : opt.starts_2d)) {
-      double v = 0;
-      const std::vector<double> u =
-          subplex(f, start, 0.5 / (spacing - 1), opt.refine_evals * static_cast<int>(n), 1e-3, v);
+      m.u = start;
+      set_u = set_at.at(start);
+      const double v = on_top.refine(m, set_u, 0.5 / (spacing - 1), opt.refine_evals);
       if (v < variant_value) {
         variant_value = v;
-        variant_best = {spec.effect, fixed, u, {}};
+        variant_best = on_top.with(m, set_u);
       }
     }
-    if (per_variant) per_variant->push_back(variant_best);
+    if (per_variant) per_variant->push_back(variant_best.back());
     if (variant_value < value) {
       value = variant_value;
       best = variant_best;
@@ -299,7 +407,8 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   Objective coarse(coarse_cells, library, baseline, opt.threads);
   double best_value = 0;
   std::vector<MemberFit> variants;
-  MemberFit best = coarse_search(coarse, spec, {}, opt, best_value, &variants);
+  OnTop alone(coarse, {}, false, opt);
+  MemberFit best = coarse_search(alone, spec, opt, best_value, &variants).back();
   if (spec.grid.empty()) {
     const int n = static_cast<int>(spec.axes.size());
     const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
@@ -329,7 +438,7 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
     // The winner polished at the scoring rate, simulated at its own mu: with little noise the gap
     // is a sharp V around the optimum, and the search rate's error and the linearized mu move it.
     obj.recenter({best});
-    const double step = spec.scan_ratio > 1 ? 0.005 : 0.05 / (pts - 1);
+    const double step = spec.scans(true) ? 0.005 : 0.05 / (pts - 1);
     best.u = subplex(on_all(false), best.u, step, opt.polish_evals * n, 1e-4, best_value);
   }
   SetFit out = obj.score({best}, best_value);
@@ -342,14 +451,18 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                   const std::vector<MemberFit>& base, const CandidateSpec& spec,
                   const FittedModel& baseline, const FitOptions& opt) {
-  // the new effect searched with the set held, on the coarse cells; then all of them jointly
+  const auto t0 = std::chrono::steady_clock::now();
+  // the new effect searched on top of the set, on the coarse cells, a set of one profiled at
+  // every grid point (held under a scan, hundreds of points, and when larger: the profile costs
+  // evaluations in proportion to its coordinates at every point); then all of them jointly
   const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
   Objective coarse(coarse_cells, library, baseline, opt.threads);
+  OnTop on_top(coarse, base, base.size() == 1 && !spec.scans(base.empty()), opt);
   double value = 0;
-  std::vector<MemberFit> start = base;
-  start.push_back(coarse_search(coarse, spec, base, opt, value));
+  const std::vector<MemberFit> start = coarse_search(on_top, spec, opt, value);
   SetFit out = fit_joint(coarse_cells, library, start, baseline, opt, JointStage::Search);
   out.evaluations += coarse.evaluations;
+  log_fit("on top", out, t0);
   return out;
 }
 
