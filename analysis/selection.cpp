@@ -252,6 +252,7 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     if (tries.empty()) break;
     const std::vector<SetFit> screened = fits.screen_on_top(current.members, tries);
     std::vector<const SetFit*> leads;
+    leads.reserve(screened.size());
     for (const SetFit& t : screened) leads.push_back(&t);
     std::stable_sort(leads.begin(), leads.end(),
                      [](const SetFit* a, const SetFit* b) { return a->train_gap < b->train_gap; });
