@@ -173,7 +173,6 @@ std::vector<MemberFit> without(const SetFit& s, std::size_t index) {
   return m;
 }
 
-// What the physics says about a pair that explains a sweep equally well.
 // Two effects that act alike: a low-pass amplifier and a damped actuator resonance both round
 // the velocity corners of the triangle, and below the resonance they look alike.
 bool alike(const std::string& a, const std::string& b) {
@@ -188,6 +187,7 @@ bool any_alike(const std::vector<std::string>& a, const std::vector<std::string>
   return false;
 }
 
+// What the physics says about a pair that explains a sweep equally well.
 std::string why_alike(const std::vector<std::string>& a, const std::vector<std::string>& b,
                       double ga, double gb) {
   std::string s;
