@@ -72,6 +72,34 @@ SweepCells scenario_sweep(const Scenario& sc) {
   return collect_cells(sc.stage, infos, series, "memory");
 }
 
+// A validate scenario's sweep with what a fit needs: the baseline, the candidates, 2 threads.
+struct ScenarioFit {
+  Scenario sc;
+  SweepCells sweep;
+  FittedModel base;
+  std::vector<CandidateSpec> lib;
+  FitOptions opt;
+
+  ScenarioFit(const std::string& name, std::uint64_t seed)
+      : sc(make_scenario(name, seed, false)),
+        sweep(scenario_sweep(sc)),
+        base(fit_baseline(sweep, 2)),
+        lib(candidate_library(sweep)) {
+    opt.threads = 2;
+  }
+  SetFit single(const std::string& effect) const {
+    return fit_single(sweep, lib, spec_of(lib, effect), base, opt);
+  }
+};
+
+// The names of the chosen set, sorted.
+std::vector<std::string> chosen_names(const Diagnosis& d) {
+  std::vector<std::string> named;
+  for (const model::EffectSpec& e : d.chosen) named.push_back(e.name);
+  std::sort(named.begin(), named.end());
+  return named;
+}
+
 }  // namespace
 
 TEST(Candidates, EveryEffectOfTheLibraryIsACandidateWithinItsAllowedRange) {
@@ -164,10 +192,8 @@ TEST(Selection, TwoEffectsAreNamedAsASet) {
   const Diagnosis d = diagnose(
       generate({{"tilt", {{"angle_deg", -3}}}, {"friction_spread", {{"relative_sd", 0.08}}}}, s),
       only({"tilt", "friction_spread", "creep"}));
-  std::vector<std::string> named;
-  for (const model::EffectSpec& e : d.chosen) named.push_back(e.name);
-  std::sort(named.begin(), named.end());
-  EXPECT_EQ(named, (std::vector<std::string>{"friction_spread", "tilt"})) << text_summary({}, d);
+  EXPECT_EQ(chosen_names(d), (std::vector<std::string>{"friction_spread", "tilt"}))
+      << text_summary({}, d);
   EXPECT_FALSE(d.unexplained.significant);
   EXPECT_EQ(d.chosen_intervals.size(), 2u);
 }
@@ -178,17 +204,13 @@ TEST(Selection, AnEffectIsFoundOnTopOfOneWhoseFitAbsorbedPartOfIt) {
   // valley the two share, where the amplifier searched with the tilt held shows no basin (its best
   // is no amplifier). Profiled (the tilt refitted at every point of the amplifier's grid), the
   // search finds the valley and the pair explains the sweep.
-  const Scenario sc = make_scenario("amplifier+tilt", 11, false);
-  const SweepCells sweep = scenario_sweep(sc);
-  const FittedModel base = fit_baseline(sweep, 2);
-  const auto lib = candidate_library(sweep);
-  FitOptions opt;
-  opt.threads = 2;
-  const SetFit tilt = fit_single(sweep, lib, spec_of(lib, "tilt"), base, opt);
-  const SetFit top = fit_on_top(sweep, lib, tilt.members, spec_of(lib, "amplifier"), base, opt);
-  const SetFit pair = fit_joint(sweep, lib, top.members, base, opt, JointStage::Finish);
+  const ScenarioFit f("amplifier+tilt", 11);
+  const SetFit tilt = f.single("tilt");
+  const SetFit top =
+      fit_on_top(f.sweep, f.lib, tilt.members, spec_of(f.lib, "amplifier"), f.base, f.opt);
+  const SetFit pair = fit_joint(f.sweep, f.lib, top.members, f.base, f.opt, JointStage::Finish);
   ASSERT_EQ(pair.names(), (std::vector<std::string>{"tilt", "amplifier"}));
-  const double cutoff_hz = sc.params.at("amplifier.cutoff_hz");
+  const double cutoff_hz = f.sc.params.at("amplifier.cutoff_hz");
   EXPECT_NEAR(pair.effects[1].params.at("cutoff_hz"), cutoff_hz, 0.1 * cutoff_hz);
   EXPECT_LT(pair.gap, 0.25 * tilt.gap);
   EXPECT_TRUE(pair.plausible) << pair.note;
@@ -201,27 +223,19 @@ TEST(Selection, AnEffectAlikeAMemberDoesNotJoinIt) {
   const Scenario sc = make_scenario("amplifier+tilt", 11, false);
   const Diagnosis d =
       diagnose(scenario_sweep(sc), only({"amplifier", "actuator_compliance", "tilt"}));
-  std::vector<std::string> named;
-  for (const model::EffectSpec& e : d.chosen) named.push_back(e.name);
-  std::sort(named.begin(), named.end());
-  EXPECT_EQ(named, (std::vector<std::string>{"amplifier", "tilt"}));
+  EXPECT_EQ(chosen_names(d), (std::vector<std::string>{"amplifier", "tilt"}));
 }
 
 TEST(Selection, AStribeckFitAloneFindsItsNarrowValley) {
   // validate's stribeck, seed 12 (3 trials a cell, 32 kHz): the gap is narrow across the
   // friction bump's impulse, and a 7-point grid over its five decades stepped over it (the fit
   // ended at a held-out gap of 14.7, and creep joined to make up for it). The scan finds it.
-  const Scenario sc = make_scenario("stribeck", 12, false);
-  const SweepCells sweep = scenario_sweep(sc);
-  const FittedModel base = fit_baseline(sweep, 2);
-  const auto lib = candidate_library(sweep);
-  FitOptions opt;
-  opt.threads = 2;
-  const SetFit fit = fit_single(sweep, lib, spec_of(lib, "stribeck"), base, opt);
+  const ScenarioFit f("stribeck", 12);
+  const SetFit fit = f.single("stribeck");
   EXPECT_LT(fit.gap, 3.0);
   EXPECT_TRUE(fit.plausible) << fit.note;
   // and no other effect earns a place beside it
-  const Diagnosis d = diagnose(sweep, only({"stribeck", "creep"}));
+  const Diagnosis d = diagnose(f.sweep, only({"stribeck", "creep"}));
   ASSERT_EQ(d.chosen.size(), 1u);
   EXPECT_EQ(d.chosen.front().name, "stribeck");
 }
