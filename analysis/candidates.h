@@ -50,7 +50,8 @@ struct CandidateSpec {
   double scan_ratio = 0;
   std::vector<double> scan_other;
   // The scan only for the effect alone (its narrow valley found where an evaluation is cheap); on
-  // top of a set, where the set is profiled at every point, the coarse grid.
+  // top of a set the coarse grid with the set profiled at every point, and the scan with the set
+  // held (fit_on_top keeps the better start).
   bool scan_alone_only = false;
   bool scans(bool alone) const { return scan_ratio > 1 && (alone || !scan_alone_only); }
   std::string physics;  // one line: what the coordinates mean (for the report)

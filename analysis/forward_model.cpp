@@ -6,6 +6,7 @@
 #include <cstdlib>
 
 #include "analysis/parallel.h"
+#include "model/plant.h"
 #include "model/waveform.h"
 
 namespace idm::analysis {
@@ -157,6 +158,7 @@ std::vector<double> simulate_marks(const model::StageParams& stage, const model:
   // The slider's speed and the actuator's deflection from its command at each reading: with the
   // steps, the state the next cycle starts from (a ringing counter mass is part of it).
   std::vector<double> marks(reads.size(), 0.0), speed(reads.size(), 0.0), lag(reads.size(), 0.0);
+  s.plant().set_stribeck_speed_share(search ? 1.0 : model::kStribeckSpeedShare);
   BurstStepper stepper(s, w, sim, search);
   if (piecewise_linear_chain(sim)) stepper.step_to_kinks();
   std::size_t next = 1;  // corners[0] = 0

@@ -145,6 +145,21 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
   return out;
 }
 
+GapParts gap_parts(const GapEvaluation& evaluation) {
+  GapParts p;
+  if (evaluation.cells.empty()) return p;
+  for (const CellResidual& r : evaluation.cells) {
+    p.mean += r.mean_z * r.mean_z;
+    p.spread += r.spread_z * r.spread_z;
+    p.label += r.label * r.label;
+  }
+  const double n = static_cast<double>(evaluation.cells.size());
+  p.mean = std::sqrt(p.mean / n);
+  p.spread = std::sqrt(p.spread / n);
+  p.label = std::sqrt(p.label / n);
+  return p;
+}
+
 FittedModel fit_model(const SweepCells& sweep, ModelConfig model, int threads, int rounds) {
   // mu by proposals checked exactly: the linearized fit (the ideal model's slope) proposes a mu,
   // the model is simulated there and alpha fitted alone; a proposal that does not lower the
@@ -160,13 +175,31 @@ FittedModel fit_model(const SweepCells& sweep, ModelConfig model, int threads, i
     return f;
   };
   FittedModel best = exact(model.stage.friction_coefficient);
+  // With effects, the ideal model's slope can be far from the model's own (a compliant actuator
+  // with Stribeck friction): once the model has been simulated at a second mu, each cell's slope
+  // is the secant through the two.
+  FittedModel other;
   for (int round = 0; round < rounds; ++round) {
     const double mu = best.model.stage.friction_coefficient;
-    const double proposal = fit_calibration(sweep, best.predictions, mu).mu;
+    std::vector<CellPrediction> linear = best.predictions;
+    const double dmu = mu - other.model.stage.friction_coefficient;
+    if (!model.effects.empty() && !other.predictions.empty() && std::fabs(dmu) > 1e-6 * mu)
+      for (std::size_t c = 0; c < linear.size(); ++c)
+        linear[c].mu_slope_m =
+            (best.predictions[c].steady_step_m - other.predictions[c].steady_step_m) / dmu;
+    const double proposal = fit_calibration(sweep, linear, mu).mu;
     if (std::fabs(proposal - mu) < 1e-4 * mu) break;
     FittedModel next = exact(proposal);
-    if (!(next.train.gap < best.train.gap)) next = exact(0.5 * (proposal + mu));
-    if (!(next.train.gap < best.train.gap)) break;
+    if (!(next.train.gap < best.train.gap)) {
+      other = std::move(next);
+      next = exact(0.5 * (proposal + mu));
+    }
+    if (!(next.train.gap < best.train.gap)) {
+      if (model.effects.empty()) break;
+      other = std::move(next);  // the secant through it may propose better
+      continue;
+    }
+    other = std::move(best);
     best = std::move(next);
   }
   best.test = evaluate_gap(sweep, best.predictions, best.calibration, TrialSet::Test);

@@ -55,6 +55,14 @@ struct GapEvaluation {
 
 enum class TrialSet { Train, Test };
 
+// The parts of a gap: the root mean square over the cells of mean_z, of spread_z and of the label
+// term; they add in squares to the gap. An effect can act on one part alone (a spread of the
+// friction on the trials' spread).
+struct GapParts {
+  double mean = 0, spread = 0, label = 0;
+};
+GapParts gap_parts(const GapEvaluation& evaluation);
+
 constexpr double kSignificantResidual = 3.0;
 // How far a prediction is trusted: 1 nm and 0.1 % of the step, added to the uncertainty of a
 // cell's mean step. A smoothed command integrated at the scoring rate is within ~2 nm of a

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -230,11 +231,22 @@ double excess(double gap) {
   return std::sqrt(std::max(0.0, gap * gap - 1.0));
 }
 
+// Whether `with`, a set and one effect more, turns the significant remainder of `without` into
+// one within the noise and shrinks its part above the noise by kIntoNoiseShrink on the way. An
+// effect that acts on the trials' spread alone (friction_spread on 4 trials a cell) shows in few
+// numbers and rarely shrinks the whole gap by more, but without it a remainder is unexplained.
+bool into_noise(const SetFit& with, const SetFit& without) {
+  return excess(with.gap) <= (1 - kIntoNoiseShrink) * excess(without.gap) &&
+         significant_gap(without.fitted) && !significant_gap(with.fitted);
+}
+
 // Forward from `first`: every identifiable candidate (`joiners`) joins the set in a joint fit
 // (screened at the search rate, the best polished and scored) while the gap is above kFurtherGap
-// and the addition shrinks its excess over the noise by kMinFurtherShrink; then backward: every
-// member taken out and the rest refitted from the set's own parameters (SetFits::refit); a member
-// without which the gap grows by less than kBackwardTolerance (or stays within the noise) goes.
+// and the addition shrinks its excess over the noise by kMinFurtherShrink (or brings it into the
+// noise, into_noise); then backward: every member taken out and the rest refitted from the set's
+// own parameters (SetFits::refit); a member without which the gap grows by less than
+// kBackwardTolerance (or stays within the noise) goes, unless without it the remainder leaves
+// the noise (into_noise).
 SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiners,
                    const std::vector<CandidateSpec>& library, SetFits& fits,
                    std::vector<SelectionStep>& steps) {
@@ -257,13 +269,19 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     std::stable_sort(leads.begin(), leads.end(),
                      [](const SetFit* a, const SetFit* b) { return a->train_gap < b->train_gap; });
     // the best screened sets finished; the best of them that is plausible (a joiner may end on
-    // a bound)
+    // a bound). Into the noise is the weaker test: it holds only when no finished lead, plausible
+    // or not, fits the training trials better (else the effect that does is on a bound of its
+    // range, and another one merely stands in for it).
     const SetFit* best = nullptr;
+    double best_train = std::numeric_limits<double>::infinity();
     for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads; ++k) {
       const SetFit& f = fits.finish_nested(leads[k]->members, current);
+      best_train = std::min(best_train, f.fitted.train.gap);
       if (f.plausible && (!best || f.gap < best->gap)) best = &f;
     }
-    if (!best || excess(best->gap) > (1 - kMinFurtherShrink) * excess(current.gap)) break;
+    if (!best || (excess(best->gap) > (1 - kMinFurtherShrink) * excess(current.gap) &&
+                  !(into_noise(*best, current) && best->fitted.train.gap <= best_train)))
+      break;
     current = *best;
     steps.push_back({"add", current.names(), current.gap});
   }
@@ -275,7 +293,8 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     for (const SetFit& r : reduced)
       if (r.plausible && (!best || r.gap < best->gap)) best = &r;
     if (!best ||
-        (best->gap > (1 + kBackwardTolerance) * current.gap && significant_gap(best->fitted))) {
+        (best->gap > (1 + kBackwardTolerance) * current.gap && significant_gap(best->fitted)) ||
+        into_noise(current, *best)) {
       steps.push_back({"keep", current.names(), current.gap});
       break;
     }

@@ -8,10 +8,12 @@
 //    search with a set of one profiled, larger sets held, then all jointly, screened at the search
 //    rate; a pair also the other way round, from the newcomer's single when it shrinks the gap by
 //    kSwapShrink), and the best is added while the set's gap is above kFurtherGap and the addition
-//    shrinks its part above the noise, sqrt(gap^2 - 1), by kMinFurtherShrink.
+//    shrinks its part above the noise, sqrt(gap^2 - 1), by kMinFurtherShrink (by kIntoNoiseShrink
+//    where it turns a significant remainder into one within the noise).
 // 4. Backward: every member of a set of two or more is taken out and the rest refitted jointly,
 //    from the set's parameters as well as from the forward fit of the smaller set (the better
-//    counts); a member without which the gap grows by less than kBackwardTolerance goes.
+//    counts); a member without which the gap grows by less than kBackwardTolerance goes (unless
+//    without it a remainder within the noise becomes significant, as forward).
 // 5. Honesty: a set that leaves a significant remainder is named only when it explains most of the
 //    gap (shrink >= kNameShrink); otherwise nothing is named and the gap is reported unexplained,
 //    with the closest library effect. The remainder is significant when the held-out gap is above
@@ -35,6 +37,7 @@ constexpr double kExplainedGap = 2.0;
 constexpr double kSystematicGap = 1.5;
 constexpr double kMinShrink = 0.3;
 constexpr double kMinFurtherShrink = 0.4;
+constexpr double kIntoNoiseShrink = 0.2;   // the same where the remainder ends within the noise
 constexpr std::size_t kFinishedLeads = 2;  // screened sets finished a step, best first
 constexpr double kSwapShrink = 0.1;     // a single that shrinks this much starts a pair's other way
 constexpr double kFurtherGap = 1.5;     // a set's gap above which another effect is looked for

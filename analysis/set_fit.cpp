@@ -83,7 +83,7 @@ class Objective {
     ModelConfig model = model_;
     model.effects = f.effects;
     model.chain_rate_hz = score_rate_hz(model.effects);
-    f.fitted = fit_model(sweep_, model, threads_, 1);
+    f.fitted = fit_model(sweep_, model, threads_, 4);
     f.train_gap = train_gap;
     f.gap = f.fitted.test.gap;
     f.shrink = baseline_.test.gap > 0 ? 1.0 - f.gap / baseline_.test.gap : 0.0;
@@ -170,10 +170,14 @@ void log_fit(const char* what, const SetFit& f, std::chrono::steady_clock::time_
   if (!verbose()) return;
   std::string names;
   for (const std::string& n : f.names()) names += (names.empty() ? "" : "+") + n;
-  std::fprintf(stderr, "  %s %s: %d evaluations, %.2f s, train gap %.3g, held-out %.3g%s\n", what,
-               names.c_str(), f.evaluations,
+  const GapParts held_out = gap_parts(f.fitted.test);
+  std::fprintf(stderr,
+               "  %s %s: %d evaluations, %.2f s, train gap %.3g, held-out %.3g (mean %.3g, spread "
+               "%.3g, label %.3g)%s\n",
+               what, names.c_str(), f.evaluations,
                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
-               f.train_gap, f.gap, f.plausible ? "" : " (implausible)");
+               f.train_gap, f.gap, held_out.mean, held_out.spread, held_out.label,
+               f.plausible ? "" : " (implausible)");
 }
 
 }  // namespace
@@ -231,16 +235,16 @@ void set_coordinates(std::vector<MemberFit>& members, const std::vector<double>&
       if (k < u.size()) v = u[k++];
 }
 
-// The points of a spec's grid, or of its scan (axis 0 in steps of scan_ratio at each of
-// scan_other), then stage.yaml's start when there is one; `spacing`: grid points per unit of u,
+// The points of a spec's grid, or with `scan` of its scan (axis 0 in steps of scan_ratio at each
+// of scan_other), then stage.yaml's start when there is one; `spacing`: grid points per unit of u,
 // for telling neighbours apart.
 std::vector<std::vector<double>> grid_points(const CandidateSpec& spec, const FitOptions& opt,
-                                             bool alone, int& spacing) {
+                                             bool scan, int& spacing) {
   const std::size_t n = spec.axes.size();
   const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
   std::vector<std::vector<double>> out;
   spacing = pts;
-  if (spec.scans(alone) && n == 2) {
+  if (scan && spec.scan_ratio > 1 && n == 2) {
     const FitAxis& a = spec.axes[0];
     const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
     spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
@@ -342,11 +346,11 @@ class OnTop {
 };
 
 // The coarse search for one effect on top of a set (`on_top`; alone when it is empty): its grid
-// or scan, then Subplex from the best points that are not neighbours. Returns the set with the
-// effect added (the effect last); `value`: the objective there; `per_variant`, when given,
-// receives the best of each variant.
+// or with `scan` its scan, then Subplex from the best points that are not neighbours. Returns the
+// set with the effect added (the effect last); `value`: the objective there; `per_variant`, when
+// given, receives the best of each variant.
 std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
-                                     const FitOptions& opt, double& value,
+                                     const FitOptions& opt, bool scan, double& value,
                                      std::vector<MemberFit>* per_variant = nullptr) {
   std::vector<MemberFit> best = on_top.with({spec.effect, spec.variants.front(), {}, {}}, {});
   value = std::numeric_limits<double>::infinity();
@@ -364,7 +368,7 @@ std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
   }
   const std::size_t n = spec.axes.size();
   int spacing = 0;
-  const std::vector<std::vector<double>> points = grid_points(spec, opt, on_top.alone(), spacing);
+  const std::vector<std::vector<double>> points = grid_points(spec, opt, scan, spacing);
   for (const Params& fixed : spec.variants) {
     MemberFit m{spec.effect, fixed, std::vector<double>(n, 0.0), {}};
     std::vector<std::pair<double, std::vector<double>>> grid;
@@ -408,7 +412,7 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   double best_value = 0;
   std::vector<MemberFit> variants;
   OnTop alone(coarse, {}, false, opt);
-  MemberFit best = coarse_search(alone, spec, opt, best_value, &variants).back();
+  MemberFit best = coarse_search(alone, spec, opt, spec.scans(true), best_value, &variants).back();
   if (spec.grid.empty()) {
     const int n = static_cast<int>(spec.axes.size());
     const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
@@ -454,12 +458,21 @@ SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   const auto t0 = std::chrono::steady_clock::now();
   // the new effect searched on top of the set, on the coarse cells, a set of one profiled at
   // every grid point (held under a scan, hundreds of points, and when larger: the profile costs
-  // evaluations in proportion to its coordinates at every point); then all of them jointly
+  // evaluations in proportion to its coordinates at every point); then all of them jointly. An
+  // effect scanned alone only (a valley the grid steps over) is also scanned with the set held,
+  // the better start kept.
   const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
   Objective coarse(coarse_cells, library, baseline, opt.threads);
-  OnTop on_top(coarse, base, base.size() == 1 && !spec.scans(base.empty()), opt);
+  const bool scan = spec.scans(base.empty());
+  OnTop on_top(coarse, base, base.size() == 1 && !scan, opt);
   double value = 0;
-  const std::vector<MemberFit> start = coarse_search(on_top, spec, opt, value);
+  std::vector<MemberFit> start = coarse_search(on_top, spec, opt, scan, value);
+  if (!scan && spec.scans(true)) {
+    OnTop held(coarse, base, false, opt);
+    double scanned = 0;
+    std::vector<MemberFit> across = coarse_search(held, spec, opt, true, scanned);
+    if (scanned < value) start = std::move(across);
+  }
   SetFit out = fit_joint(coarse_cells, library, start, baseline, opt, JointStage::Search);
   out.evaluations += coarse.evaluations;
   log_fit("on top", out, t0);

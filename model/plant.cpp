@@ -223,6 +223,7 @@ void CompliantPlant::reset(double x_m, double xi_m) {
   e_m_ = -m * stage_.gravity_m_s2 * std::sin(friction_.tilt_rad) / stage_.stiffness_n_m;
   w_m_s_ = 0;
   direction_ = 0;
+  span_hint_s_ = std::numeric_limits<double>::infinity();
 }
 
 double CompliantPlant::spring_force_n() const {
@@ -452,8 +453,41 @@ double CompliantPlant::first_stop_probe(double remaining, double& lo, double& v_
   return -1;
 }
 
+double CompliantPlant::velocity_span_s(double remaining) const {
+  if (!friction_.velocity_dependent()) return remaining;
+  const double v_s = friction_.stribeck_velocity_m_s;
+  const double speed = direction_ * v_m_s_;
+  // from twice the last span (an eighth of the ringing at most), halved until the speed (exact
+  // under the segment's friction) stays close enough; far above the Stribeck velocity friction
+  // is kinetic until the speed comes near it
+  double span = std::min({remaining, sliding_.probe_s(), 2 * span_hint_s_});
+  for (int i = 0; i < 60; ++i) {
+    const double v = direction_ * slip_at(span).v;
+    if (speed > 4 * v_s ? v >= 3.5 * v_s : std::fabs(v - speed) <= stribeck_speed_share_ * v_s)
+      break;
+    span *= 0.5;
+  }
+  return span;
+}
+
 void CompliantPlant::advance_sliding(double& remaining) {
   f_slip_n_ = slip_friction_n(direction_);
+  // the friction of the segment's start holds for the whole segment: with a friction that
+  // depends on the speed, the segment ends before the speed has moved along the curve
+  const double span = velocity_span_s(remaining);
+  if (span < remaining) span_hint_s_ = span;
+  if (friction_.velocity_dependent()) {
+    // the friction at the segment's middle speed (predicted under the start's friction)
+    const double end_speed = std::max(0.0, direction_ * slip_at(span).v);
+    const double mid = 0.5 * (direction_ * v_m_s_ + end_speed);
+    f_slip_n_ = -direction_ * friction_.sliding_at(mid, x_m_) * normal_force_n_;
+  }
+  double part = span;
+  advance_sliding_for(part);
+  remaining -= span - part;
+}
+
+void CompliantPlant::advance_sliding_for(double& remaining) {
   double lo = 0, hi = -1;
   double v_lo = v_m_s_ * direction_, v_hi = 0;
   if (remaining > sliding_.probe_s()) hi = first_stop_probe(remaining, lo, v_lo, v_hi);

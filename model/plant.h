@@ -7,7 +7,9 @@
 // * CompliantPlant: the mass-damper-spring model of eq 30 (stiffness K, damping C). Integrated
 //   exactly: within a sample and a friction state the equations are linear with constant input, and
 //   the closed-form solution is evaluated; stick<->slip switches are found as roots within the
-//   step.
+//   step. Friction that depends on the speed (Stribeck) is held over segments short enough that
+//   the speed moves by at most a share (kStribeckSpeedShare) of the Stribeck velocity, at its
+//   value at the segment's middle speed.
 // Both use the same friction law: Coulomb slip, stick while the force needed to hold the slider is
 // at most mu_s N, N = (M+m) g cos(tilt). A slider at rest stays exactly at rest (no creep, no
 // chatter).
@@ -24,6 +26,10 @@
 namespace idm::model {
 
 enum class ActuatorKind { Rigid, MassDamperSpring };
+
+// With the middle speed's friction, a share of 0.3 keeps a step within 2 nm of 0.005 (validate's
+// compliance + Stribeck stage), 1 within 5 nm.
+constexpr double kStribeckSpeedShare = 0.3;
 
 class Plant {
  public:
@@ -49,6 +55,9 @@ class Plant {
   // A held (stalled) slider does not move whatever the forces: identification, fault injection.
   void set_slider_held(bool held) { held_ = held; }
   bool slider_held() const { return held_; }
+  // How far the speed may move, as a share of the Stribeck velocity, while one friction holds
+  // (the compliant plant; the rigid plant's steps are its caller's). Coarser for a search.
+  void set_stribeck_speed_share(double share) { stribeck_speed_share_ = share; }
   FrictionLaw& friction() { return friction_; }
   const FrictionLaw& friction() const { return friction_; }
 
@@ -58,6 +67,7 @@ class Plant {
   // After a step: a slider past a stop is put on it and its velocity into the stop is dropped.
   // Returns true when it is on a stop.
   bool apply_end_stops(double& x_m, double& v_m_s) const;
+  double stribeck_speed_share_ = kStribeckSpeedShare;
   StageParams stage_;
   FrictionLaw friction_;
   bool held_ = false;
@@ -149,6 +159,11 @@ class CompliantPlant final : public Plant {
   double breakaway_probe(double remaining_s, double c_stuck, double limit_n, double& lo_s) const;
   void advance_stuck(double& remaining_s);
   void advance_sliding(double& remaining_s);
+  void advance_sliding_for(double& remaining_s);  // one segment of constant friction
+  // How long one friction holds (velocity-dependent friction: until the speed has moved by
+  // stribeck_speed_share_ of the Stribeck velocity, an eighth of the ringing at most), within
+  // remaining_s.
+  double velocity_span_s(double remaining_s) const;
   // The first probe time (every eighth of the sliding oscillation) at which the velocity has
   // reached 0, or -1; lo and v_lo: the last probe before it that still moved, v_hi at the probe.
   double first_stop_probe(double remaining_s, double& lo_s, double& v_lo, double& v_hi) const;
@@ -163,6 +178,7 @@ class CompliantPlant final : public Plant {
   double e_m_ = 0, w_m_s_ = 0;      // spring deflection x - xi and its rate
   double direction_ = 0;            // +1/-1 while sliding, 0 while stuck
   double f_slip_n_ = 0;             // friction force on the slider while sliding
+  double span_hint_s_ = std::numeric_limits<double>::infinity();  // the last velocity_span_s
 };
 
 }  // namespace idm::model
