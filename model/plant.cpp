@@ -453,8 +453,7 @@ double CompliantPlant::first_stop_probe(double remaining, double& lo, double& v_
   return -1;
 }
 
-double CompliantPlant::velocity_span_s(double remaining) const {
-  if (!friction_.velocity_dependent()) return remaining;
+double CompliantPlant::velocity_span_s(double remaining, double& end_speed) const {
   const double v_s = friction_.stribeck_velocity_m_s;
   const double speed = direction_ * v_m_s_;
   // from twice the last span (an eighth of the ringing at most), halved until the speed (exact
@@ -462,24 +461,27 @@ double CompliantPlant::velocity_span_s(double remaining) const {
   // is kinetic until the speed comes near it
   double span = std::min({remaining, sliding_.probe_s(), 2 * span_hint_s_});
   for (int i = 0; i < 60; ++i) {
-    const double v = direction_ * slip_at(span).v;
-    if (speed > 4 * v_s ? v >= 3.5 * v_s : std::fabs(v - speed) <= stribeck_speed_share_ * v_s)
-      break;
+    end_speed = direction_ * slip_at(span).v;
+    if (speed > 4 * v_s ? end_speed >= 3.5 * v_s
+                        : std::fabs(end_speed - speed) <= stribeck_speed_share_ * v_s)
+      return span;
     span *= 0.5;
   }
+  end_speed = direction_ * slip_at(span).v;
   return span;
 }
 
 void CompliantPlant::advance_sliding(double& remaining) {
   f_slip_n_ = slip_friction_n(direction_);
   // the friction of the segment's start holds for the whole segment: with a friction that
-  // depends on the speed, the segment ends before the speed has moved along the curve
-  const double span = velocity_span_s(remaining);
-  if (span < remaining) span_hint_s_ = span;
+  // depends on the speed, the segment ends before the speed has moved along the curve, and its
+  // friction is the one at its middle speed (predicted under the start's friction)
+  double span = remaining;
   if (friction_.velocity_dependent()) {
-    // the friction at the segment's middle speed (predicted under the start's friction)
-    const double end_speed = std::max(0.0, direction_ * slip_at(span).v);
-    const double mid = 0.5 * (direction_ * v_m_s_ + end_speed);
+    double end_speed = 0;
+    span = velocity_span_s(remaining, end_speed);
+    if (span < remaining) span_hint_s_ = span;
+    const double mid = 0.5 * (direction_ * v_m_s_ + std::max(0.0, end_speed));
     f_slip_n_ = -direction_ * friction_.sliding_at(mid, x_m_) * normal_force_n_;
   }
   double part = span;

@@ -160,10 +160,10 @@ class CompliantPlant final : public Plant {
   void advance_stuck(double& remaining_s);
   void advance_sliding(double& remaining_s);
   void advance_sliding_for(double& remaining_s);  // one segment of constant friction
-  // How long one friction holds (velocity-dependent friction: until the speed has moved by
-  // stribeck_speed_share_ of the Stribeck velocity, an eighth of the ringing at most), within
-  // remaining_s.
-  double velocity_span_s(double remaining_s) const;
+  // How long one friction holds when it depends on the speed: until the speed has moved by
+  // stribeck_speed_share_ of the Stribeck velocity, an eighth of the ringing at most, within
+  // remaining_s; end_speed_m_s: the speed along the slide at its end under the current friction.
+  double velocity_span_s(double remaining_s, double& end_speed_m_s) const;
   // The first probe time (every eighth of the sliding oscillation) at which the velocity has
   // reached 0, or -1; lo and v_lo: the last probe before it that still moved, v_hi at the probe.
   double first_stop_probe(double remaining_s, double& lo_s, double& v_lo, double& v_hi) const;
