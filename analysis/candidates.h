@@ -14,7 +14,9 @@
 // objective is the training gap, alpha and mu refitted at every evaluation (gap.h). A set of
 // several effects is fitted jointly: all their coordinates together, from the single fits' optima.
 // A fit is implausible when a coordinate ends on a bound of its range (the data asks for more than
-// the physics allows, or for no effect at all) or the model needs a step scale outside (0.05, 2].
+// the physics allows, or for no effect at all), the model needs a step scale outside (0.05, 2], or
+// it predicts a spread of the trials that the trials do not show (the spread part of its held-out
+// gap above the baseline's and above kSpreadPartAllowance).
 #pragma once
 
 #include <functional>
@@ -102,6 +104,10 @@ std::vector<model::EffectSpec> effects_of(const std::vector<CandidateSpec>& libr
 
 // Cells a coarse search looks at on a large sweep.
 constexpr std::size_t kCoarseCells = 24;
+
+// The spread part of a held-out gap (gap.h, GapParts) a set that predicts a spread of the trials
+// may leave whatever the baseline's: a right model on 2 held-out trials a cell leaves about 1.
+constexpr double kSpreadPartAllowance = 1.5;
 
 // At most `count` cells spread evenly over the sweep's order (stroke, frequency, duty), every
 // other field as in `sweep`; the sweep itself when it is small.

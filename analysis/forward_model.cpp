@@ -24,28 +24,6 @@ bool expensive(const std::string& effect) {
   return in_chain(effect) || effect == "actuator_compliance";
 }
 
-const std::array<double, kSpreadTrials>& spread_quadrature() {
-  // z_k = the normal quantiles at (k + 1/2) / K, rescaled so that their mean square is 1: K equally
-  // weighted points with the mean and the variance of a standard normal.
-  static const std::array<double, kSpreadTrials> z = [] {
-    std::array<double, kSpreadTrials> q{};
-    double ss = 0;
-    for (int k = 0; k < kSpreadTrials; ++k) {
-      const double p = (k + 0.5) / kSpreadTrials;
-      double lo = -10, hi = 10;  // inverse of the normal CDF by bisection on erfc (once)
-      for (int i = 0; i < 200; ++i) {
-        const double mid = 0.5 * (lo + hi);
-        (0.5 * std::erfc(-mid / std::sqrt(2.0)) < p ? lo : hi) = mid;
-      }
-      q[static_cast<std::size_t>(k)] = 0.5 * (lo + hi);
-      ss += q[static_cast<std::size_t>(k)] * q[static_cast<std::size_t>(k)];
-    }
-    for (double& v : q) v /= std::sqrt(ss / kSpreadTrials);
-    return q;
-  }();
-  return z;
-}
-
 // A sliding slider's speed changes by at most this share of the Stribeck velocity in a step
 // (within 0.5 nm of 0.2 us steps; a search takes 2 %).
 constexpr double kStribeckStep = 0.005, kStribeckSearchStep = 0.02;
@@ -214,6 +192,30 @@ double score_rate_hz(const std::vector<model::EffectSpec>& effects) {
   return creep ? 2e5 : (hysteresis ? 1e5 : kScoreRateHz);  // hysteresis alone: kink to kink
 }
 
+std::vector<double> normal_points(int count) {
+  // the normal quantiles at (k + 1/2) / count by bisection on erfc, then rescaled
+  std::vector<double> q(static_cast<std::size_t>(std::max(count, 1)));
+  double ss = 0;
+  for (std::size_t k = 0; k < q.size(); ++k) {
+    const double p = (static_cast<double>(k) + 0.5) / static_cast<double>(q.size());
+    double lo = -10, hi = 10;
+    for (int i = 0; i < 200; ++i) {
+      const double mid = 0.5 * (lo + hi);
+      (0.5 * std::erfc(-mid / std::sqrt(2.0)) < p ? lo : hi) = mid;
+    }
+    q[k] = 0.5 * (lo + hi);
+    ss += q[k] * q[k];
+  }
+  if (ss > 0)
+    for (double& v : q) v /= std::sqrt(ss / static_cast<double>(q.size()));
+  return q;
+}
+
+const std::vector<double>& spread_quadrature() {
+  static const std::vector<double> z = normal_points(kSpreadTrials);
+  return z;
+}
+
 CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, const Cell& cell) {
   const double rate = model.chain_rate_hz > 0 ? model.chain_rate_hz : score_rate_hz(model.effects);
   const model::SimConfig sim = config_of(model.effects, rate);
@@ -227,7 +229,11 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
   } else {
     const double sd = spread->params.at("relative_sd");
     const double shift = spread->params.count("mean_shift") ? spread->params.at("mean_shift") : 0.0;
-    const bool costly = std::any_of(sim.effects.begin(), sim.effects.end(),
+    // a search takes the spread through the plant without the expensive effects; the score
+    // simulates every point whole (under a compliant actuator a cell can be deaf to the friction
+    // that the rigid plant would spread)
+    const bool costly =
+        model.search && std::any_of(sim.effects.begin(), sim.effects.end(),
                                     [](const model::EffectSpec& e) { return expensive(e.name); });
     model::SimConfig cheap = sim;
     std::erase_if(cheap.effects, [](const model::EffectSpec& e) { return expensive(e.name); });
@@ -259,6 +265,8 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
   for (const TrialFeatures& t : trials)
     ss += (t.steady_step_m - p.steady_step_m) * (t.steady_step_m - p.steady_step_m);
   p.step_sd_m = std::sqrt(ss / n);  // the spread of the integrated distribution (0 without spread)
+  if (spread != nullptr)
+    for (const TrialFeatures& t : trials) p.trial_steps_m.push_back(t.steady_step_m);
   p.region = majority_region(votes);
   p.transient_cycles = trials[trials.size() / 2].transient_cycles;
   // The ideal model's slope against mu, by a central difference of eq 21 (its kink at the cut-off

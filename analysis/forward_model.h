@@ -10,9 +10,10 @@
 //
 // Friction that varies from trial to trial (friction_spread) is predicted as the distribution it
 // gives the trials: a trial's friction coefficient is mu (1 + relative_sd z), z standard normal,
-// integrated by kSpreadTrials equally weighted normal quantiles (mean step and spread). Under an
-// actuator chain or a compliant actuator (expensive plants) the spread acts through the plant
-// without them: step(mu_k) = full(mu) + cheap(mu_k) - cheap(mu), so a chain runs once a cell.
+// integrated by kSpreadTrials equally weighted normal quantiles (their steps, their mean and their
+// spread). In a search, under an actuator chain or a compliant actuator (expensive plants), the
+// spread acts through the plant without them: step(mu_k) = full(mu) + cheap(mu_k) - cheap(mu), so
+// a chain runs once a cell; a score simulates every quantile whole.
 #pragma once
 
 #include <vector>
@@ -34,6 +35,9 @@ struct ModelConfig {
 struct CellPrediction {
   double steady_step_m = 0;  // mean over the predicted trials
   double step_sd_m = 0;      // trial-to-trial spread of the steady step (0 without a spread)
+  // With a friction spread: the step of each quadrature point (spread_quadrature(), in its order),
+  // the distribution a trial's step is scored against (gap.h); empty without a spread.
+  std::vector<double> trial_steps_m;
   double first_step_m = 0;
   int transient_cycles = 0;
   model::Region region = model::Region::Cutoff;  // majority over the predicted trials
@@ -44,6 +48,13 @@ struct CellPrediction {
 
 // Quadrature points (model trials) per cell when the friction varies along the guide.
 constexpr int kSpreadTrials = 6;
+
+// `count` equally weighted points of a standard normal: its quantiles at (k + 1/2) / count,
+// rescaled so that their mean square is 1 (the mean and the variance of the normal), ascending.
+std::vector<double> normal_points(int count);
+// The friction spread's quadrature: normal_points(kSpreadTrials); a trial's friction coefficient
+// at point z is mu (1 + mean_shift + relative_sd z).
+const std::vector<double>& spread_quadrature();
 
 // Plant rate a model with an actuator chain is scored at: a smoothed command breaks the slider
 // loose between two plant steps, and the rigid plant finds that moment to within a step (steady

@@ -30,6 +30,98 @@ StepMoments all_trials(const Cell& cell) {
   return step_moments(all);
 }
 
+// log Phi(x), the standard normal's distribution function, exact far into the lower tail.
+double log_normal_cdf(double x) {
+  if (x > -30) return std::log(0.5 * std::erfc(-x / std::sqrt(2.0)));
+  const double x2 = x * x;  // the asymptotic series: Phi(x) = phi(x) / -x (1 - 1/x^2 + 3/x^4 ...)
+  return -0.5 * x2 - std::log(-x) - 0.5 * std::log(2 * M_PI) + std::log1p(-1 / x2 + 3 / (x2 * x2));
+}
+
+// The x with log Phi(x) = log_p (log_p <= log 1/2), by bisection: log Phi(x) < -x^2 / 2 below -1,
+// so x lies above -sqrt(-2 log_p) - 1, however far out.
+double normal_quantile_of_log(double log_p) {
+  double lo = -std::sqrt(-2.0 * log_p) - 1.0, hi = 0;
+  for (int i = 0; i < 64; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    (log_normal_cdf(mid) < log_p ? lo : hi) = mid;
+  }
+  return 0.5 * (lo + hi);
+}
+
+double log_sum_exp(const std::vector<double>& v) {
+  const double top = *std::max_element(v.begin(), v.end());
+  double sum = 0;
+  for (double x : v) sum += std::exp(x - top);
+  return top + std::log(sum);
+}
+
+// The steady step of one trial as a model with a friction spread predicts it: the quadrature's
+// steps (CellPrediction::trial_steps_m) joined linearly in the friction's normal variate (straight
+// on beyond the ends, so a step that sets in between two points sets in between them), taken at
+// kFinePoints points of a standard normal, each smoothed by a normal of `smoothing_sd_m` (the
+// noise on a step and the model's own error). A mixture the quadrature leaves lopsided (one point
+// of six breaks loose near the cut-off) is scored as the distribution it is, not by its mean.
+class TrialStepDistribution {
+ public:
+  TrialStepDistribution(const std::vector<double>& quadrature_steps_m, double smoothing_sd_m)
+      : h_(smoothing_sd_m) {
+    static const std::vector<double> fine = normal_points(kFinePoints);
+    const std::vector<double>& z = spread_quadrature();
+    for (double u : fine) {
+      std::size_t k = 1;
+      while (k + 1 < z.size() && u > z[k]) ++k;
+      const double w = (u - z[k - 1]) / (z[k] - z[k - 1]);
+      steps_m_.push_back(quadrature_steps_m[k - 1] +
+                         w * (quadrature_steps_m[k] - quadrature_steps_m[k - 1]));
+    }
+  }
+
+  // Phi^-1(F(y)): a standard normal variate when y is drawn from the distribution (computed from
+  // the smaller tail, so a step far outside gets its full distance), and dz/dy there.
+  struct Score {
+    double z = 0, dz_dy_per_m = 0;
+  };
+  Score score(double step_m) const {
+    const double log_w = -std::log(static_cast<double>(steps_m_.size()));
+    std::vector<double> lower, upper, density;
+    for (double s : steps_m_) {
+      const double x = (step_m - s) / h_;
+      lower.push_back(log_w + log_normal_cdf(x));
+      upper.push_back(log_w + log_normal_cdf(-x));
+      density.push_back(log_w - 0.5 * x * x);
+    }
+    const double log_lower = log_sum_exp(lower), log_upper = log_sum_exp(upper);
+    Score out;
+    out.z = log_lower < log_upper ? normal_quantile_of_log(log_lower)
+                                  : -normal_quantile_of_log(log_upper);
+    // p(y) / phi(z), both with their 1 / sqrt(2 pi)
+    out.dz_dy_per_m = std::exp(log_sum_exp(density) + 0.5 * out.z * out.z) / h_;
+    return out;
+  }
+
+ private:
+  static constexpr int kFinePoints = 64;
+  double h_;
+  std::vector<double> steps_m_;
+};
+
+// A cell's weight in the calibration: the inverse of its steps' variance, measured or, when the
+// model predicts a wider spread of the trials (a friction spread), predicted: a few training trials
+// that happened to agree (all stuck in a cell where one trial in six breaks loose) do not pull
+// alpha off every other cell.
+double calibration_weight(double noise_var, const std::vector<TrialFeatures>& train,
+                          const CellPrediction& p) {
+  return 1.0 / (noise_var + std::max(step_moments(train).var, p.step_sd_m * p.step_sd_m));
+}
+
+double sample_variance(const std::vector<double>& v) {
+  if (v.size() < 2) return 0;
+  double mean = 0, ss = 0;
+  for (double x : v) mean += x / static_cast<double>(v.size());
+  for (double x : v) ss += (x - mean) * (x - mean);
+  return ss / static_cast<double>(v.size() - 1);
+}
+
 }  // namespace
 
 LogVarianceMoments log_sample_variance_moments(int dof) {
@@ -61,7 +153,7 @@ Calibration fit_calibration(const SweepCells& sweep, const std::vector<CellPredi
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     const std::vector<TrialFeatures>& train = sweep.cells[c].train;
     if (train.empty()) continue;
-    const double w = 1.0 / (noise_var + step_moments(train).var);
+    const double w = calibration_weight(noise_var, train, pred[c]);
     const double s = pred[c].steady_step_m, q = pred[c].mu_slope_m;
     for (const TrialFeatures& t : train) {
       ss += w * s * s;
@@ -85,7 +177,7 @@ Calibration fit_calibration(const SweepCells& sweep, const std::vector<CellPredi
   for (std::size_t k = 0; k < sweep.cells.size(); ++k) {
     const std::vector<TrialFeatures>& train = sweep.cells[k].train;
     if (train.empty()) continue;
-    const double w = 1.0 / (noise_var + step_moments(train).var);
+    const double w = calibration_weight(noise_var, train, pred[k]);
     const double p = pred[k].steady_step_m + dmu * pred[k].mu_slope_m;
     for (const TrialFeatures& t : train) {
       num += w * t.steady_step_m * p;
@@ -126,14 +218,41 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
     const double model_var =
         kModelErrorM * kModelErrorM + std::pow(kModelErrorRel * r.model_step_m, 2);
     r.se_m = std::sqrt(mean_var / std::max(1, n) + model_var);
-    r.mean_z = n > 0 ? (moments.mean - r.model_step_m) / r.se_m : 0.0;
-    // The spread against the one expected: log ratio of the variances (regularized by the noise
-    // so that identical quantized readings do not count) in units of the exact sampling error of a
-    // log sample variance with n - 1 degrees of freedom.
-    if (n > 1) {
-      const double q = step_sd * step_sd;
-      r.spread_z =
-          std::log((sd * sd + q) / (expected_var + q)) / log_sample_variance_moments(n - 1).sd;
+    if (!pred[c].trial_steps_m.empty() && n > 0) {
+      // A friction spread: every trial scored against the predicted distribution (its normal
+      // score); the mean of the scores against 1 / sqrt(n) (or the scores' own spread when they
+      // scatter wider), their spread against 1.
+      std::vector<double> quadrature;
+      for (double step : pred[c].trial_steps_m)
+        quadrature.push_back(calib.step_at(step, pred[c].mu_slope_m));
+      const TrialStepDistribution dist(quadrature, std::sqrt(step_sd * step_sd + model_var));
+      std::vector<double> z, z_all;
+      double q = 0;
+      for (const TrialFeatures& t : trials) {
+        const TrialStepDistribution::Score sc = dist.score(t.steady_step_m);
+        z.push_back(sc.z);
+        q += std::pow(step_sd * sc.dz_dy_per_m, 2) / n;  // the noise on a step, in scores
+      }
+      for (const auto* set_of : {&cell.train, &cell.test})
+        for (const TrialFeatures& t : *set_of) z_all.push_back(dist.score(t.steady_step_m).z);
+      double z_mean = 0;
+      for (double v : z) z_mean += v / n;
+      const double var_z = sample_variance(z);
+      r.mean_z = z_mean * std::sqrt(n / std::max({1.0, var_z, sample_variance(z_all)}));
+      q = std::max(q, 1e-12);  // (far out the density can underflow)
+      if (n > 1)
+        r.spread_z = std::log((var_z + q) / (1 + q)) / log_sample_variance_moments(n - 1).sd;
+      r.se_m = std::sqrt(std::max(mean_var, r.model_step_sd_m * r.model_step_sd_m) / n + model_var);
+    } else {
+      r.mean_z = n > 0 ? (moments.mean - r.model_step_m) / r.se_m : 0.0;
+      // The spread against the one expected: log ratio of the variances (regularized by the noise
+      // so that identical quantized readings do not count) in units of the exact sampling error of
+      // a log sample variance with n - 1 degrees of freedom.
+      if (n > 1) {
+        const double q = step_sd * step_sd;
+        r.spread_z =
+            std::log((sd * sd + q) / (expected_var + q)) / log_sample_variance_moments(n - 1).sd;
+      }
     }
     r.label = r.measured_region == r.model_region ? 0.0 : kSignificantResidual;
     r.residual = std::sqrt(r.mean_z * r.mean_z + r.spread_z * r.spread_z + r.label * r.label);

@@ -14,6 +14,10 @@
 // kModelErrorRel); a spread different from the one expected (noise and
 // the model's spread) is itself a gap, scored as the log ratio of the variances in units of its
 // exact sampling error (log_sample_variance_moments); a region label the model gets wrong counts 3.
+// A model with a friction spread predicts a distribution of a trial's step
+// (CellPrediction::trial_steps_m), often lopsided near a region boundary: there each trial is
+// scored by its normal score under that distribution, Phi^-1(F(step)), the mean of the scores in
+// units of 1/sqrt(trials) (of their own spread when wider) and their spread against 1 the same way.
 // `gap` is the root mean square over the cells: about 1 means "within the noise".
 #pragma once
 
@@ -29,8 +33,9 @@ struct Calibration {
   double alpha = 1;     // the paper's correction factor (a scale on the model's steps)
   double mu = 0.4;      // friction coefficient
   double mu_sim = 0.4;  // the friction coefficient the predictions were simulated at
-  double step(const CellPrediction& p) const {
-    return alpha * (p.steady_step_m + (mu - mu_sim) * p.mu_slope_m);
+  double step(const CellPrediction& p) const { return step_at(p.steady_step_m, p.mu_slope_m); }
+  double step_at(double step_m, double mu_slope_m) const {
+    return alpha * (step_m + (mu - mu_sim) * mu_slope_m);
   }
 };
 

@@ -231,15 +231,6 @@ double excess(double gap) {
   return std::sqrt(std::max(0.0, gap * gap - 1.0));
 }
 
-// Whether `with`, a set and one effect more, turns the significant remainder of `without` into
-// one within the noise and shrinks its part above the noise by kIntoNoiseShrink on the way. An
-// effect that acts on the trials' spread alone (friction_spread on 4 trials a cell) shows in few
-// numbers and rarely shrinks the whole gap by more, but without it a remainder is unexplained.
-bool into_noise(const SetFit& with, const SetFit& without) {
-  return excess(with.gap) <= (1 - kIntoNoiseShrink) * excess(without.gap) &&
-         significant_gap(without.fitted) && !significant_gap(with.fitted);
-}
-
 // Forward from `first`: every identifiable candidate (`joiners`) joins the set in a joint fit
 // (screened at the search rate, the best polished and scored) while the gap is above kFurtherGap
 // and the addition shrinks its excess over the noise by kMinFurtherShrink (or brings it into the
@@ -319,6 +310,11 @@ double systematic_gap(const FittedModel& m) {
 
 bool significant_gap(const FittedModel& m) {
   return m.test.gap > kExplainedGap && systematic_gap(m) > kSystematicGap;
+}
+
+bool into_noise(const SetFit& with, const SetFit& without) {
+  return excess(with.gap) <= (1 - kIntoNoiseShrink) * excess(without.gap) &&
+         significant_gap(without.fitted) && !significant_gap(with.fitted);
 }
 
 namespace {

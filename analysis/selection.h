@@ -108,6 +108,12 @@ double systematic_gap(const FittedModel& model);
 // Whether a model's held-out gap is beyond what the measurement's noise allows.
 bool significant_gap(const FittedModel& model);
 
+// Whether `with`, a set and one effect more, turns the significant remainder of `without` into
+// one within the noise and shrinks its part above the noise, sqrt(gap^2 - 1), by kIntoNoiseShrink
+// on the way (an effect on the trials' spread alone shows in few numbers and rarely shrinks the
+// whole gap by kMinFurtherShrink, but without it a remainder is unexplained).
+bool into_noise(const SetFit& with, const SetFit& without);
+
 // A short text summary (a few lines) for a person.
 std::string text_summary(const SweepCells& sweep, const Diagnosis& d);
 

@@ -62,7 +62,8 @@ class Objective {
     const Calibration calib =
         fit_calibration(sweep_, pred, model.stage.friction_coefficient, false);
     last_mu_ = fit_calibration(sweep_, pred, model.stage.friction_coefficient).mu;  // a proposal
-    return evaluate_gap(sweep_, pred, calib, TrialSet::Train).gap;
+    const double gap = evaluate_gap(sweep_, pred, calib, TrialSet::Train).gap;
+    return std::isnan(gap) ? std::numeric_limits<double>::infinity() : gap;  // never a best point
   }
 
   // The search keeps mu at stage.yaml's (alpha alone is fitted: a free mu would let every
@@ -146,24 +147,39 @@ std::vector<double> subplex(const std::function<double(const std::vector<double>
   return subplex(f, std::move(start), steps, max_evals, xtol, best);
 }
 
-// Plausibility of a fitted set: no coordinate on a bound, a step scale some stage has.
-void judge(const std::vector<CandidateSpec>& library, SetFit& f) {
+// Plausibility of a fitted set: no coordinate on a bound, a step scale some stage has, and a
+// spread of the trials (a friction spread) only where the trials show one: a set that predicts a
+// spread must not miss the measured spreads by more than the baseline does (the spread part of
+// its held-out gap, kSpreadPartAllowance at least). Else its spread merely widens what a mean it
+// misses is measured against (an effect the library lacks, the stroke lost to heat).
+void judge(const std::vector<CandidateSpec>& library, const FittedModel& baseline, SetFit& f) {
+  auto implausible = [&f](const std::string& why) {
+    f.plausible = false;
+    f.note += (f.note.empty() ? "" : "; ") + why;
+  };
   for (const MemberFit& m : f.members) {
     const CandidateSpec& spec = spec_of(library, m.effect);
     for (std::size_t i = 0; i < m.u.size(); ++i)
-      if (m.u[i] < 0.01 || m.u[i] > 0.99) {
-        f.plausible = false;
-        f.note = m.effect + " " + spec.axes[i].name +
-                 " ended on the bound of its plausible range [" +
-                 model::format_number(spec.axes[i].lo) + ", " +
-                 model::format_number(spec.axes[i].hi) + "]";
-      }
+      if (m.u[i] < 0.01 || m.u[i] > 0.99)
+        implausible(m.effect + " " + spec.axes[i].name +
+                    " ended on the bound of its plausible range [" +
+                    model::format_number(spec.axes[i].lo) + ", " +
+                    model::format_number(spec.axes[i].hi) + "]");
   }
   const double alpha = f.fitted.calibration.alpha;
-  if (!(alpha > 0.05 && alpha <= 2.0)) {
-    f.plausible = false;
-    f.note = "needs a step scale of " + model::format_number(alpha) + ", outside (0.05, 2]";
-  }
+  if (!(alpha > 0.05 && alpha <= 2.0))
+    implausible("needs a step scale of " + model::format_number(alpha) + ", outside (0.05, 2]");
+  const bool spreads =
+      std::any_of(f.fitted.predictions.begin(), f.fitted.predictions.end(),
+                  [](const CellPrediction& p) { return !p.trial_steps_m.empty(); });
+  const double spread_part = gap_parts(f.fitted.test).spread;
+  const double allowed = std::max(kSpreadPartAllowance, gap_parts(baseline.test).spread);
+  if (spreads && spread_part > allowed)
+    implausible(
+        "predicts a spread of the trials the sweep does not show: the spread part of the "
+        "held-out gap is " +
+        model::format_number(spread_part) + ", above " + model::format_number(allowed) +
+        " (the baseline's, or " + model::format_number(kSpreadPartAllowance) + ")");
 }
 
 void log_fit(const char* what, const SetFit& f, std::chrono::steady_clock::time_point t0) {
@@ -352,7 +368,9 @@ class OnTop {
 std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
                                      const FitOptions& opt, bool scan, double& value,
                                      std::vector<MemberFit>* per_variant = nullptr) {
-  std::vector<MemberFit> best = on_top.with({spec.effect, spec.variants.front(), {}, {}}, {});
+  // (the middle of the ranges until a point scores: none may when every prediction fails)
+  std::vector<MemberFit> best = on_top.with(
+      {spec.effect, spec.variants.front(), std::vector<double>(spec.axes.size(), 0.5), {}}, {});
   value = std::numeric_limits<double>::infinity();
   std::vector<double> set_u;
   if (!spec.grid.empty()) {
@@ -447,7 +465,7 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   }
   SetFit out = obj.score({best}, best_value);
   out.evaluations += coarse.evaluations;
-  judge(library, out);
+  judge(library, baseline, out);
   log_fit("fit", out, t0);
   return out;
 }
@@ -523,7 +541,7 @@ SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& libr
     return out;
   }
   SetFit out = obj.score(members, value);
-  judge(library, out);
+  judge(library, baseline, out);
   log_fit("joint", out, t0);
   return out;
 }

@@ -94,6 +94,10 @@ struct ValidateResult {
   std::map<std::string, ClassScore> by_class;
 };
 
+// The scenario's sweep, generated in memory with its hidden effects (an effect the library lacks
+// included) and grouped into cells.
+SweepCells scenario_sweep(const Scenario& scenario);
+
 // Generates the sweep in memory and diagnoses it.
 ValidateRun validate_one(const Scenario& scenario, int threads, Diagnosis* diagnosis = nullptr);
 

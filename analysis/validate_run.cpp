@@ -81,6 +81,12 @@ std::vector<double> true_footprint(const Scenario& sc, const SweepCells& cells,
 
 }  // namespace
 
+SweepCells scenario_sweep(const Scenario& sc) {
+  const Generated g = generate(sc, sc.sim, sc.plan);
+  return collect_cells(sc.stage, g.infos, g.series,
+                       "validate:" + sc.name + ":seed" + std::to_string(sc.seed));
+}
+
 ValidateRun validate_one(const Scenario& sc, int threads, Diagnosis* out) {
   const auto t0 = std::chrono::steady_clock::now();
   ValidateRun run;
@@ -91,10 +97,7 @@ ValidateRun validate_one(const Scenario& sc, int threads, Diagnosis* out) {
   run.seed = sc.seed;
   run.expected = sc.expected;
   run.expect_unexplained = sc.expect_unexplained;
-  Generated g = generate(sc, sc.sim, sc.plan);
-  const SweepCells cells = collect_cells(sc.stage, g.infos, g.series,
-                                         "validate:" + sc.name + ":seed" + std::to_string(sc.seed));
-  g = Generated{};
+  const SweepCells cells = scenario_sweep(sc);
   DiagnoseOptions opt;
   opt.fit.threads = threads;
   const Diagnosis d = diagnose(cells, opt);

@@ -131,6 +131,46 @@ TEST(ForwardModel, AnAmplifierIsScoredAtAConvergedPlantRate) {
   EXPECT_GT(worst_search, std::max(worst_score, worst_multi));
 }
 
+TEST(ForwardModel, ASpreadUnderACompliantActuatorIsScoredWhole) {
+  // Each quantile of a friction spread is simulated on the whole plant when a model is scored: the
+  // prediction's steps are the compliant plant's at each quantile's friction. (A search takes the
+  // spread through the rigid plant, which can differ by hundreds of nm where the compliant
+  // actuator's stop makes a cell deaf to the friction.)
+  const model::EffectSpec compliance = model::complete_effect(
+      {"actuator_compliance", {{"stiffness_n_m", 9e6}, {"damping_n_s_m", 300}}}, "test");
+  ModelConfig m;
+  m.effects = {compliance,
+               model::complete_effect({"friction_spread", {{"relative_sd", 0.15}}}, "test")};
+  model::SimConfig whole;
+  whole.effects = {compliance};
+  double worst_search = 0;
+  for (double f : {300.0, 700.0})
+    for (double duty : {0.05, 0.3}) {
+      SweepCells sweep;
+      sweep.resolution_m = 1e-12;
+      Cell c;
+      c.key = {f, duty, model::StageParams{}.stroke_m};
+      c.cycles = 10;
+      c.read_t_s = fine(model::SimConfig{}, f, duty).read_t_s;
+      sweep.cells = {c};
+      m.search = false;
+      const CellPrediction score = predict_cell(sweep, m, c);
+      m.search = true;
+      const CellPrediction search = predict_cell(sweep, m, c);
+      ASSERT_EQ(score.trial_steps_m.size(), spread_quadrature().size());
+      for (std::size_t k = 0; k < spread_quadrature().size(); ++k) {
+        model::StageParams stage;
+        stage.friction_coefficient *= 1 + 0.15 * spread_quadrature()[k];
+        const double expected_m =
+            features_from_marks(simulate_marks(stage, whole, c, 1e-12), 1e-12, 0).steady_step_m;
+        EXPECT_NEAR(score.trial_steps_m[k] * 1e9, expected_m * 1e9, 1.0) << f << " Hz " << duty;
+        worst_search = std::max(worst_search,
+                                std::fabs(search.trial_steps_m[k] - score.trial_steps_m[k]) * 1e9);
+      }
+    }
+  EXPECT_GT(worst_search, 10.0);
+}
+
 TEST(Gap, IdealStageIsWithinTheNoiseOfTheBaseline) {
   model::SimConfig sim;
   sim.noise_m = 2e-9;
@@ -222,4 +262,115 @@ TEST(Gap, LogSampleVarianceMoments) {
   const LogVarianceMoments five = log_sample_variance_moments(5);
   EXPECT_NEAR(five.mean, mc_mean, 0.005);
   EXPECT_NEAR(five.sd, mc_sd, 0.005);
+}
+
+namespace {
+
+// A sweep of hand-made cells (steps in nm): each cell's training and held-out trials, one reading
+// of 1 nm sd, and the prediction of a friction spread whose quadrature points step `points_nm`
+// (spread_quadrature's order: the lowest friction first).
+struct SpreadCase {
+  SweepCells sweep;
+  std::vector<CellPrediction> pred;
+  void add(const std::vector<double>& train_nm, const std::vector<double>& test_nm,
+           const std::vector<double>& points_nm) {
+    Cell c;
+    c.key = {100.0 + static_cast<double>(sweep.cells.size()), 0.25, 20e-6};
+    for (double s : train_nm) c.train.push_back(TrialFeatures{{}, 0, s * 1e-9});
+    for (double s : test_nm) c.test.push_back(TrialFeatures{{}, 0, s * 1e-9});
+    sweep.cells.push_back(c);
+    CellPrediction p;
+    double ss = 0;
+    for (double s : points_nm) {
+      p.trial_steps_m.push_back(s * 1e-9);
+      p.steady_step_m += s * 1e-9 / static_cast<double>(points_nm.size());
+    }
+    for (double s : p.trial_steps_m) ss += std::pow(s - p.steady_step_m, 2);
+    p.step_sd_m = std::sqrt(ss / static_cast<double>(points_nm.size()));
+    pred.push_back(p);
+  }
+  SpreadCase() { sweep.reading_sd_m = 1e-9; }
+};
+
+}  // namespace
+
+// A friction spread predicts a distribution, and a cell's trials are scored against it, not
+// against its mean. Near the cut-off one quadrature point of six breaks loose (a mean of 500 nm
+// and a spread of 1.1 um); five trials that all stay put are what the model says most trials do.
+TEST(Gap, AFrictionSpreadIsScoredAsTheDistributionItPredicts) {
+  SpreadCase lopsided;
+  lopsided.add({0, 0, 0}, {0, 0, 0, 0, 0}, {3000, 0, 0, 0, 0, 0});
+  const CellResidual r = evaluate_gap(lopsided.sweep, lopsided.pred, Calibration{}).cells[0];
+  // the mean rule of a model without a spread puts this cell at -400 (500 nm over 1.2 nm); five
+  // identical readings cost the spread term 1.6
+  EXPECT_LT(r.residual, 2.0) << r.mean_z << " " << r.spread_z;
+  EXPECT_GT(r.mean_z, -1.0);
+  // far outside the distribution a trial gets its full distance (no clipped tail): 20 um where the
+  // points, continued beyond the lowest friction, reach 7.1 um at the 1/128 quantile
+  SpreadCase outside;
+  outside.add({20000, 20000}, {20000, 20000}, {3000, 0, 0, 0, 0, 0});
+  const CellResidual far = evaluate_gap(outside.sweep, outside.pred, Calibration{}).cells[0];
+  EXPECT_GT(far.mean_z, 100.0);
+  EXPECT_TRUE(std::isfinite(far.residual)) << far.spread_z;  // identical trials, however far out
+  SpreadCase opposite;  // the other direction altogether (a tilt the model lacks)
+  opposite.add({15000, 15000}, {15000, 15000, 15000},
+               {-11500, -11450, -11440, -11430, -11410, -11390});
+  const CellResidual other = evaluate_gap(opposite.sweep, opposite.pred, Calibration{}).cells[0];
+  EXPECT_GT(other.mean_z, 1e3);  // 26.4 um over 11.6 nm (0.1 % of the step), sqrt(3) times
+  EXPECT_TRUE(std::isfinite(other.residual)) << other.spread_z;
+  // a wide spread predicted where the trials agree is a gap in the spread
+  SpreadCase agree;
+  agree.add({1000, 1000}, {1000, 1001, 999, 1000, 1000}, {1600, 1300, 1100, 900, 700, 400});
+  EXPECT_LT(evaluate_gap(agree.sweep, agree.pred, Calibration{}).cells[0].spread_z, -3.0);
+}
+
+// Trials drawn from the distribution the model predicts score as standard normals: over 2000 cells
+// the mean term is that of the trials standardized exactly (mean 2000 nm, sd 150 nm and the 2.6 nm
+// smoothing), and the spread term averages the mean of a log sample variance with 2 degrees of
+// freedom, psi(1) = -0.577, in units of its sd pi / sqrt(6).
+TEST(Gap, ASpreadScoreIsUnitNormalOnTrialsFromThePrediction) {
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> n01;
+  const std::vector<double>& z = spread_quadrature();
+  SpreadCase c;
+  double reference2 = 0;
+  const double sd_nm =
+      std::sqrt(150.0 * 150.0 + 2 + 1 + 4);  // spread, noise on a step, model error
+  auto var = [](const std::vector<double>& v) {
+    double m = 0, ss = 0;
+    for (double x : v) m += x / static_cast<double>(v.size());
+    for (double x : v) ss += (x - m) * (x - m);
+    return ss / static_cast<double>(v.size() - 1);
+  };
+  for (int k = 0; k < 2000; ++k) {
+    std::vector<double> points, train, test, zt, zall;
+    for (double zk : z) points.push_back(2000 - 150 * zk);  // lower friction, longer step
+    for (int t = 0; t < 2; ++t) train.push_back(2000 + 150 * n01(rng) + std::sqrt(2.0) * n01(rng));
+    for (int t = 0; t < 3; ++t) test.push_back(2000 + 150 * n01(rng) + std::sqrt(2.0) * n01(rng));
+    c.add(train, test, points);
+    double mean = 0;
+    for (double y : test) zt.push_back((y - 2000) / sd_nm), mean += zt.back() / 3;
+    zall = zt;
+    for (double y : train) zall.push_back((y - 2000) / sd_nm);
+    reference2 += mean * mean * 3 / std::max({1.0, var(zt), var(zall)}) / 2000;
+  }
+  double mean2 = 0, spread = 0;
+  const GapEvaluation g = evaluate_gap(c.sweep, c.pred, Calibration{});
+  for (const CellResidual& r : g.cells) {
+    mean2 += r.mean_z * r.mean_z / 2000;
+    spread += r.spread_z / 2000;
+  }
+  EXPECT_NEAR(std::sqrt(mean2), std::sqrt(reference2), 0.03);
+  EXPECT_NEAR(spread, -0.577 / (M_PI / std::sqrt(6.0)), 0.1);
+}
+
+// alpha from the means of the cells, each weighted by its steps' variance, the predicted one when
+// the model predicts a wider spread: the lopsided cell whose three training trials stayed put does
+// not pull alpha off the cells that move.
+TEST(Gap, ACellOfAgreeingTrialsUnderAPredictedSpreadDoesNotPullAlpha) {
+  SpreadCase c;
+  for (double s : {1000.0, 2000.0, 3000.0, 4000.0})
+    c.add({s + 30, s - 30, s}, {s}, {s + 60, s + 40, s + 20, s - 20, s - 40, s - 60});
+  c.add({0, 0, 0}, {0}, {3000, 0, 0, 0, 0, 0});
+  EXPECT_NEAR(fit_calibration(c.sweep, c.pred, 0.4, false).alpha, 1.0, 0.02);
 }
