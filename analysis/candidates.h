@@ -96,6 +96,10 @@ struct FitOptions {
   int refine_evals = 16;  // Subplex evaluations per coordinate after the grid
   int starts_2d = 3;      // refinements for two coordinates (best grid point, next non-neighbours)
   int polish_evals = 6;   // Subplex evaluations per coordinate at the scoring rate
+  // The same for a set's joint fit: a pair's valley can be a few % wide in one coordinate
+  // (amplifier + tilt: the gap triples 3 % off the cutoff), and the search rate's optimum is off
+  // by about that much.
+  int joint_polish_evals = 16;
 };
 
 // The model of a set of effects at the given members (coordinates -> parameters).

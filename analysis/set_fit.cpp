@@ -194,6 +194,12 @@ void log_fit(const char* what, const SetFit& f, std::chrono::steady_clock::time_
                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
                f.train_gap, f.gap, held_out.mean, held_out.spread, held_out.label,
                f.plausible ? "" : " (implausible)");
+  std::string params;
+  for (const model::EffectSpec& e : f.effects)
+    for (const auto& [k, v] : e.params)
+      params += " " + e.name + "." + k + "=" + model::format_number(v);
+  std::fprintf(stderr, "    mu %.4g alpha %.4g%s\n", f.fitted.model.stage.friction_coefficient,
+               f.fitted.calibration.alpha, params.c_str());
 }
 
 }  // namespace
@@ -527,7 +533,7 @@ SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& libr
   if (stage != JointStage::Search) {
     unpack(u0);
     obj.recenter(members);
-    u0 = subplex(f(false), u0, 0.005, opt.polish_evals * n, 1e-4, value);
+    u0 = subplex(f(false), u0, 0.005, opt.joint_polish_evals * n, 1e-4, value);
   }
   if (n == 0) value = obj.train_gap(members, stage == JointStage::Search);
   unpack(u0);
