@@ -11,17 +11,22 @@ namespace {
 struct StepMoments {
   double mean = 0, var = 0;
 };
-StepMoments step_moments(const std::vector<TrialFeatures>& trials) {
+StepMoments moments_of(const std::vector<double>& v) {
   StepMoments m;
-  const std::size_t n = trials.size();
+  const std::size_t n = v.size();
   if (n == 0) return m;
-  for (const TrialFeatures& t : trials) m.mean += t.steady_step_m;
+  for (double x : v) m.mean += x;
   m.mean /= static_cast<double>(n);
   double ss = 0;
-  for (const TrialFeatures& t : trials)
-    ss += (t.steady_step_m - m.mean) * (t.steady_step_m - m.mean);
+  for (double x : v) ss += (x - m.mean) * (x - m.mean);
   m.var = n > 1 ? ss / static_cast<double>(n - 1) : 0.0;
   return m;
+}
+StepMoments step_moments(const std::vector<TrialFeatures>& trials) {
+  std::vector<double> steps;
+  steps.reserve(trials.size());
+  for (const TrialFeatures& t : trials) steps.push_back(t.steady_step_m);
+  return moments_of(steps);
 }
 
 StepMoments all_trials(const Cell& cell) {
@@ -112,14 +117,6 @@ class TrialStepDistribution {
 double calibration_weight(double noise_var, const std::vector<TrialFeatures>& train,
                           const CellPrediction& p) {
   return 1.0 / (noise_var + std::max(step_moments(train).var, p.step_sd_m * p.step_sd_m));
-}
-
-double sample_variance(const std::vector<double>& v) {
-  if (v.size() < 2) return 0;
-  double mean = 0, ss = 0;
-  for (double x : v) mean += x / static_cast<double>(v.size());
-  for (double x : v) ss += (x - mean) * (x - mean);
-  return ss / static_cast<double>(v.size() - 1);
 }
 
 }  // namespace
@@ -228,17 +225,17 @@ GapEvaluation evaluate_gap(const SweepCells& sweep, const std::vector<CellPredic
       const TrialStepDistribution dist(quadrature, std::sqrt(step_sd * step_sd + model_var));
       std::vector<double> z, z_all;
       double q = 0;
-      for (const TrialFeatures& t : trials) {
-        const TrialStepDistribution::Score sc = dist.score(t.steady_step_m);
-        z.push_back(sc.z);
-        q += std::pow(step_sd * sc.dz_dy_per_m, 2) / n;  // the noise on a step, in scores
-      }
       for (const auto* set_of : {&cell.train, &cell.test})
-        for (const TrialFeatures& t : *set_of) z_all.push_back(dist.score(t.steady_step_m).z);
-      double z_mean = 0;
-      for (double v : z) z_mean += v / n;
-      const double var_z = sample_variance(z);
-      r.mean_z = z_mean * std::sqrt(n / std::max({1.0, var_z, sample_variance(z_all)}));
+        for (const TrialFeatures& t : *set_of) {
+          const TrialStepDistribution::Score sc = dist.score(t.steady_step_m);
+          z_all.push_back(sc.z);
+          if (set_of != &trials) continue;
+          z.push_back(sc.z);
+          q += std::pow(step_sd * sc.dz_dy_per_m, 2) / n;  // the noise on a step, in scores
+        }
+      const StepMoments scores = moments_of(z);
+      const double var_z = scores.var;
+      r.mean_z = scores.mean * std::sqrt(n / std::max({1.0, var_z, moments_of(z_all).var}));
       q = std::max(q, 1e-12);  // (far out the density can underflow)
       if (n > 1)
         r.spread_z = std::log((var_z + q) / (1 + q)) / log_sample_variance_moments(n - 1).sd;
