@@ -7,6 +7,7 @@
 
 #include "analysis/parallel.h"
 #include "model/plant.h"
+#include "model/stage.h"
 #include "model/waveform.h"
 
 namespace idm::analysis {
@@ -244,8 +245,12 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
     }
     for (double z : spread_quadrature()) {
       model::StageParams stage = model.stage;
-      // as model::GuideProfile bounds it: friction never below 5 % of the nominal
-      stage.friction_coefficient *= std::max(0.05, 1.0 + shift + sd * z);
+      // as model::GuideProfile bounds it: friction never below 5 % of the nominal; and a point
+      // of the spread never above the largest mu a stage may have (the fit of a stage with a
+      // large mu can reach it)
+      stage.friction_coefficient =
+          std::min(model::kMaxFrictionCoefficient,
+                   stage.friction_coefficient * std::max(0.05, 1.0 + shift + sd * z));
       std::vector<double> marks =
           simulate_marks(stage, costly ? cheap : sim, cell, tol, model.search);
       if (costly)

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "model/stage.h"
+
 namespace idm::analysis {
 
 namespace {
@@ -167,7 +169,10 @@ Calibration fit_calibration(const SweepCells& sweep, const std::vector<CellPredi
   if (!fit_mu || !(det > 1e-6 * ss * qq)) return c;  // mu and alpha indistinguishable: mu stays
   const double a = (ys * qq - yq * sq) / det, b = (yq * ss - ys * sq) / det;
   if (!(a > 0)) return c;
-  const double dmu = std::clamp(b / a, -0.3 * mu_sim, 0.3 * mu_sim);
+  // a step of at most 30 %, and never past the largest mu a stage may have (the model is not
+  // defined there)
+  const double dmu = std::clamp(b / a, -0.3 * mu_sim,
+                                std::min(0.3 * mu_sim, model::kMaxFrictionCoefficient - mu_sim));
   c.mu = mu_sim + dmu;
   // alpha again for the (possibly clamped) mu
   double num = 0, den = 0;

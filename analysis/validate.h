@@ -70,6 +70,7 @@ struct ValidateRun {
   double where_rank = 0;  // Spearman of the report's located cells against the true footprint
   bool where_scored = false;
   double seconds = 0;
+  std::string error;  // what stopped the run when it threw (it then counts as wrong); "" when none
 };
 
 struct ValidateOptions {
@@ -98,7 +99,8 @@ struct ValidateResult {
 // included) and grouped into cells.
 SweepCells scenario_sweep(const Scenario& scenario);
 
-// Generates the sweep in memory and diagnoses it.
+// Generates the sweep in memory and diagnoses it. A run that throws is returned with its error
+// (and counts as wrong): validate goes on to the next.
 ValidateRun validate_one(const Scenario& scenario, int threads, Diagnosis* diagnosis = nullptr);
 
 // `progress` (may be null) is called after every run.

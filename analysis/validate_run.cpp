@@ -87,16 +87,10 @@ SweepCells scenario_sweep(const Scenario& sc) {
                        "validate:" + sc.name + ":seed" + std::to_string(sc.seed));
 }
 
-ValidateRun validate_one(const Scenario& sc, int threads, Diagnosis* out) {
-  const auto t0 = std::chrono::steady_clock::now();
-  ValidateRun run;
-  run.hidden = sc.name;
-  run.cls = sc.cls;
-  run.setup = sc.describe();
-  run.params = sc.params;
-  run.seed = sc.seed;
-  run.expected = sc.expected;
-  run.expect_unexplained = sc.expect_unexplained;
+namespace {
+
+// The diagnosis of a run's sweep and how it compares with what was hidden.
+void diagnose_run(const Scenario& sc, int threads, ValidateRun& run, Diagnosis* out) {
   const SweepCells cells = scenario_sweep(sc);
   DiagnoseOptions opt;
   opt.fit.threads = threads;
@@ -123,8 +117,28 @@ ValidateRun validate_one(const Scenario& sc, int threads, Diagnosis* out) {
     run.where_rank = spearman(located, truth);
     run.where_scored = true;
   }
-  run.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (out) *out = d;
+}
+
+}  // namespace
+
+ValidateRun validate_one(const Scenario& sc, int threads, Diagnosis* out) {
+  const auto t0 = std::chrono::steady_clock::now();
+  ValidateRun run;
+  run.hidden = sc.name;
+  run.cls = sc.cls;
+  run.setup = sc.describe();
+  run.params = sc.params;
+  run.seed = sc.seed;
+  run.expected = sc.expected;
+  run.expect_unexplained = sc.expect_unexplained;
+  try {
+    diagnose_run(sc, threads, run, out);
+  } catch (const std::exception& e) {
+    run.correct = false;
+    run.error = e.what();
+  }
+  run.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return run;
 }
 
@@ -192,8 +206,9 @@ std::string validate_json(const ValidateResult& r) {
       << ", \"gap_before\": " << json_number(run.gap_before)
       << ", \"gap_after\": " << json_number(run.gap_after)
       << ", \"where_rank\": " << (run.where_scored ? json_number(run.where_rank) : "null")
-      << ", \"seconds\": " << json_number(run.seconds) << "}" << (i + 1 < r.runs.size() ? "," : "")
-      << "\n";
+      << ", \"seconds\": " << json_number(run.seconds)
+      << ", \"error\": " << (run.error.empty() ? "null" : json_string(run.error)) << "}"
+      << (i + 1 < r.runs.size() ? "," : "") << "\n";
   }
   s << "],\n\"accuracy\": " << json_number(r.accuracy) << ",\n\"by_effect\": {";
   bool first = true;
@@ -220,6 +235,9 @@ std::string validate_table(const ValidateResult& r) {
   char buf[200];
   std::snprintf(buf, sizeof buf, "accuracy %.3f (%zu runs)\n", r.accuracy, r.runs.size());
   s << buf;
+  const auto errors = std::count_if(r.runs.begin(), r.runs.end(),
+                                    [](const ValidateRun& run) { return !run.error.empty(); });
+  if (errors > 0) s << "  " << errors << " run(s) stopped with an error (counted as wrong)\n";
   s << "  class              correct   says unexplained   mean shrink   where (rank correlation)\n";
   for (const auto& [c, t] : r.by_class) {
     std::snprintf(

@@ -37,7 +37,7 @@ constexpr StageKey kStageKeys[] = {
      "m, the counter mass on the actuator's free end (Table 1)"},
     {"friction_coefficient",
      &StageParams::friction_coefficient,
-     {0.0, 2.0, true},
+     {0.0, kMaxFrictionCoefficient, true},
      true,
      "1",
      "mu, kinetic (Coulomb) friction between slider and guide"},

@@ -17,6 +17,10 @@ class InputError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// The largest friction coefficient a stage may have (stage.friction_coefficient's range is
+// (0, kMaxFrictionCoefficient]): a fit of mu stays at or below it.
+constexpr double kMaxFrictionCoefficient = 2.0;
+
 // The mechanical stage (SI units).
 struct StageParams {
   double slider_mass_kg = 0.16557;    // M

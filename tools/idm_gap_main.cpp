@@ -100,12 +100,13 @@ void print_run(const analysis::ValidateRun& r) {
   std::fprintf(
       stdout,
       "%-4s %-40s seed %-3llu named %-30s%s gap %7.3g -> %7.3g shrink %5.1f %% where %s  %.0f s\n",
-      r.correct ? "ok" : "MISS", r.hidden.c_str(), static_cast<unsigned long long>(r.seed),
-      named.empty() ? "(nothing)" : named.c_str(), r.unexplained ? " +unexplained" : "",
-      r.gap_before, r.gap_after, 100 * r.shrink,
+      r.correct ? "ok" : (r.error.empty() ? "MISS" : "ERR"), r.hidden.c_str(),
+      static_cast<unsigned long long>(r.seed), named.empty() ? "(nothing)" : named.c_str(),
+      r.unexplained ? " +unexplained" : "", r.gap_before, r.gap_after, 100 * r.shrink,
       r.where_scored ? model::format_number(std::round(100 * r.where_rank) / 100).c_str() : "-",
       r.seconds);
   std::fprintf(stdout, "     %s; %s\n", r.setup.c_str(), params.c_str());
+  if (!r.error.empty()) std::fprintf(stdout, "     error: %s\n", r.error.c_str());
   std::fflush(stdout);
 }
 

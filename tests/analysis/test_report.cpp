@@ -265,3 +265,19 @@ TEST(Validate, ScenariosAreInTheIssuesRanges) {
             14);
   EXPECT_EQ(std::find(full.begin(), full.end(), "amplifier+actuator_compliance"), full.end());
 }
+
+// A run that throws is reported with its error and counts as wrong; validate goes on (seed 12's
+// amplifier + hysteresis once stopped a 50-run validate after 25 minutes).
+TEST(Validate, ARunThatThrowsIsReportedAndCountsAsWrong) {
+  Scenario s = make_scenario("amplifier", 1, true);
+  s.stage.stage.friction_coefficient = 2.5;  // the sweep cannot be generated
+  ValidateRun run;
+  ASSERT_NO_THROW(run = validate_one(s, 1));
+  EXPECT_FALSE(run.correct);
+  EXPECT_NE(run.error.find("friction_coefficient"), std::string::npos) << run.error;
+  ValidateResult r;
+  r.runs = {run};
+  EXPECT_NE(validate_table(r).find("1 run(s) stopped with an error"), std::string::npos);
+  EXPECT_NE(validate_json(r).find("\"error\": \"stage.friction_coefficient"), std::string::npos)
+      << validate_json(r);
+}
