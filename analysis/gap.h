@@ -88,7 +88,7 @@ LogVarianceMoments log_sample_variance_moments(int dof);
 // steps against the calibrated predictions (each cell by the inverse of its step variance, so a
 // cell whose steps scatter does not pull the fit off the cells that pin it). With `fit_mu` false,
 // or when the sweep cannot tell mu from alpha, mu stays at mu_sim. A change of mu is limited to
-// 30 % a call (the linearization holds near mu_sim).
+// 30 % a call (the linearization holds near mu_sim), and mu to model::kMaxFrictionCoefficient.
 Calibration fit_calibration(const SweepCells& sweep, const std::vector<CellPrediction>& predictions,
                             double mu_sim, bool fit_mu = true);
 

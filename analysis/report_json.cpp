@@ -157,6 +157,7 @@ std::string cells_json(const SweepCells& sweep, const Diagnosis& d) {
       << ", \"significant\": " << (r.significant ? "true" : "false")
       << ", \"effect_gap\": " << json_number(w.effect_gap)
       << ", \"spread_excess\": " << json_number(w.spread_excess)
+      << ", \"departure\": " << json_number(w.departure)
       << ", \"model_step_after_m\": " << json_number(a.model_step_m)
       << ", \"model_region_after\": " << region(a.model_region)
       << ", \"residual_after\": " << json_number(a.residual) << "}"
@@ -228,7 +229,8 @@ std::string gap_report_json(const SweepCells& sweep, const Diagnosis& d,
     << ",\n            \"significant_cells_with_stroke\": "
     << cell_pairs(d.where.significant_cells, true)
     << ",\n            \"summary\": " << json_string(d.where.summary)
-    << ",\n            \"summary_after\": " << json_string(d.where.summary_after) << "},\n";
+    << ",\n            \"summary_after\": " << json_string(d.where.summary_after)
+    << ",\n            \"summary_departure\": " << json_string(d.where.summary_departure) << "},\n";
   s << "  \"candidates\": [\n";
   for (std::size_t i = 0; i < d.candidates.size(); ++i) {
     const SetFit& c = d.candidates[i];

@@ -349,12 +349,13 @@ std::string write_report(const SweepCells& sweep, const Diagnosis& d, const std:
                          const std::string& dir) {
   std::filesystem::create_directories(dir);
   const std::filesystem::path p(dir);
-  std::vector<double> before, after, footprint, spread;
+  std::vector<double> before, after, footprint, spread, departure;
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     before.push_back(d.baseline.test.cells[c].residual);
     after.push_back(d.after.test.cells[c].residual);
     footprint.push_back(d.where.cells[c].effect_gap);
     spread.push_back(d.where.cells[c].spread_excess);
+    departure.push_back(d.where.cells[c].departure);
   }
   write_file_atomic((p / "steps.svg").string(), steps_svg(sweep, d));
   write_file_atomic((p / "regions.svg").string(), regions_svg(sweep, d));
@@ -367,6 +368,9 @@ std::string write_report(const SweepCells& sweep, const Diagnosis& d, const std:
   write_file_atomic(
       (p / "spread_excess.svg").string(),
       cell_map_svg(sweep, spread, "Trial-to-trial spread beyond the model's", "spread_excess"));
+  write_file_atomic((p / "departure.svg").string(),
+                    cell_map_svg(sweep, departure, "Where the stage departs from stage.yaml's",
+                                 "held-out residual at stage.yaml's mu, alpha 1"));
   write_file_atomic(
       (p / "gap_after.svg").string(),
       cell_map_svg(sweep, after, "What is left after the diagnosis", "held-out residual"));
@@ -382,6 +386,8 @@ std::string write_report(const SweepCells& sweep, const Diagnosis& d, const std:
     << "<h2>Spread beyond the model's</h2><img src=\"spread_excess.svg\" alt=\"spread excess\">\n"
     << "<h2>The gap, cell by cell</h2><img src=\"gap_before.svg\" alt=\"gap before\"><br>"
     << "<img src=\"gap_after.svg\" alt=\"gap after\">\n"
+    << "<h2>Where the stage departs from its description</h2><img src=\"departure.svg\" "
+       "alt=\"departure\">\n"
     << "<h2>Region maps</h2><img src=\"regions.svg\" alt=\"region maps\">\n"
     << "<h2>Which effect</h2><img src=\"ranking.svg\" alt=\"ranking\">\n</body></html>\n";
   std::string html = (p / "report.html").string();

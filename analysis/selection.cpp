@@ -399,6 +399,7 @@ void describe_unexplained(const SweepCells& sweep, bool searched, Diagnosis& d) 
   const std::string named = d.named ? joined(d.best.names()) : "the impulse model alone";
   if (u.significant) {
     u.summary = remainder_summary(sweep, d.after, named);
+    if (!d.named) u.summary += " " + d.where.summary_departure;
     if (searched && !d.named)
       u.closest =
           "the closest library set, " + joined(d.best.names()) + ", shrinks the gap by only " +
@@ -500,18 +501,19 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   }
   d.gap_after = d.after.test.gap;
   d.shrink = d.gap_before > 0 ? 1.0 - d.gap_after / d.gap_before : 0.0;
-  describe_unexplained(sweep, found.has_value(), d);
-  if (d.named) find_ambiguities(sweep, pool, fits, threads, d);
-
-  // where: the named effects' footprint, the spread beyond the model's, what is left
+  // where: the named effects' footprint, the spread beyond the model's, what is left, the
+  // departure from the stage as described
+  const std::vector<CellPrediction> described = predict_sweep(sweep, nominal_model(sweep), threads);
   if (d.named) {
     ModelConfig bare = d.after.model;
     bare.effects.clear();
     const std::vector<CellPrediction> no_effects = predict_sweep(sweep, bare, threads);
-    d.where = where_of(sweep, d.baseline, d.after, &no_effects);
+    d.where = where_of(sweep, d.baseline, d.after, &no_effects, described);
   } else {
-    d.where = where_of(sweep, d.baseline, d.after, nullptr);
+    d.where = where_of(sweep, d.baseline, d.after, nullptr, described);
   }
+  describe_unexplained(sweep, found.has_value(), d);
+  if (d.named) find_ambiguities(sweep, pool, fits, threads, d);
   return d;
 }
 

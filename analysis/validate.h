@@ -99,6 +99,13 @@ struct ValidateResult {
 // included) and grouped into cells.
 SweepCells scenario_sweep(const Scenario& scenario);
 
+// The true footprint of the scenario's hidden effects per cell of `cells`: the noise-free sweep
+// with them against the same sweep without them (one trial a cell; friction that varies along the
+// guide by the predictor's distribution), in the units of `units`'s held-out residual of the cell
+// (prediction_change). validate scores a report's where against it.
+std::vector<double> true_footprint(const Scenario& scenario, const SweepCells& cells,
+                                   const GapEvaluation& units);
+
 // Generates the sweep in memory and diagnoses it. A run that throws is returned with its error
 // (and counts as wrong): validate goes on to the next.
 ValidateRun validate_one(const Scenario& scenario, int threads, Diagnosis* diagnosis = nullptr);

@@ -35,11 +35,10 @@ Generated generate(const Scenario& sc, const model::SimConfig& sim, const SweepP
   return g;
 }
 
-// The true footprint of the hidden effects per cell: the noise-free sweep with them against the
-// same sweep without them (one trial a cell; friction that varies along the guide by the
-// predictor's distribution), in the units of the diagnosis's held-out residual of the cell.
+}  // namespace
+
 std::vector<double> true_footprint(const Scenario& sc, const SweepCells& cells,
-                                   const Diagnosis& d) {
+                                   const GapEvaluation& units) {
   std::vector<double> out(cells.cells.size(), 0.0);
   if (sc.sim.effects.empty() && sc.unknown.empty()) return out;
   if (sc.unknown.empty()) {
@@ -50,7 +49,7 @@ std::vector<double> true_footprint(const Scenario& sc, const SweepCells& cells,
                                       b = predict_sweep(cells, bare, 1);
     for (std::size_t c = 0; c < out.size(); ++c)
       out[c] =
-          prediction_change(d.after.test.cells[c], a[c].steady_step_m, a[c].step_sd_m, a[c].region,
+          prediction_change(units.cells[c], a[c].steady_step_m, a[c].step_sd_m, a[c].region,
                             b[c].steady_step_m, b[c].step_sd_m, b[c].region, cells.reading_sd_m);
     return out;
   }
@@ -72,14 +71,12 @@ std::vector<double> true_footprint(const Scenario& sc, const SweepCells& cells,
       const CellKey& k = cells.cells[c].key;
       if (k.freq_hz == a.infos[i].freq_hz && k.duty == a.infos[i].duty &&
           k.stroke_m == a.infos[i].stroke_m)
-        out[c] = prediction_change(d.after.test.cells[c], fa.steady_step_m, 0, fa.region,
-                                   fb.steady_step_m, 0, fb.region, cells.reading_sd_m);
+        out[c] = prediction_change(units.cells[c], fa.steady_step_m, 0, fa.region, fb.steady_step_m,
+                                   0, fb.region, cells.reading_sd_m);
     }
   }
   return out;
 }
-
-}  // namespace
 
 SweepCells scenario_sweep(const Scenario& sc) {
   const Generated g = generate(sc, sc.sim, sc.plan);
@@ -108,12 +105,13 @@ void diagnose_run(const Scenario& sc, int threads, ValidateRun& run, Diagnosis* 
   run.gap_before = d.gap_before;
   run.gap_after = d.gap_after;
   run.shrink = d.named ? d.shrink : (d.candidates.empty() ? 0.0 : d.candidates.front().shrink);
-  // where: what the report locates against where the hidden effects act
+  // where: what the report locates against where the hidden effects act (the named effects'
+  // footprint; with nothing named, the departure from the stage as stage.yaml describes it)
   if (sc.cls != "none" && sc.cls != "not_identifiable") {
-    const std::vector<double> truth = true_footprint(sc, cells, d);
+    const std::vector<double> truth = true_footprint(sc, cells, d.after.test);
     std::vector<double> located;
     for (std::size_t c = 0; c < cells.cells.size(); ++c)
-      located.push_back(d.named ? d.where.cells[c].effect_gap : d.where.cells[c].remainder);
+      located.push_back(d.named ? d.where.cells[c].effect_gap : d.where.cells[c].departure);
     run.where_rank = spearman(located, truth);
     run.where_scored = true;
   }

@@ -6,6 +6,8 @@
 #include <numeric>
 #include <set>
 
+#include "model/range.h"
+
 namespace idm::analysis {
 
 namespace {
@@ -85,11 +87,15 @@ double prediction_change(const CellResidual& cell, double step_a, double sd_a,
 }
 
 WhereReport where_of(const SweepCells& sweep, const FittedModel& baseline, const FittedModel& after,
-                     const std::vector<CellPrediction>* without) {
+                     const std::vector<CellPrediction>* without,
+                     const std::vector<CellPrediction>& described) {
   WhereReport w;
   const Calibration& cal = after.calibration;
+  Calibration as_described;  // alpha 1, stage.yaml's mu
+  as_described.mu = as_described.mu_sim = sweep.stage.stage.friction_coefficient;
+  const GapEvaluation departure = evaluate_gap(sweep, described, as_described, TrialSet::Test);
   const double q = 2.0 * sweep.reading_sd_m * sweep.reading_sd_m;
-  std::vector<double> gap, rest;
+  std::vector<double> gap, rest, away;
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     const Cell& cell = sweep.cells[c];
     const CellResidual& r = after.test.cells[c];
@@ -115,9 +121,11 @@ WhereReport where_of(const SweepCells& sweep, const FittedModel& baseline, const
       cw.spread_excess = std::max(0.0, z);
     }
     cw.remainder = r.residual;
+    cw.departure = departure.cells[c].residual;
     w.cells.push_back(cw);
     gap.push_back(cw.effect_gap);
     rest.push_back(cw.remainder);
+    away.push_back(cw.departure);
   }
   for (const CellResidual& r : baseline.test.cells)
     if (r.significant) w.significant_cells.push_back(r.key);
@@ -129,6 +137,11 @@ WhereReport where_of(const SweepCells& sweep, const FittedModel& baseline, const
     w.summary = pattern_summary(sweep, base, "The gap of the impulse model");
   }
   w.summary_after = pattern_summary(sweep, rest, "What is left after the named effects");
+  w.summary_departure =
+      pattern_summary(sweep, away,
+                      "Against the stage as stage.yaml describes it (mu " +
+                          model::format_number(sweep.stage.stage.friction_coefficient) +
+                          ", alpha 1, no effect), the departure (a calibration cannot hide it)");
   return w;
 }
 
@@ -188,7 +201,7 @@ std::vector<std::string> trends_of(const SweepCells& sweep, const std::vector<do
         sweep, v, [](const CellKey& c, double s) { return c.stroke_m == s; }, *strokes.begin());
     if (big > 1.5 * small || small > 1.5 * big)
       trends.push_back(
-          std::string("larger at the ") + (big > small ? "larger" : "smaller") + " stroke (" +
+          std::string("is larger at the ") + (big > small ? "larger" : "smaller") + " stroke (" +
           fmt("%.2g", std::max(big, small) / std::max(1e-12, std::min(big, small))) + " times)");
   }
   if (fwd && rev) {
@@ -197,11 +210,12 @@ std::vector<std::string> trends_of(const SweepCells& sweep, const std::vector<do
     const double b = mean_where(
         sweep, v, [](const CellKey& c, double) { return c.duty > 0.5; }, 0);
     if (a > 2 * b || b > 2 * a)
-      trends.push_back(std::string("mostly in one direction: duty ") + (a > b ? "< 0.5" : "> 0.5") +
-                       " carries " + fmt("%.2g", std::max(a, b) / std::max(1e-12, std::min(a, b))) +
+      trends.push_back(std::string("acts mostly in one direction: duty ") +
+                       (a > b ? "< 0.5" : "> 0.5") + " carries " +
+                       fmt("%.2g", std::max(a, b) / std::max(1e-12, std::min(a, b))) +
                        " times the other's");
     else
-      trends.push_back("about the same in both directions");
+      trends.push_back("is about the same in both directions");
   }
   if (rb >= 0.4)
     trends.push_back("sits near the region boundaries of the impulse model (rank correlation " +

@@ -8,7 +8,12 @@
 // * spread_excess: the trial-to-trial spread of all the cell's trials beyond the one the model
 //   predicts (noise and the model's own spread), as a log variance ratio in units of its sampling
 //   error, 0 when not wider;
-// * remainder: the cell's held-out residual after the named effects.
+// * remainder: the cell's held-out residual after the named effects;
+// * departure: the cell's held-out residual against the stage as stage.yaml describes it (the
+//   impulse model at its mu, alpha 1, no effect). Where nothing is named this locates what the
+//   data shows: a calibration of alpha and mu can absorb a gain-like distortion the library does
+//   not have into a residual spread over other cells, the departure from the stage's own
+//   description cannot.
 // The summary says in words where a per-cell quantity is largest and what pattern it follows:
 // rank correlations with frequency, with the fast phase's share of the period, with stroke,
 // the ratio between the two directions, and with closeness to a region boundary of the impulse
@@ -26,6 +31,7 @@ struct CellWhere {
   double effect_gap = 0;
   double spread_excess = 0;
   double remainder = 0;
+  double departure = 0;
 };
 
 struct WhereReport {
@@ -33,13 +39,16 @@ struct WhereReport {
   std::vector<CellKey> significant_cells;  // the baseline's significant cells
   std::string
       summary;  // the pattern of effect_gap (of the baseline's residual when nothing is named)
-  std::string summary_after;  // the pattern of what is left after the named effects
+  std::string summary_after;      // the pattern of what is left after the named effects
+  std::string summary_departure;  // the pattern of the departure from stage.yaml's stage
 };
 
 // `after`: the named set's fitted model; `without`: the same model's predictions with the named
-// effects removed (nullptr when nothing is named: effect_gap is then 0).
+// effects removed (nullptr when nothing is named: effect_gap is then 0); `described`: the
+// predictions of nominal_model(sweep), the stage as stage.yaml describes it.
 WhereReport where_of(const SweepCells& sweep, const FittedModel& baseline, const FittedModel& after,
-                     const std::vector<CellPrediction>* without);
+                     const std::vector<CellPrediction>* without,
+                     const std::vector<CellPrediction>& described);
 
 // Where `values` (one per cell, >= 0) are largest and what pattern they follow, as one or two
 // sentences; `what` names the quantity ("the named effects' footprint").

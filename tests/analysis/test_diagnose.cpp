@@ -346,7 +346,35 @@ TEST(Where, RankCorrelationAndPatternInWords) {
   const std::string text = pattern_summary(s, grows, "The footprint");
   EXPECT_NE(text.find("largest at 800 Hz, duty 0.05"), std::string::npos) << text;
   EXPECT_NE(text.find("grows with frequency"), std::string::npos) << text;
+  // each trend reads as a sentence: "It grows ..., is about the same in both directions ..."
+  EXPECT_EQ(text.find("It larger"), std::string::npos) << text;
+  EXPECT_EQ(text.find(", about the same"), std::string::npos) << text;
   EXPECT_NE(
       pattern_summary(s, std::vector<double>(s.cells.size(), 0.5), "X").find("within the noise"),
       std::string::npos);
+}
+
+// A stroke that saturates (an effect the library does not have) on one stroke reads like a lower
+// gain and a different friction: the baseline's calibration absorbs most of it, and its held-out
+// residual ranks the cells by what the calibration could not absorb, not by where the saturation
+// acts. The departure from the stage as stage.yaml describes it ranks them by where it acts, also
+// when stage.yaml's mu is 10 % off.
+TEST(Where, TheDepartureFromTheDescribedStageLocatesWhatTheCalibrationAbsorbs) {
+  const Scenario sc = make_scenario("unknown:stroke_saturation", 12, false);
+  for (double mu_error : {0.0, 0.1, -0.1}) {
+    SweepCells cells = scenario_sweep(sc);
+    cells.stage.stage.friction_coefficient *= 1 + mu_error;
+    const FittedModel baseline = fit_baseline(cells, 2);
+    const std::vector<CellPrediction> described = predict_sweep(cells, nominal_model(cells), 2);
+    const WhereReport w = where_of(cells, baseline, baseline, nullptr, described);
+    const std::vector<double> truth = true_footprint(sc, cells, baseline.test);
+    std::vector<double> departure, remainder;
+    for (const CellWhere& c : w.cells) {
+      departure.push_back(c.departure);
+      remainder.push_back(c.remainder);
+    }
+    EXPECT_GT(spearman(departure, truth), 0.85) << mu_error;
+    EXPECT_LT(spearman(remainder, truth), 0.3) << mu_error;
+    EXPECT_NE(w.summary_departure.find("stage.yaml"), std::string::npos) << w.summary_departure;
+  }
 }

@@ -83,6 +83,8 @@ TEST(ReportJson, HasTheShapeOfTheGapReportAndItsExtension) {
         "\"significant\": ",
         "\"effect_gap\": ",
         "\"spread_excess\": ",
+        "\"departure\": ",
+        "\"summary_departure\": ",
         "\"where\": {\"significant_cells\": [",
         "\"summary\": ",
         "\"candidates\": [",
@@ -127,8 +129,9 @@ TEST(Report, WritesPlotsAndAPageWithoutLeavingTemporaryFiles) {
       std::filesystem::temp_directory_path() / ("gap_report_" + std::to_string(getpid()));
   std::filesystem::remove_all(dir);
   write_report(sweep, d, text_summary(sweep, d), dir.string());
-  for (const char* f : {"steps.svg", "regions.svg", "gap_before.svg", "effect_gap.svg",
-                        "spread_excess.svg", "gap_after.svg", "ranking.svg", "report.html"}) {
+  for (const char* f :
+       {"steps.svg", "regions.svg", "gap_before.svg", "effect_gap.svg", "spread_excess.svg",
+        "gap_after.svg", "departure.svg", "ranking.svg", "report.html"}) {
     ASSERT_TRUE(std::filesystem::exists(dir / f)) << f;
     std::ifstream in(dir / f);
     const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
