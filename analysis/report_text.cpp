@@ -15,7 +15,7 @@ std::string params_text(const std::vector<model::EffectSpec>& effects) {
   for (const model::EffectSpec& e : effects)
     for (const auto& [k, v] : e.params) {
       if (k == "correlation_m" || k == "mean_shift" || (k == "slew_rate_m_s" && v == 0)) continue;
-      out += (out.empty() ? "" : ", ") + k + "=" + model::format_number(v);
+      out += (out.empty() ? "" : ", ") + k + "=" + model::format_number(v, 4);
     }
   return out;
 }
@@ -24,8 +24,8 @@ std::string intervals_text(const std::vector<ParameterIntervals>& intervals) {
   std::string out;
   for (const ParameterIntervals& pi : intervals)
     for (const ParameterInterval& p : pi.params) {
-      out += (out.empty() ? "" : ", ") + p.param + " " + model::format_number(p.lo) + " to " +
-             model::format_number(p.hi) + (p.limited_by_range ? " (range)" : "");
+      out += (out.empty() ? "" : ", ") + p.param + " " + model::format_number(p.lo, 4) + " to " +
+             model::format_number(p.hi, 4) + (p.limited_by_range ? " (range)" : "");
     }
   return out;
 }
@@ -72,23 +72,23 @@ std::string text_summary(const SweepCells& sweep, const Diagnosis& d) {
     s << "selection:";
     for (const SelectionStep& st : d.steps)
       s << " " << st.action << " -> " << names_of(st.effects) << " (gap "
-        << model::format_number(st.gap) << ");";
+        << model::format_number(st.gap, 3) << ");";
     s << "\n";
   }
   if (d.named) {
     std::snprintf(buf, sizeof buf, "diagnosis: %s; held-out gap %.3g -> %.3g (shrink %.1f %%)\n",
                   names_of(d.best.names()).c_str(), d.gap_before, d.gap_after, 100 * d.shrink);
     s << buf << "  fitted jointly: " << params_text(d.chosen);
-    s << "; alpha " << model::format_number(d.after.calibration.alpha) << ", mu "
-      << model::format_number(d.after.calibration.mu) << "\n";
+    s << "; alpha " << model::format_number(d.after.calibration.alpha, 3) << ", mu "
+      << model::format_number(d.after.calibration.mu, 4) << "\n";
     if (!d.chosen_intervals.empty())
       s << "  95 % intervals (held-out): " << intervals_text(d.chosen_intervals) << "\n";
   } else if (d.unexplained.significant) {
     s << "diagnosis: no effect of the library explains the gap (nothing named)\n";
   } else {
     s << "diagnosis: no significant gap to explain (held-out gap "
-      << model::format_number(d.gap_before) << ", systematic part "
-      << model::format_number(systematic_gap(d.baseline)) << ")\n";
+      << model::format_number(d.gap_before, 3) << ", systematic part "
+      << model::format_number(systematic_gap(d.baseline), 3) << ")\n";
   }
   s << "unexplained: " << (d.unexplained.significant ? "SIGNIFICANT. " : "no. ")
     << d.unexplained.summary;

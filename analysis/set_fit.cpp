@@ -168,7 +168,7 @@ void judge(const std::vector<CandidateSpec>& library, const FittedModel& baselin
   }
   const double alpha = f.fitted.calibration.alpha;
   if (!(alpha > 0.05 && alpha <= 2.0))
-    implausible("needs a step scale of " + model::format_number(alpha) + ", outside (0.05, 2]");
+    implausible("needs a step scale of " + model::format_number(alpha, 3) + ", outside (0.05, 2]");
   const bool spreads =
       std::any_of(f.fitted.predictions.begin(), f.fitted.predictions.end(),
                   [](const CellPrediction& p) { return !p.trial_steps_m.empty(); });
@@ -178,7 +178,7 @@ void judge(const std::vector<CandidateSpec>& library, const FittedModel& baselin
     implausible(
         "predicts a spread of the trials the sweep does not show: the spread part of the "
         "held-out gap is " +
-        model::format_number(spread_part) + ", above " + model::format_number(allowed) +
+        model::format_number(spread_part, 3) + ", above " + model::format_number(allowed, 3) +
         " (the baseline's, or " + model::format_number(kSpreadPartAllowance) + ")");
 }
 

@@ -86,8 +86,16 @@ Quadratic probe(const std::function<double(const std::vector<double>&)>& f,
         continue;
       }
       // parabola through (0, f0), (a, fa), (b, fb)
-      const double d2 = 2 * ((fa - q.f0) / a - (fb - q.f0) / b) / (a - b);
-      const double d1 = (fa - q.f0) / a - 0.5 * d2 * a;
+      double d2 = 2 * ((fa - q.f0) / a - (fb - q.f0) / b) / (a - b);
+      double d1 = (fa - q.f0) / a - 0.5 * d2 * a;
+      // a rise beyond delta on both sides bounds the interval within the steps, whatever the
+      // parabola's shape (an objective with kinks, a chain rate's rounding, can bend it the
+      // other way): the flattest parabola through the lower rise, centered on the fit
+      const double low_rise = std::min(fa, fb) - q.f0;
+      if (d2 <= 0 && low_rise >= delta) {
+        d2 = 2 * low_rise / (h * h);
+        d1 = 0;
+      }
       q.g(static_cast<Eigen::Index>(i)) = d1;
       q.h(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(i)) = d2;
       q.step[i] = a;

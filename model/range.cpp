@@ -5,9 +5,13 @@
 namespace idm::model {
 
 std::string format_number(double value) {
-  // 9 significant digits, then the exponent as a person writes it: no '+', no leading zeros.
+  return format_number(value, 9);
+}
+
+std::string format_number(double value, int significant) {
+  // the significant digits, then the exponent as a person writes it: no '+', no leading zeros.
   std::ostringstream out;
-  out.precision(9);
+  out.precision(significant);
   out << value;
   std::string text = out.str();
   const std::size_t e = text.find('e');

@@ -13,6 +13,10 @@ namespace idm::model {
 // leading zeros ("0.05", "1e-5", "1e6", "-3").
 std::string format_number(double value);
 
+// The same with `significant` digits: a fitted figure in a sentence for a person ("3510",
+// "0.534"), where nine digits would claim a precision the fit does not have.
+std::string format_number(double value, int significant);
+
 // A closed (or half-open) interval of allowed values; an unbounded end is +-1e300.
 struct Range {
   double lo = -1e300;
