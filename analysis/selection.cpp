@@ -216,8 +216,8 @@ std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
     if (r.label > 0) ++labels;
   }
   std::ostringstream s;
-  s << "After " << named << ", a held-out gap of " << model::format_number(after.test.gap)
-    << " (systematic part " << model::format_number(systematic_gap(after))
+  s << "After " << named << ", a held-out gap of " << model::format_number(after.test.gap, 3)
+    << " (systematic part " << model::format_number(systematic_gap(after), 3)
     << ") remains that no effect of the library explains. " << pattern_summary(sweep, rest, "It")
     << " In the significant cells the stage steps further than the model in " << further
     << ", less far in " << shorter << "; its trial-to-trial spread is wider than predicted in "
@@ -237,7 +237,7 @@ double excess(double gap) {
 // noise, into_noise); then backward: every member taken out and the rest refitted from the set's
 // own parameters (SetFits::refit); a member without which the gap grows by less than
 // kBackwardTolerance (or stays within the noise) goes, unless without it the remainder leaves
-// the noise (into_noise).
+// the noise (into_noise) or it earns its place by the forward rule (earns_place).
 SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiners,
                    const std::vector<CandidateSpec>& library, SetFits& fits,
                    std::vector<SelectionStep>& steps) {
@@ -270,7 +270,7 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
       best_train = std::min(best_train, f.fitted.train.gap);
       if (f.plausible && (!best || f.gap < best->gap)) best = &f;
     }
-    if (!best || (excess(best->gap) > (1 - kMinFurtherShrink) * excess(current.gap) &&
+    if (!best || (!earns_place(*best, current) &&
                   !(into_noise(*best, current) && best->fitted.train.gap <= best_train)))
       break;
     current = *best;
@@ -285,7 +285,7 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
       if (r.plausible && (!best || r.gap < best->gap)) best = &r;
     if (!best ||
         (best->gap > (1 + kBackwardTolerance) * current.gap && significant_gap(best->fitted)) ||
-        into_noise(current, *best)) {
+        into_noise(current, *best) || earns_place(current, *best)) {
       steps.push_back({"keep", current.names(), current.gap});
       break;
     }
@@ -315,6 +315,16 @@ bool significant_gap(const FittedModel& m) {
 bool into_noise(const SetFit& with, const SetFit& without) {
   return excess(with.gap) <= (1 - kIntoNoiseShrink) * excess(without.gap) &&
          significant_gap(without.fitted) && !significant_gap(with.fitted);
+}
+
+bool earns_place(const SetFit& with, const SetFit& without) {
+  return without.gap > kFurtherGap &&
+         excess(with.gap) <= (1 - kMinFurtherShrink) * excess(without.gap);
+}
+
+bool explains_weak_gap(const SetFit& fit, const FittedModel& baseline) {
+  return !significant_gap(baseline) && baseline.test.gap > kWeakGap &&
+         excess(fit.gap) <= (1 - kWeakExcessShrink) * excess(baseline.test.gap);
 }
 
 namespace {
@@ -352,21 +362,24 @@ void fit_candidates(const SweepCells& sweep, const std::vector<CandidateSpec>& l
   parallel_for(d.candidates.size(), threads, [&](std::size_t i) {
     // a fit on a bound of its range, or one that does not shrink the gap, has no interval to give
     if (d.candidates[i].plausible && d.candidates[i].shrink > 0)
-      d.intervals[i] = parameter_intervals(sweep, library, d.candidates[i], d.baseline, 1, false);
+      d.intervals[i] = parameter_intervals(sweep, library, d.candidates[i], d.baseline, 1, true);
   });
 }
 
 // The set search (select_from) from the best plausible candidate that shrinks the gap, and from
 // the runner-up when it comes close (an amplifier and a compliant actuator trade places): the set
 // that ends with the smaller held-out gap, its steps in d.steps; none when the baseline's gap is
-// not significant. Every candidate in `joiners` may join. A best single below kMinShrink still
-// starts a search (two effects can each explain little alone), but a set of one that ends there
-// below kMinShrink is none.
+// not significant (unless the best candidate explains a weak gap, explains_weak_gap). Every
+// candidate in `joiners` may join. A best single below kMinShrink still starts a search (two
+// effects can each explain little alone), but a set of one that ends there below kMinShrink is
+// none (unless it explains a weak gap).
 std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
                                  const std::vector<const SetFit*>& joiners,
                                  const std::vector<CandidateSpec>& library, SetFits& fits,
                                  Diagnosis& d) {
-  if (!significant_gap(d.baseline) || pool.empty()) return std::nullopt;
+  if (pool.empty() ||
+      !(significant_gap(d.baseline) || explains_weak_gap(*pool.front(), d.baseline)))
+    return std::nullopt;
   std::vector<const SetFit*> firsts{pool.front()};
   if (pool.size() > 1 && pool[1]->shrink >= kMinShrink &&
       pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
@@ -380,7 +393,8 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
       d.steps = steps;
     }
   }
-  if (current->members.size() == 1 && current->shrink < kMinShrink) {
+  if (current->members.size() == 1 && current->shrink < kMinShrink &&
+      !explains_weak_gap(*current, d.baseline)) {
     d.steps.clear();
     return std::nullopt;
   }
@@ -409,9 +423,9 @@ void describe_unexplained(const SweepCells& sweep, bool searched, Diagnosis& d) 
                   ", shrinks the gap by " +
                   model::format_number(std::round(1000 * d.candidates.front().shrink) / 10) + " %";
   } else {
-    u.summary = "After " + named + " the held-out gap is " + model::format_number(u.gap) +
+    u.summary = "After " + named + " the held-out gap is " + model::format_number(u.gap, 3) +
                 ", within what the measurement's noise allows (systematic part " +
-                model::format_number(u.systematic_gap) + ").";
+                model::format_number(u.systematic_gap, 3) + ").";
   }
 }
 

@@ -9,11 +9,14 @@
 //    rate; a pair also the other way round, from the newcomer's single when it shrinks the gap by
 //    kSwapShrink), and the best is added while the set's gap is above kFurtherGap and the addition
 //    shrinks its part above the noise, sqrt(gap^2 - 1), by kMinFurtherShrink (by kIntoNoiseShrink
-//    where it turns a significant remainder into one within the noise).
+//    where it turns a significant remainder into one within the noise). A baseline whose gap is
+//    within the noise starts a search only when the best single takes kWeakExcessShrink of its
+//    part above the noise away (a weak gap, above kWeakGap).
 // 4. Backward: every member of a set of two or more is taken out and the rest refitted jointly,
 //    from the set's parameters as well as from the forward fit of the smaller set (the better
 //    counts); a member without which the gap grows by less than kBackwardTolerance goes (unless
-//    without it a remainder within the noise becomes significant, as forward).
+//    without it a remainder within the noise becomes significant, or the forward rule would add
+//    it again: the same test both ways).
 // 5. Honesty: a set that leaves a significant remainder is named only when it explains most of the
 //    gap (shrink >= kNameShrink); otherwise nothing is named and the gap is reported unexplained,
 //    with the closest library effect. The remainder is significant when the held-out gap is above
@@ -36,6 +39,10 @@ namespace idm::analysis {
 constexpr double kExplainedGap = 2.0;
 constexpr double kSystematicGap = 1.5;
 constexpr double kMinShrink = 0.3;
+// A gap within the noise (not significant) but above kWeakGap is searched when the best single
+// takes kWeakExcessShrink of its part above the noise, sqrt(gap^2 - 1), away on held-out trials.
+constexpr double kWeakGap = 1.25;
+constexpr double kWeakExcessShrink = 0.5;
 constexpr double kMinFurtherShrink = 0.4;
 constexpr double kIntoNoiseShrink = 0.2;   // the same where the remainder ends within the noise
 constexpr std::size_t kFinishedLeads = 2;  // screened sets finished a step, best first
@@ -113,6 +120,18 @@ bool significant_gap(const FittedModel& model);
 // on the way (an effect on the trials' spread alone shows in few numbers and rarely shrinks the
 // whole gap by kMinFurtherShrink, but without it a remainder is unexplained).
 bool into_noise(const SetFit& with, const SetFit& without);
+
+// Whether the effect that `with` has and `without` lacks earns its place: `without` leaves more
+// than kFurtherGap and the effect takes kMinFurtherShrink of its part above the noise away. The
+// same rule adds an effect forward and keeps it backward (a remainder of 1.6-2 is within the noise
+// by kExplainedGap, yet an effect that takes most of it away on held-out trials is seen there).
+bool earns_place(const SetFit& with, const SetFit& without);
+
+// Whether `fit` takes kWeakExcessShrink of the part above the noise of a baseline's gap that is
+// not significant but above kWeakGap: an effect on the trials' spread alone (a friction spread on
+// 4-5 trials a cell, 2 of them held out) shows in few numbers of an RMS over every cell, yet a
+// library effect that takes most of that part away on held-out trials has found something.
+bool explains_weak_gap(const SetFit& fit, const FittedModel& baseline);
 
 // A short text summary (a few lines) for a person.
 std::string text_summary(const SweepCells& sweep, const Diagnosis& d);

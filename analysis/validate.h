@@ -13,8 +13,9 @@
 // effects' parameters from ranges scaled to that stage and sweep.
 //
 // A run is correct when the named set equals the expected one exactly (the hidden library
-// effects; nothing for "none", an unknown or a not identifiable effect). Also scored: whether the
-// report says "unexplained" (it must for an unknown effect, and should not otherwise), the hidden
+// effects; nothing for "none", an unknown or a not identifiable effect), and for an unknown effect
+// only when the report also says "unexplained" (a not identifiable one must be listed as such).
+// Also scored: whether the report says "unexplained" (it should not for a library set), the hidden
 // effect's shrink, and `where`: the rank correlation over the cells between what the report
 // locates (the named effects' effect_gap, or what is left when nothing library-made is hidden)
 // and the true footprint of the hidden effects (the noise-free sweep with them against without).

@@ -3,7 +3,9 @@
 //     trials, one stroke, 12 cycles, 100 kHz, a 3 kHz second-order amplifier hidden;
 //   * a lab's 20-cell sweep: 4 x 5 cells, 4 trials, 25 kHz, the same amplifier;
 //   * how it grows: 20, 40 and 80 cells at 4 trials; 3, 5 and 10 trials at 40 cells; and a pair
-//     (amplifier + tilt, both directions), which adds the joint fits.
+//     (amplifier + tilt, both directions), which adds the joint fits;
+//   * the paper-size sweep with the other effects its one stroke and one direction can show, alone
+//     and in pairs (the slowest fits: Stribeck's scans, a friction spread's quantiles).
 //   gap_bench [--quick]   (--quick: the 20-cell sweep only, 3 trials; CI checks that it runs)
 #include <sys/resource.h>
 #include <unistd.h>
@@ -94,5 +96,18 @@ int main(int argc, char** argv) {
   run({"trials: 5", 8, 5, 5, false, 25e3, {amp}});
   run({"trials: 10", 8, 5, 10, false, 25e3, {amp}});
   run({"a pair: amplifier + tilt", 8, 5, 4, true, 25e3, {amp, tilt}});
+  // the paper-size sweep with the other effects (the stage's K and C: a 1.8 kHz resonance)
+  const model::EffectSpec compliance{"actuator_compliance",
+                                     {{"stiffness_n_m", 5.7e6}, {"damping_n_s_m", 230}}};
+  const model::EffectSpec stribeck{"stribeck",
+                                   {{"static_over_kinetic", 1.5}, {"stribeck_velocity_m_s", 5e-3}}};
+  const model::EffectSpec spread{"friction_spread", {{"relative_sd", 0.1}}};
+  run({"paper size: actuator_compliance", 8, 10, 10, false, 100e3, {compliance}});
+  run({"paper size: stribeck", 8, 10, 10, false, 100e3, {stribeck}});
+  run({"paper size: friction_spread", 8, 10, 10, false, 100e3, {spread}});
+  run({"paper size: amplifier + stribeck", 8, 10, 10, false, 100e3, {amp, stribeck}});
+  run({"paper size: compliance + stribeck", 8, 10, 10, false, 100e3, {compliance, stribeck}});
+  run({"paper size: amplifier + spread", 8, 10, 10, false, 100e3, {amp, spread}});
+  run({"paper size: stribeck + spread", 8, 10, 10, false, 100e3, {stribeck, spread}});
   return 0;
 }
