@@ -341,6 +341,9 @@ class Positioner {
   void build_ladder();
   void load_rung_estimates();  // at a move's start: from the calibration, or the seeds
   bool rung_live(Rung& r);     // revives a rung whose dead time is over
+  // A rung never learned: its seed times ladder_gain_ (offset, step; covariance by its square).
+  RungEstimate scaled_seed(const Rung& r) const;
+  void update_ladder_gain();  // ladder_gain_ from the learned rungs
   void kill_rung(Rung& r);
   bool judge_and_learn(double moved_m);  // false: a fault was entered
   // judge_and_learn's two outcomes: a rung that did not move (false: a stall fault or the end of
@@ -414,6 +417,10 @@ class Positioner {
   bool lost_at_rest_ = false;  // the loss came with nothing moving
   int max_chunks_ = 0;
   std::vector<Rung> ladder_[2];
+  // Learned step over seeded step of the learned rungs (1 until one has learned): scales the
+  // seeds of the rungs not yet played (a stage that moves three times the map's step moves its
+  // fine rungs three times too, and they are then the ones that land).
+  double ladder_gain_ = 1.0;
   CalibrationConfig rung_cfg_;  // the calibration's (or the default) RLS settings for the rungs
   std::size_t largest_cell_[2] = {0, 0};  // [0] negative, [1] positive: largest |step|
   bool has_largest_cell_[2] = {false, false};

@@ -86,6 +86,7 @@ void Positioner::load_rung_estimates() {
       r.pending_cycles = 0;
     }
   }
+  update_ladder_gain();
 }
 
 bool Positioner::rung_live(Rung& r) {
@@ -99,11 +100,41 @@ bool Positioner::rung_live(Rung& r) {
     r.pending_cycles = 0;
     if (calibration_ != nullptr) calibration_->store_rung(r.direction, r.est);
   }
+  if (r.est.updates == 0) {
+    // Never learned: its seed, scaled by what the learned rungs show of this stage. A seed
+    // under min_step_counts is left out for now, not killed: with the gain it may yet move.
+    r.est = scaled_seed(r);
+    return r.est.step_m >= config_.min_step_counts * count_m_;
+  }
   if (!(r.est.step_m >= config_.min_step_counts * count_m_)) {
     kill_rung(r);
     return false;
   }
   return true;
+}
+
+RungEstimate Positioner::scaled_seed(const Rung& r) const {
+  RungEstimate e = r.seed;
+  e.step_m *= ladder_gain_;
+  e.offset_m *= ladder_gain_;
+  e.p_ss *= ladder_gain_ * ladder_gain_;
+  e.p_oo *= ladder_gain_ * ladder_gain_;
+  e.p_os *= ladder_gain_ * ladder_gain_;
+  return e;
+}
+
+void Positioner::update_ladder_gain() {
+  // The geometric mean of learned / seeded step over the learned rungs of both directions (the
+  // stage's own alpha against the map's: one figure for the whole ladder), kept to [1/4, 4].
+  double sum_log = 0;
+  int n = 0;
+  for (const std::vector<Rung>& l : ladder_)
+    for (const Rung& x : l)
+      if (!x.dead && x.est.updates > 0 && x.est.step_m > 0 && x.seed.step_m > 0) {
+        sum_log += std::log(x.est.step_m / x.seed.step_m);
+        ++n;
+      }
+  ladder_gain_ = n > 0 ? std::clamp(std::exp(sum_log / n), 0.25, 4.0) : 1.0;
 }
 
 double Positioner::rung_uncertainty(const Rung& r) const {
@@ -445,6 +476,7 @@ void Positioner::learn_rung(Rung& r, int sign, double along, double predicted, d
                               rung_cfg_.observation_relative_sd, rung_cfg_.rung_forgetting,
                               r.seed.p_oo, r.seed.p_ss)) {
     if (calibration_ != nullptr) calibration_->store_rung(sign, r.est);
+    update_ladder_gain();
   }
   if (!(r.est.step_m >= config_.min_step_counts * count_m_)) kill_rung(r);
   if (calibration_ != nullptr && chunk_.cell != nullptr)

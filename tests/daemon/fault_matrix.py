@@ -381,7 +381,10 @@ def case_sigterm_mid_move():
             p = float(c2.ask("POS?"))
             check(p > 1e-5, "the position goes on from the device's count (%.4g um)" % (p * 1e6))
             c2.send("MOVE:REL -20e-6\n")
-            check(c2.ask("*OPC?") == "1" and c2.error() == '0,"No error"', "it moves again")
+            opc, err = c2.ask("*OPC?"), c2.error()
+            check(opc == "1" and err == '0,"No error"',
+                  "it moves again (*OPC? %s, %s, status %s)\n%s"
+                  % (opc, err, c2.status(), again.log()[-3000:]))
 
 
 def case_client_vanishes_mid_query():
