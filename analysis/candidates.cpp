@@ -97,7 +97,7 @@ CandidateSpec compliance_candidate(const SweepScales& sc, const model::StagePara
       comp.start = {fr, zeta};
   }
   comp.scan_ratio = 1.07;
-  comp.scan_other = {0.05, 0.15, 0.45};
+  comp.scan_other = {0.04, 0.06, 0.09, 0.135, 0.2, 0.3, 0.45, 0.68};
   comp.physics = "resonance with the reduced mass (K = m_red (2 pi f)^2) and damping ratio";
   return comp;
 }

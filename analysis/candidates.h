@@ -22,6 +22,7 @@
 #include <functional>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "analysis/gap.h"
@@ -116,6 +117,22 @@ constexpr double kSpreadPartAllowance = 1.5;
 // At most `count` cells spread evenly over the sweep's order (stroke, frequency, duty), every
 // other field as in `sweep`; the sweep itself when it is small.
 SweepCells spread_subset(const SweepCells& sweep, std::size_t count);
+
+// Starting points for a refinement from a grid of (value, coordinates u): the grid's local minima,
+// best first (a point no worse than every grid neighbour: within `step` of it in each coordinate;
+// a narrow valley between grid points shows as one, the slope towards a range's edge where an
+// effect fades away does not), then, while fewer than max_starts, the best points not near a
+// start (within `cell`).
+std::vector<std::vector<double>> starts_from(
+    std::vector<std::pair<double, std::vector<double>>> grid, const std::vector<double>& step,
+    const std::vector<double>& cell, int max_starts);
+
+// A set's training gap as a screen measures it (JointStage::Search's objective: the cells of
+// spread_subset, the search rate, mu at stage.yaml's): what a screened set with one effect more
+// is compared with.
+double screening_gap(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                     const std::vector<MemberFit>& members, const FittedModel& baseline,
+                     int threads);
 
 // One effect alone, fitted on the training trials and scored on the held-out ones against
 // `baseline` (its mu is where the search starts).

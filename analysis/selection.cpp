@@ -6,6 +6,7 @@
 #include <limits>
 #include <map>
 #include <optional>
+#include <set>
 #include <sstream>
 
 #include "analysis/parallel.h"
@@ -101,6 +102,14 @@ class SetFits {
     return base.size() == 1 && single != finished_.end() && single->second.shrink < kMinShrink;
   }
 
+  // A set's training gap as the screens measure it (screening_gap), cached.
+  double screened_gap(const std::vector<MemberFit>& members) {
+    const std::string k = start_of(members);
+    if (!screening_gaps_.count(k))
+      screening_gaps_[k] = screening_gap(sweep_, library_, members, baseline_, options_.threads);
+    return screening_gaps_.at(k);
+  }
+
   // The finished fit of a set (from its screened optimum when there is one).
   const SetFit& finish(const std::vector<MemberFit>& members) {
     const std::string k = key_of(members);
@@ -129,10 +138,11 @@ class SetFits {
   // them): a set fitted earlier from its own singles can sit in a local optimum that the larger
   // set's fit left behind. The better of that and the finished fit on the training trials, as
   // scored (train_gap is the search's objective, at the mu each search held), becomes the set's
-  // fit.
+  // fit. A set is refitted from the same parameters once (two starts of a search can ask again).
   const SetFit& refit(const std::vector<MemberFit>& members) {
     const std::string k = key_of(members);
     const SetFit& known = finish(members);
+    if (!refitted_.insert(start_of(members)).second) return known;
     SetFit again = fit_joint(sweep_, library_, members, baseline_, options_, JointStage::Finish);
     if (again.plausible && (!known.plausible || again.fitted.train.gap < known.fitted.train.gap))
       finished_[k] = std::move(again);
@@ -161,11 +171,32 @@ class SetFits {
     return out;
   }
 
+  // A set's members with the parameters they carry, as text (what refit starts from).
+  static std::string start_of(const std::vector<MemberFit>& members) {
+    std::string s = key_of(members);
+    char buf[32];
+    for (const MemberFit& m : members) {
+      s += "|" + m.effect;
+      for (const auto* params : {&m.fixed, &m.grid_point})
+        for (const auto& [name, v] : *params) {
+          std::snprintf(buf, sizeof buf, " %s=%.17g", name.c_str(), v);
+          s += buf;
+        }
+      for (double u : m.u) {
+        std::snprintf(buf, sizeof buf, " %.17g", u);
+        s += buf;
+      }
+    }
+    return s;
+  }
+
   const SweepCells& sweep_;
   const std::vector<CandidateSpec>& library_;
   const FittedModel& baseline_;
   FitOptions options_;
   std::map<std::string, SetFit> screened_, finished_;
+  std::set<std::string> refitted_;
+  std::map<std::string, double> screening_gaps_;
 };
 
 std::vector<MemberFit> without(const SetFit& s, std::size_t index) {
@@ -263,9 +294,13 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     // a bound). Into the noise is the weaker test: it holds only when no finished lead, plausible
     // or not, fits the training trials better (else the effect that does is on a bound of its
     // range, and another one merely stands in for it).
+    // a lead not worth finishing (worth_finishing) is not finished: a joint fit of three effects
+    // with a friction spread under a compliant actuator costs minutes
+    const double here = fits.screened_gap(current.members);
     const SetFit* best = nullptr;
     double best_train = std::numeric_limits<double>::infinity();
     for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads; ++k) {
+      if (!worth_finishing(leads[k]->train_gap, here)) continue;
       const SetFit& f = fits.finish_nested(leads[k]->members, current);
       best_train = std::min(best_train, f.fitted.train.gap);
       if (f.plausible && (!best || f.gap < best->gap)) best = &f;
@@ -315,6 +350,11 @@ bool significant_gap(const FittedModel& m) {
 bool into_noise(const SetFit& with, const SetFit& without) {
   return excess(with.gap) <= (1 - kIntoNoiseShrink) * excess(without.gap) &&
          significant_gap(without.fitted) && !significant_gap(with.fitted);
+}
+
+bool worth_finishing(double screened_with, double screened_without) {
+  return !(excess(screened_without) > 0 &&
+           excess(screened_with) > (1 - kScreenShrink) * excess(screened_without));
 }
 
 bool earns_place(const SetFit& with, const SetFit& without) {

@@ -46,6 +46,9 @@ constexpr double kWeakExcessShrink = 0.5;
 constexpr double kMinFurtherShrink = 0.4;
 constexpr double kIntoNoiseShrink = 0.2;   // the same where the remainder ends within the noise
 constexpr std::size_t kFinishedLeads = 2;  // screened sets finished a step, best first
+// A screened set is finished only when its screen takes this share of the excess of the set
+// without its newcomer (screened alike) away.
+constexpr double kScreenShrink = 0.1;
 constexpr double kSwapShrink = 0.1;     // a single that shrinks this much starts a pair's other way
 constexpr double kFurtherGap = 1.5;     // a set's gap above which another effect is looked for
 constexpr double kRunnerUpRatio = 1.5;  // a second start when the runner-up's gap is this close
@@ -120,6 +123,12 @@ bool significant_gap(const FittedModel& model);
 // on the way (an effect on the trials' spread alone shows in few numbers and rarely shrinks the
 // whole gap by kMinFurtherShrink, but without it a remainder is unexplained).
 bool into_noise(const SetFit& with, const SetFit& without);
+
+// Whether a screened set with a newcomer is worth finishing (polished and scored): its screen
+// (training trials, the search rate, the cells of a coarse search) takes kScreenShrink of the part
+// above the noise of the set without the newcomer, screened alike, away. A newcomer that cannot do
+// that on the trials it was fitted to will not take kIntoNoiseShrink of it away on held-out ones.
+bool worth_finishing(double screened_with, double screened_without);
 
 // Whether the effect that `with` has and `without` lacks earns its place: `without` leaves more
 // than kFurtherGap and the effect takes kMinFurtherShrink of its part above the noise away. The

@@ -215,30 +215,39 @@ SweepCells spread_subset(const SweepCells& sweep, std::size_t count) {
   return out;
 }
 
-namespace {
-
-// Starting points for a refinement: the best grid point and the next best ones that are not its
-// grid neighbours (a narrow valley can hide between grid points and trap a single start).
 std::vector<std::vector<double>> starts_from(
-    std::vector<std::pair<double, std::vector<double>>> grid, int points, int max_starts) {
+    std::vector<std::pair<double, std::vector<double>>> grid, const std::vector<double>& step,
+    const std::vector<double>& cell, int max_starts) {
+  for (auto& point : grid)  // a point that could not be scored ranks last
+    if (!std::isfinite(point.first)) point.first = std::numeric_limits<double>::infinity();
   std::sort(grid.begin(), grid.end(),
             [](const auto& a, const auto& b) { return a.first < b.first; });
+  auto within = [](const std::vector<double>& u, const std::vector<double>& v,
+                   const std::vector<double>& d) {
+    for (std::size_t i = 0; i < u.size(); ++i)
+      if (std::fabs(u[i] - v[i]) > d[i] * 1.01) return false;
+    return true;
+  };
   std::vector<std::vector<double>> starts;
-  const double cell = 1.0 / (points - 1);
+  auto take = [&](const std::vector<double>& u) {
+    for (const std::vector<double>& s : starts)
+      if (within(u, s, cell)) return;
+    starts.push_back(u);
+  };
+  for (std::size_t k = 0; k < grid.size(); ++k) {
+    if (starts.size() >= static_cast<std::size_t>(max_starts)) break;
+    if (!std::isfinite(grid[k].first)) break;
+    bool minimum = true;
+    for (std::size_t j = 0; j < k && minimum; ++j)  // the better points
+      minimum = grid[j].first == grid[k].first || !within(grid[j].second, grid[k].second, step);
+    if (minimum) take(grid[k].second);
+  }
   for (const auto& [value, u] : grid) {
     if (starts.size() >= static_cast<std::size_t>(max_starts)) break;
-    bool near = false;
-    for (const std::vector<double>& s : starts) {
-      bool all = true;
-      for (std::size_t i = 0; i < u.size(); ++i) all = all && std::fabs(u[i] - s[i]) <= cell * 1.01;
-      near = near || all;
-    }
-    if (!near) starts.push_back(u);
+    take(u);
   }
   return starts;
 }
-
-}  // namespace
 
 namespace {
 
@@ -258,18 +267,28 @@ void set_coordinates(std::vector<MemberFit>& members, const std::vector<double>&
 }
 
 // The points of a spec's grid, or with `scan` of its scan (axis 0 in steps of scan_ratio at each
-// of scan_other), then stage.yaml's start when there is one; `spacing`: grid points per unit of u,
-// for telling neighbours apart.
+// of scan_other), then stage.yaml's start when there is one; `spacing`: grid points per unit of u
+// (the refinement's first step); `cell`: per coordinate, how far apart neighbours lie (a scan's:
+// two steps along axis 0, the next of scan_other along axis 1).
 std::vector<std::vector<double>> grid_points(const CandidateSpec& spec, const FitOptions& opt,
-                                             bool scan, int& spacing) {
+                                             bool scan, int& spacing, std::vector<double>& step,
+                                             std::vector<double>& cell) {
   const std::size_t n = spec.axes.size();
   const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
   std::vector<std::vector<double>> out;
   spacing = pts;
+  cell.assign(n, 1.0 / (pts - 1));
+  step = cell;
   if (scan && spec.scan_ratio > 1 && n == 2) {
     const FitAxis& a = spec.axes[0];
     const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
     spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
+    cell[0] = 1.0 / (spacing - 1);
+    cell[1] = 0;
+    for (std::size_t k = 1; k < spec.scan_other.size(); ++k)
+      cell[1] = std::max(cell[1], std::fabs(spec.axes[1].coordinate(spec.scan_other[k]) -
+                                            spec.axes[1].coordinate(spec.scan_other[k - 1])));
+    step = {du, cell[1]};
     for (double other : spec.scan_other)
       for (double u0 = 0; u0 <= 1 + 1e-9; u0 += du)
         out.push_back({std::min(u0, 1.0), spec.axes[1].coordinate(other)});
@@ -392,7 +411,8 @@ std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
   }
   const std::size_t n = spec.axes.size();
   int spacing = 0;
-  const std::vector<std::vector<double>> points = grid_points(spec, opt, scan, spacing);
+  std::vector<double> step, cell;
+  const std::vector<std::vector<double>> points = grid_points(spec, opt, scan, spacing, step, cell);
   for (const Params& fixed : spec.variants) {
     MemberFit m{spec.effect, fixed, std::vector<double>(n, 0.0), {}};
     std::vector<std::pair<double, std::vector<double>>> grid;
@@ -405,7 +425,7 @@ std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
     std::vector<MemberFit> variant_best = on_top.with(m, {});
     double variant_value = std::numeric_limits<double>::infinity();
     for (const std::vector<double>& start :
-         starts_from(grid, spacing, n == 1 ? 1 : opt.starts_2d)) {
+         starts_from(grid, step, cell, n == 1 ? 1 : (scan ? 2 : 1) * opt.starts_2d)) {
       m.u = start;
       set_u = set_at.at(start);
       const double v = on_top.refine(m, set_u, 0.5 / (spacing - 1), opt.refine_evals);
@@ -474,6 +494,14 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   judge(library, baseline, out);
   log_fit("fit", out, t0);
   return out;
+}
+
+double screening_gap(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                     const std::vector<MemberFit>& members, const FittedModel& baseline,
+                     int threads) {
+  const SweepCells cells = spread_subset(sweep, kCoarseCells);
+  Objective coarse(cells, library, baseline, threads);
+  return coarse.train_gap(members, true);
 }
 
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
