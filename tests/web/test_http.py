@@ -84,6 +84,10 @@ def test_a_move_shows_in_state_history_and_metrics(lab, restore):
                 abs(s[("idm_position_meters", (("axis", "x"),))] - arrived) < 5 * count and
                 s[("idm_target_meters", (("axis", "x"),))] == pytest.approx(target))
     wait_for("the move in /metrics", metrics_follow, 10)
+    # A sample every poll (0.1 s): a move that lands within one poll leaves the start and the
+    # end; the next poll adds a third.
+    wait_for("three samples in /api/history",
+             lambda: len(web.json("/api/history")["axes"][0]["t"]) > 2, 10)
     h = web.json("/api/history")
     (axis,) = h["axes"]
     assert axis["name"] == "x" and len(axis["t"]) == len(axis["position_m"]) > 2
