@@ -173,21 +173,16 @@ class SetFits {
 
   // A set's members with the parameters they carry, as text (what refit starts from).
   static std::string start_of(const std::vector<MemberFit>& members) {
-    std::string s = key_of(members);
-    char buf[32];
+    std::ostringstream s;
+    s.precision(17);
+    s << key_of(members);
     for (const MemberFit& m : members) {
-      s += "|" + m.effect;
+      s << '|' << m.effect;
       for (const auto* params : {&m.fixed, &m.grid_point})
-        for (const auto& [name, v] : *params) {
-          std::snprintf(buf, sizeof buf, " %s=%.17g", name.c_str(), v);
-          s += buf;
-        }
-      for (double u : m.u) {
-        std::snprintf(buf, sizeof buf, " %.17g", u);
-        s += buf;
-      }
+        for (const auto& [name, v] : *params) s << ' ' << name << '=' << v;
+      for (double u : m.u) s << ' ' << u;
     }
-    return s;
+    return s.str();
   }
 
   const SweepCells& sweep_;
@@ -293,9 +288,8 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     // the best screened sets finished; the best of them that is plausible (a joiner may end on
     // a bound). Into the noise is the weaker test: it holds only when no finished lead, plausible
     // or not, fits the training trials better (else the effect that does is on a bound of its
-    // range, and another one merely stands in for it).
-    // a lead not worth finishing (worth_finishing) is not finished: a joint fit of three effects
-    // with a friction spread under a compliant actuator costs minutes
+    // range, and another one merely stands in for it). A lead not worth_finishing is skipped: a
+    // joint fit of three effects with a friction spread under a compliant actuator costs minutes.
     const double here = fits.screened_gap(current.members);
     const SetFit* best = nullptr;
     double best_train = std::numeric_limits<double>::infinity();

@@ -103,6 +103,21 @@ class Objective {
   double last_mu_ = 0;
 };
 
+// The objective of the coarse searches and the screens: on the cells of spread_subset (owned
+// here, since the objective refers to them).
+struct CoarseObjective {
+  CoarseObjective(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                  const FittedModel& baseline, int threads)
+      : cells(spread_subset(sweep, kCoarseCells)), objective(cells, library, baseline, threads) {}
+  CoarseObjective(const CoarseObjective&) = delete;
+  CoarseObjective& operator=(const CoarseObjective&) = delete;
+  CoarseObjective(CoarseObjective&&) = delete;
+  CoarseObjective& operator=(CoarseObjective&&) = delete;
+  ~CoarseObjective() = default;
+  const SweepCells cells;
+  Objective objective;
+};
+
 // Bounded Subplex on [0, 1]^n from `start`, first steps `steps` (one a coordinate); returns the
 // best point met (and its value in `best`).
 std::vector<double> subplex(const std::function<double(const std::vector<double>&)>& f,
@@ -266,32 +281,35 @@ void set_coordinates(std::vector<MemberFit>& members, const std::vector<double>&
       if (k < u.size()) v = u[k++];
 }
 
-// The points of a spec's grid, or with `scan` of its scan (axis 0 in steps of scan_ratio at each
-// of scan_other), then stage.yaml's start when there is one; `spacing`: grid points per unit of u
-// (the refinement's first step); `cell`: per coordinate, how far apart neighbours lie (a scan's:
-// two steps along axis 0, the next of scan_other along axis 1).
-std::vector<std::vector<double>> grid_points(const CandidateSpec& spec, const FitOptions& opt,
-                                             bool scan, int& spacing, std::vector<double>& step,
-                                             std::vector<double>& cell) {
+// A spec's grid, or with `scan` its scan (axis 0 in steps of scan_ratio at each of scan_other),
+// then stage.yaml's start when there is one.
+struct GridLayout {
+  std::vector<std::vector<double>> points;
+  int spacing = 0;           // grid points per unit of u (the refinement's first step)
+  std::vector<double> step;  // per coordinate, one grid step (a scan's: du, the rows' largest gap)
+  std::vector<double> cell;  // per coordinate, how far apart starts must lie (a scan: two steps)
+};
+
+GridLayout grid_points(const CandidateSpec& spec, const FitOptions& opt, bool scan) {
   const std::size_t n = spec.axes.size();
   const int pts = n == 1 ? opt.grid_1d : opt.grid_2d;
-  std::vector<std::vector<double>> out;
-  spacing = pts;
-  cell.assign(n, 1.0 / (pts - 1));
-  step = cell;
+  GridLayout g;
+  g.spacing = pts;
+  g.step.assign(n, 1.0 / (pts - 1));
+  g.cell = g.step;
   if (scan && spec.scan_ratio > 1 && n == 2) {
     const FitAxis& a = spec.axes[0];
     const double du = std::log(spec.scan_ratio) / std::log(a.hi / a.lo);
-    spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
-    cell[0] = 1.0 / (spacing - 1);
-    cell[1] = 0;
+    g.spacing = static_cast<int>(std::ceil(0.5 / du));  // neighbours: within two scan steps
+    double rows = 0;
     for (std::size_t k = 1; k < spec.scan_other.size(); ++k)
-      cell[1] = std::max(cell[1], std::fabs(spec.axes[1].coordinate(spec.scan_other[k]) -
-                                            spec.axes[1].coordinate(spec.scan_other[k - 1])));
-    step = {du, cell[1]};
+      rows = std::max(rows, std::fabs(spec.axes[1].coordinate(spec.scan_other[k]) -
+                                      spec.axes[1].coordinate(spec.scan_other[k - 1])));
+    g.step = {du, rows};
+    g.cell = {1.0 / (g.spacing - 1), rows};
     for (double other : spec.scan_other)
       for (double u0 = 0; u0 <= 1 + 1e-9; u0 += du)
-        out.push_back({std::min(u0, 1.0), spec.axes[1].coordinate(other)});
+        g.points.push_back({std::min(u0, 1.0), spec.axes[1].coordinate(other)});
   } else {
     const int total = n == 1 ? pts : pts * pts;
     for (int k = 0; k < total; ++k) {
@@ -300,15 +318,15 @@ std::vector<std::vector<double>> grid_points(const CandidateSpec& spec, const Fi
       std::vector<double> u(n);
       u[0] = column / double(pts - 1);
       if (n == 2) u[1] = row / double(pts - 1);
-      out.push_back(u);
+      g.points.push_back(u);
     }
   }
   if (!spec.start.empty()) {
     std::vector<double> u;
     for (std::size_t i = 0; i < n; ++i) u.push_back(spec.axes[i].coordinate(spec.start[i]));
-    out.push_back(u);
+    g.points.push_back(u);
   }
-  return out;
+  return g;
 }
 
 // The objective of a newcomer on top of a set of fitted members. Held: the set stays where its
@@ -410,14 +428,12 @@ std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
     return best;
   }
   const std::size_t n = spec.axes.size();
-  int spacing = 0;
-  std::vector<double> step, cell;
-  const std::vector<std::vector<double>> points = grid_points(spec, opt, scan, spacing, step, cell);
+  const GridLayout layout = grid_points(spec, opt, scan);
   for (const Params& fixed : spec.variants) {
     MemberFit m{spec.effect, fixed, std::vector<double>(n, 0.0), {}};
     std::vector<std::pair<double, std::vector<double>>> grid;
     std::map<std::vector<double>, std::vector<double>> set_at;  // the set's coordinates at a point
-    for (const std::vector<double>& u : points) {
+    for (const std::vector<double>& u : layout.points) {
       m.u = u;
       grid.push_back({on_top.value(m, set_u), u});
       set_at[u] = set_u;
@@ -425,10 +441,10 @@ std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
     std::vector<MemberFit> variant_best = on_top.with(m, {});
     double variant_value = std::numeric_limits<double>::infinity();
     for (const std::vector<double>& start :
-         starts_from(grid, step, cell, n == 1 ? 1 : (scan ? 2 : 1) * opt.starts_2d)) {
+         starts_from(grid, layout.step, layout.cell, n == 1 ? 1 : (scan ? 2 : 1) * opt.starts_2d)) {
       m.u = start;
       set_u = set_at.at(start);
-      const double v = on_top.refine(m, set_u, 0.5 / (spacing - 1), opt.refine_evals);
+      const double v = on_top.refine(m, set_u, 0.5 / (layout.spacing - 1), opt.refine_evals);
       if (v < variant_value) {
         variant_value = v;
         variant_best = on_top.with(m, set_u);
@@ -451,8 +467,9 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   Objective obj(sweep, library, baseline, opt.threads);
   // The grid or scan looks for basins on a subset of the cells spread over the map (cheaper on a
   // large sweep); the refinement runs on every cell.
-  const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
-  Objective coarse(coarse_cells, library, baseline, opt.threads);
+  CoarseObjective coarse_set(sweep, library, baseline, opt.threads);
+  const SweepCells& coarse_cells = coarse_set.cells;
+  Objective& coarse = coarse_set.objective;
   double best_value = 0;
   std::vector<MemberFit> variants;
   OnTop alone(coarse, {}, false, opt);
@@ -499,9 +516,8 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
 double screening_gap(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                      const std::vector<MemberFit>& members, const FittedModel& baseline,
                      int threads) {
-  const SweepCells cells = spread_subset(sweep, kCoarseCells);
-  Objective coarse(cells, library, baseline, threads);
-  return coarse.train_gap(members, true);
+  CoarseObjective coarse(sweep, library, baseline, threads);
+  return coarse.objective.train_gap(members, true);
 }
 
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
@@ -513,8 +529,9 @@ SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   // evaluations in proportion to its coordinates at every point); then all of them jointly. An
   // effect scanned alone only (a valley the grid steps over) is also scanned with the set held,
   // the better start kept.
-  const SweepCells coarse_cells = spread_subset(sweep, kCoarseCells);
-  Objective coarse(coarse_cells, library, baseline, opt.threads);
+  CoarseObjective coarse_set(sweep, library, baseline, opt.threads);
+  const SweepCells& coarse_cells = coarse_set.cells;
+  Objective& coarse = coarse_set.objective;
   const bool scan = spec.scans(base.empty());
   OnTop on_top(coarse, base, base.size() == 1 && !scan, opt);
   double value = 0;
