@@ -85,7 +85,8 @@ struct SetFit {
   double gap = 0;                          // held-out gap
   double shrink = 0;                       // 1 - gap / gap_before
   bool plausible = true;
-  std::string note;  // why not plausible
+  bool on_bound = false;  // a coordinate ended on a bound of its range (one reason not plausible)
+  std::string note;       // why not plausible
   int evaluations = 0;
   std::vector<std::string> names() const;
 };
@@ -101,6 +102,10 @@ struct FitOptions {
   // (amplifier + tilt: the gap triples 3 % off the cutoff), and the search rate's optimum is off
   // by about that much.
   int joint_polish_evals = 16;
+  // A pair of an effect scanned alone only and an effect on one coordinate also searched by the
+  // scan at every point of the other's grid (fit_on_top; off where the same pair was searched so
+  // the other way round already).
+  bool scan_across = true;
 };
 
 // The model of a set of effects at the given members (coordinates -> parameters).

@@ -68,7 +68,8 @@ class SetFits {
   // a basin the joint search does not leave); the lower training gap counts. A newcomer whose
   // single fit shrinks the gap by less than kSwapShrink is all but absent from it: the set's
   // effect on top of it would repeat the set's own single fit (unless the set's single is weak
-  // too, weak_single).
+  // too, weak_single, and the newcomer's single did not end on a bound of its range: fitted to
+  // nothing, a rigid actuator, where a compliant plant costs the most to simulate).
   std::vector<SetFit> screen_on_top(const std::vector<MemberFit>& base,
                                     const std::vector<const CandidateSpec*>& specs) {
     std::vector<std::vector<MemberFit>> sets, swapped;
@@ -78,15 +79,18 @@ class SetFits {
       sets.push_back(m);
       const auto single = finished_.find(key_of({m.back()}));
       const bool informative =
-          single != finished_.end() && (single->second.shrink >= kSwapShrink || weak_single(base));
+          single != finished_.end() &&
+          (single->second.shrink >= kSwapShrink || (weak_single(base) && !single->second.on_bound));
       swapped.push_back(base.size() == 1 && informative ? single->second.members
                                                         : std::vector<MemberFit>{});
     }
     return screen_each(sets, [&](std::size_t i, const FitOptions& one) {
       SetFit f = fit_on_top(sweep_, library_, base, *specs[i], baseline_, one);
       if (swapped[i].empty()) return f;
+      FitOptions again = one;
+      again.scan_across = false;  // the pair's scan across was searched by f
       SetFit g = fit_on_top(sweep_, library_, swapped[i], spec_of(library_, base[0].effect),
-                            baseline_, one);
+                            baseline_, again);
       if (!(g.train_gap < f.train_gap)) return f;
       std::rotate(g.members.begin(), g.members.begin() + 1, g.members.end());  // the set first
       g.effects = effects_of(library_, g.members);

@@ -259,6 +259,35 @@ TEST(Selection, AnEffectIsFoundOnTopOfOneWhoseFitAbsorbedPartOfIt) {
   EXPECT_TRUE(pair.plausible) << pair.note;
 }
 
+TEST(Selection, AnAmplifierIsFoundBesideAStribeckFrictionThatAbsorbedIt) {
+  // gap_bench's paper-size amplifier + Stribeck (a 3 kHz second-order amplifier, a 1.5 static
+  // excess at 5 mm/s): alone the amplifier fits to nothing (260 kHz) and Stribeck to 6 times the
+  // true velocity, and neither search on top of the other leaves those places (the pair stopped
+  // at a screen of 54 and nothing was named). The Stribeck scan at every point of the amplifier's
+  // grid finds the pair's valley.
+  Sweep s;
+  s.freqs = {100, 200, 300, 400, 500, 600, 700, 800};
+  s.duties = {0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5};
+  s.rate_hz = 100e3;
+  const SweepCells sweep =
+      generate({{"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}},
+                {"stribeck", {{"static_over_kinetic", 1.5}, {"stribeck_velocity_m_s", 5e-3}}}},
+               s);
+  const FittedModel base = fit_baseline(sweep, 2);
+  const auto lib = candidate_library(sweep);
+  FitOptions opt;
+  opt.threads = 2;
+  const SetFit stribeck = fit_single(sweep, lib, spec_of(lib, "stribeck"), base, opt);
+  const SetFit top = fit_on_top(sweep, lib, stribeck.members, spec_of(lib, "amplifier"), base, opt);
+  const SetFit pair = fit_joint(sweep, lib, top.members, base, opt, JointStage::Finish);
+  ASSERT_EQ(pair.names(), (std::vector<std::string>{"stribeck", "amplifier"}));
+  EXPECT_NEAR(pair.effects[1].params.at("cutoff_hz"), 3000, 0.1 * 3000);
+  EXPECT_EQ(pair.effects[1].params.at("order"), 2);
+  EXPECT_NEAR(pair.effects[0].params.at("stribeck_velocity_m_s"), 5e-3, 0.1 * 5e-3);
+  EXPECT_LT(pair.gap, 0.1 * stribeck.gap);
+  EXPECT_TRUE(pair.plausible) << pair.note;
+}
+
 TEST(Selection, AnEffectAlikeAMemberDoesNotJoinIt) {
   // validate's amplifier+tilt, seed 11: the amplifier model misses a little of the generator's
   // corners, and a compliant actuator on top of it took that up (named amplifier + compliance +
