@@ -171,18 +171,11 @@ std::vector<double> simulate_marks(const model::StageParams& stage, const model:
 }
 
 double search_rate_hz(const std::vector<model::EffectSpec>& effects) {
-  const bool stribeck = std::any_of(effects.begin(), effects.end(), [](const model::EffectSpec& e) {
-    return e.name == "stribeck";
-  });
   double rate = 0;
   for (const model::EffectSpec& e : effects) {
-    // a cutoff far above the sweep's phases barely shows: 500 kHz is enough to see that. The
-    // plant sees the chain's output as straight within a step, so the rounded corner reaches the
-    // slider as a kink at every step: under a Stribeck friction, whose static excess decides
-    // whether the slider breaks away in the corner, 100 kHz put a wrong amplifier (order 1) below
-    // the true one at the search rate (10.9 against 13.2; 50 against 1-3 at 300-500 kHz)
+    // a cutoff far above the sweep's phases barely shows: 500 kHz is enough to see that
     if (e.name == "amplifier")
-      rate = std::max(rate, std::clamp(20.0 * e.params.at("cutoff_hz"), stribeck ? 3e5 : 1e5, 5e5));
+      rate = std::max(rate, std::clamp(20.0 * e.params.at("cutoff_hz"), 1e5, 5e5));
     if (e.name == "hysteresis") rate = std::max(rate, 1e5);  // alone it is stepped kink to kink
     if (e.name == "creep" || e.name == "quantization") rate = std::max(rate, 1e5);
   }
