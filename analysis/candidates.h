@@ -57,6 +57,9 @@ struct CandidateSpec {
   // held (fit_on_top keeps the better start).
   bool scan_alone_only = false;
   bool scans(bool alone) const { return scan_ratio > 1 && (alone || !scan_alone_only); }
+  // On one coordinate beside an effect scanned alone only, that effect is scanned at every point
+  // of this one's grid (fit_on_top); not where an evaluation costs several simulations.
+  bool scanned_across = true;
   std::string physics;  // one line: what the coordinates mean (for the report)
 };
 

@@ -9,6 +9,7 @@
 #include <limits>
 #include <map>
 #include <nlopt.hpp>
+#include <numeric>
 
 #include "analysis/candidates.h"
 #include "model/yaml_util.h"
@@ -463,7 +464,7 @@ std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
 }
 
 // A pair of an effect scanned alone only (`narrow`: a valley across its grid, Stribeck's) and an
-// effect on one coordinate (`wide`: an amplifier, a tilt, a spread): the scan, at twice its step,
+// effect on one coordinate (`wide`: an amplifier, a tilt, creep): the scan, at twice its step,
 // with `wide` held at every point of its grid. Fitted alone, either can absorb part of the other
 // and sit where the pair's valley is not (an amplifier fitted to nothing beside a Stribeck valley
 // at a 6 times higher velocity): the profile refits the set only near its own optimum, and the
@@ -488,10 +489,11 @@ std::vector<MemberFit> scan_across(Objective& obj, const CandidateSpec& narrow,
       at.push_back(value);
     }
     std::vector<std::size_t> order(at.size());
-    for (std::size_t k = 0; k < order.size(); ++k) order[k] = k;
-    std::sort(order.begin(), order.end(),
-              [&](std::size_t x, std::size_t y) { return at[x] < at[y]; });
-    for (std::size_t k = 0; k < std::min<std::size_t>(2, order.size()); ++k)
+    std::iota(order.begin(), order.end(), 0);
+    const std::size_t kept = std::min<std::size_t>(2, order.size());
+    std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(kept), order.end(),
+                      [&](std::size_t x, std::size_t y) { return at[x] < at[y]; });
+    for (std::size_t k = 0; k < kept; ++k)
       best.push_back({wide.effect, fixed, across.points[order[k]], {}});
   }
   return best;
@@ -558,6 +560,39 @@ double screening_gap(const SweepCells& sweep, const std::vector<CandidateSpec>& 
   return coarse.objective.train_gap(members, true);
 }
 
+namespace {
+
+// The pair of `base`'s one member and `spec` searched across (scan_across) when one of them is
+// scanned alone only and the other is on one coordinate: at each point scan_across returns, the
+// narrow effect searched on top of the wide one (profiled and scanned held) and both jointly;
+// the members in the order (base, spec). None for other sets, or with opt.scan_across off.
+std::vector<SetFit> fits_across(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
+                                const std::vector<MemberFit>& base, const CandidateSpec& spec,
+                                const FittedModel& baseline, const FitOptions& opt,
+                                Objective& coarse) {
+  if (!opt.scan_across || base.size() != 1) return {};
+  const CandidateSpec& set_spec = spec_of(library, base[0].effect);
+  const bool narrow_first = set_spec.scan_alone_only;
+  const CandidateSpec& narrow = narrow_first ? set_spec : spec;
+  const CandidateSpec& wide = narrow_first ? spec : set_spec;
+  if (!narrow.scan_alone_only || wide.scan_alone_only || wide.axes.size() != 1 ||
+      !wide.grid.empty() || !wide.scanned_across)
+    return {};
+  FitOptions once = opt;
+  once.scan_across = false;
+  std::vector<SetFit> fits;
+  for (const MemberFit& w : scan_across(coarse, narrow, wide, opt)) {
+    fits.push_back(fit_on_top(sweep, library, {w}, narrow, baseline, once));
+    if (narrow_first) {
+      std::swap(fits.back().members[0], fits.back().members[1]);
+      fits.back().effects = effects_of(library, fits.back().members);
+    }
+  }
+  return fits;
+}
+
+}  // namespace
+
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                   const std::vector<MemberFit>& base, const CandidateSpec& spec,
                   const FittedModel& baseline, const FitOptions& opt) {
@@ -566,7 +601,7 @@ SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   // every grid point (held under a scan, hundreds of points, and when larger: the profile costs
   // evaluations in proportion to its coordinates at every point); then all of them jointly. An
   // effect scanned alone only (a valley the grid steps over) is also scanned with the set held,
-  // the better start kept.
+  // the better start kept; beside a one-coordinate effect also across its grid (fits_across).
   CoarseObjective coarse_set(sweep, library, baseline, opt.threads);
   const SweepCells& coarse_cells = coarse_set.cells;
   Objective& coarse = coarse_set.objective;
@@ -581,33 +616,12 @@ SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
     if (scanned < value) start = std::move(across);
   }
   SetFit out = fit_joint(coarse_cells, library, start, baseline, opt, JointStage::Search);
-  if (opt.scan_across && base.size() == 1) {
-    const CandidateSpec& set_spec = spec_of(library, base[0].effect);
-    const bool narrow_first = set_spec.scan_alone_only;
-    const CandidateSpec& narrow = narrow_first ? set_spec : spec;
-    const CandidateSpec& wide = narrow_first ? spec : set_spec;
-    // (not across a friction spread: each of its evaluations simulates the spread's quantiles,
-    // and on a paper-size Stribeck + spread sweep the scans ran for minutes)
-    if (narrow.scan_alone_only && !wide.scan_alone_only && wide.axes.size() == 1 &&
-        wide.grid.empty() && wide.effect != "friction_spread") {
-      // at each, the narrow effect searched on top of `wide` there (profiled and scanned held)
-      FitOptions once = opt;
-      once.scan_across = false;
-      for (const MemberFit& w : scan_across(coarse, narrow, wide, opt)) {
-        SetFit other = fit_on_top(sweep, library, {w}, narrow, baseline, once);
-        if (narrow_first) {
-          std::swap(other.members[0], other.members[1]);
-          other.effects = effects_of(library, other.members);
-        }
-        other.evaluations += out.evaluations;
-        if (other.train_gap < out.train_gap)
-          out = std::move(other);
-        else
-          out.evaluations = other.evaluations;
-      }
-    }
+  int evaluations = out.evaluations;
+  for (SetFit& other : fits_across(sweep, library, base, spec, baseline, opt, coarse)) {
+    evaluations += other.evaluations;
+    if (other.train_gap < out.train_gap) out = std::move(other);
   }
-  out.evaluations += coarse.evaluations;
+  out.evaluations = evaluations + coarse.evaluations;
   log_fit("on top", out, t0);
   return out;
 }
