@@ -338,4 +338,15 @@ FittedModel fit_baseline(const SweepCells& sweep, int threads) {
   return fit_model(sweep, nominal_model(sweep), threads, 4);
 }
 
+double systematic_gap(const FittedModel& m) {
+  if (m.test.cells.empty()) return 0;
+  double s = 0;
+  for (std::size_t c = 0; c < m.test.cells.size(); ++c) {
+    const CellResidual& a = m.train.cells[c];
+    const CellResidual& b = m.test.cells[c];
+    s += a.mean_z * b.mean_z + a.spread_z * b.spread_z + a.label * b.label;
+  }
+  return std::sqrt(std::max(0.0, s / static_cast<double>(m.test.cells.size())));
+}
+
 }  // namespace idm::analysis

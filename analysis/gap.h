@@ -107,6 +107,11 @@ struct FittedModel {
 };
 FittedModel fit_model(const SweepCells& sweep, ModelConfig model, int threads, int rounds = 2);
 
+// What the training and the held-out residuals of one model share, in noise units: the root of
+// the mean over cells of (train component x held-out component), summed over the mean, spread and
+// label components (noise is independent between the two sets, a model's error is not).
+double systematic_gap(const FittedModel& model);
+
 // The baseline of the diagnosis: the ideal impulse model (rigid actuator, Coulomb friction) with
 // alpha and mu fitted on training trials.
 FittedModel fit_baseline(const SweepCells& sweep, int threads);

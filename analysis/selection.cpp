@@ -330,17 +330,6 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
 
 }  // namespace
 
-double systematic_gap(const FittedModel& m) {
-  if (m.test.cells.empty()) return 0;
-  double s = 0;
-  for (std::size_t c = 0; c < m.test.cells.size(); ++c) {
-    const CellResidual& a = m.train.cells[c];
-    const CellResidual& b = m.test.cells[c];
-    s += a.mean_z * b.mean_z + a.spread_z * b.spread_z + a.label * b.label;
-  }
-  return std::sqrt(std::max(0.0, s / static_cast<double>(m.test.cells.size())));
-}
-
 bool significant_gap(const FittedModel& m) {
   return m.test.gap > kExplainedGap && systematic_gap(m) > kSystematicGap;
 }
@@ -405,8 +394,9 @@ void fit_candidates(const SweepCells& sweep, const std::vector<CandidateSpec>& l
 }
 
 // The set search (select_from) from the best plausible candidate that shrinks the gap, and from
-// the runner-up when it comes close (an amplifier and a compliant actuator trade places): the set
-// that ends with the smaller held-out gap, its steps in d.steps; none when the baseline's gap is
+// the runner-up when it comes close (an amplifier and a compliant actuator trade places), and from
+// a start's alike partner when those sets leave too much to name: the set that ends with the
+// smaller held-out gap, its steps in d.steps; none when the baseline's gap is
 // not significant (unless the best candidate explains a weak gap, explains_weak_gap). Every
 // candidate in `joiners` may join. A best single below kMinShrink still starts a search (two
 // effects can each explain little alone), but a set of one that ends there below kMinShrink is
@@ -423,14 +413,25 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
       pool[1]->gap <= kRunnerUpRatio * pool.front()->gap)
     firsts.push_back(pool[1]);
   std::optional<SetFit> current;
-  for (const SetFit* first : firsts) {
+  const auto start = [&](const SetFit* first) {
     std::vector<SelectionStep> steps;
     const SetFit end = select_from(*first, joiners, library, fits, steps);
     if (!current || end.gap < current->gap) {
       current = end;
       d.steps = steps;
     }
-  }
+  };
+  for (const SetFit* first : firsts) start(first);
+  // a start's alike partner (alike: one never joins a set that holds the other) starts a search
+  // of its own when the sets found leave a remainder too large to name: under a second effect
+  // the one that fits best alone need not be the one in the stage
+  if (significant_gap(current->fitted) && current->shrink < kNameShrink)
+    for (const SetFit* c : pool) {
+      const bool tried = std::find(firsts.begin(), firsts.end(), c) != firsts.end();
+      bool partner = false;
+      for (const SetFit* f : firsts) partner = partner || any_alike(f->names(), c->names());
+      if (!tried && partner && c->gap <= kRunnerUpRatio * pool.front()->gap) start(c);
+    }
   if (current->members.size() == 1 && current->shrink < kMinShrink &&
       !explains_weak_gap(*current, d.baseline)) {
     d.steps.clear();

@@ -3,15 +3,17 @@
 //
 // 1. Baseline: the impulse model with alpha and mu fitted (gap.h); its held-out gap is gap_before.
 // 2. Candidates: every identifiable effect fitted alone (candidates.h), ranked by shrink.
-// 3. Forward: the best plausible candidate starts the set (a set that ends as one effect below
-//    kMinShrink is no result); every other candidate is then fitted on top of the set (its own
-//    search with a set of one profiled, larger sets held, then all jointly, screened at the search
-//    rate; a pair also the other way round, from the newcomer's single when it shrinks the gap by
-//    kSwapShrink), and the best is added while the set's gap is above kFurtherGap and the addition
-//    shrinks its part above the noise, sqrt(gap^2 - 1), by kMinFurtherShrink (by kIntoNoiseShrink
-//    where it turns a significant remainder into one within the noise). A baseline whose gap is
-//    within the noise starts a search only when the best single takes kWeakExcessShrink of its
-//    part above the noise away (a weak gap, above kWeakGap).
+// 3. Forward: the best plausible candidate starts the set, the runner-up a second within
+//    kRunnerUpRatio, an alike partner of a start a third when the others leave too much to name
+//    (a set that ends as one effect below kMinShrink is no result); every other candidate is
+//    then fitted on top of the set (its own search with a set of one profiled, larger sets held,
+//    then all jointly, screened at the search rate; a pair also the other way round, from the
+//    newcomer's single when it shrinks the gap by kSwapShrink), and the best is added while the
+//    set's gap is above kFurtherGap and the addition shrinks the part above the noise,
+//    sqrt(gap^2 - 1), by kMinFurtherShrink (by kIntoNoiseShrink where it turns a significant
+//    remainder into one within the noise). A baseline whose gap is within the noise starts a search
+//    only when the best single takes kWeakExcessShrink of its part above the noise away (a weak
+//    gap, above kWeakGap).
 // 4. Backward: every member of a set of two or more is taken out and the rest refitted jointly,
 //    from the set's parameters as well as from the forward fit of the smaller set (the better
 //    counts); a member without which the gap grows by less than kBackwardTolerance goes (unless
@@ -109,11 +111,6 @@ struct DiagnoseOptions {
 };
 
 Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options = {});
-
-// What the training and the held-out residuals of one model share, in noise units: the root of
-// the mean over cells of (train component x held-out component), summed over the mean, spread and
-// label components (noise is independent between the two sets, a model's error is not).
-double systematic_gap(const FittedModel& model);
 
 // Whether a model's held-out gap is beyond what the measurement's noise allows.
 bool significant_gap(const FittedModel& model);

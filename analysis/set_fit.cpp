@@ -207,11 +207,11 @@ void log_fit(const char* what, const SetFit& f, std::chrono::steady_clock::time_
   const GapParts held_out = gap_parts(f.fitted.test);
   std::fprintf(stderr,
                "  %s %s: %d evaluations, %.2f s, train gap %.3g, held-out %.3g (mean %.3g, spread "
-               "%.3g, label %.3g)%s\n",
+               "%.3g, label %.3g, systematic %.3g)%s\n",
                what, names.c_str(), f.evaluations,
                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
                f.train_gap, f.gap, held_out.mean, held_out.spread, held_out.label,
-               f.plausible ? "" : " (implausible)");
+               systematic_gap(f.fitted), f.plausible ? "" : " (implausible)");
   std::string params;
   for (const model::EffectSpec& e : f.effects)
     for (const auto& [k, v] : e.params)
