@@ -393,6 +393,12 @@ void fit_candidates(const SweepCells& sweep, const std::vector<CandidateSpec>& l
   });
 }
 
+// Honesty: a set that leaves a significant remainder is named only when it explains most of the
+// gap (kNameShrink).
+bool nameable(const SetFit& set) {
+  return !(significant_gap(set.fitted) && set.shrink < kNameShrink);
+}
+
 // The set search (select_from) from the best plausible candidate that shrinks the gap, and from
 // the runner-up when it comes close (an amplifier and a compliant actuator trade places), and from
 // a start's alike partner when those sets leave too much to name: the set that ends with the
@@ -425,11 +431,12 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
   // a start's alike partner (alike: one never joins a set that holds the other) starts a search
   // of its own when the sets found leave a remainder too large to name: under a second effect
   // the one that fits best alone need not be the one in the stage
-  if (significant_gap(current->fitted) && current->shrink < kNameShrink)
+  if (!nameable(*current))
     for (const SetFit* c : pool) {
       const bool tried = std::find(firsts.begin(), firsts.end(), c) != firsts.end();
-      bool partner = false;
-      for (const SetFit* f : firsts) partner = partner || any_alike(f->names(), c->names());
+      const bool partner = std::any_of(firsts.begin(), firsts.end(), [&](const SetFit* f) {
+        return any_alike(f->names(), c->names());
+      });
       if (!tried && partner && c->gap <= kRunnerUpRatio * pool.front()->gap) start(c);
     }
   if (current->members.size() == 1 && current->shrink < kMinShrink &&
@@ -543,7 +550,7 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
   // honesty: a set that leaves a significant remainder must explain most of the gap
   if (found) {
     d.best = *found;
-    d.named = !(significant_gap(found->fitted) && found->shrink < kNameShrink);
+    d.named = nameable(*found);
   }
   if (d.named) {
     d.chosen = d.best.effects;
