@@ -109,6 +109,9 @@ struct FitOptions {
   // scan at every point of the other's grid (fit_on_top; off where the same pair was searched so
   // the other way round already).
   bool scan_across = true;
+  // The same for an effect scanned on top of a set as well (a resonance): asked for by the
+  // selection where the pair's screen says the resonance is there and its basin was missed.
+  bool resonance_across = false;
 };
 
 // The model of a set of effects at the given members (coordinates -> parameters).
@@ -157,6 +160,12 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                   const std::vector<MemberFit>& base, const CandidateSpec& spec,
                   const FittedModel& baseline, const FitOptions& options);
+
+// Whether fit_on_top searches the pair of `base`'s one member and `spec` across (fits_across):
+// one of them scanned (alone only, or with `resonance` on top of a set as well: a resonance) and
+// the other on one coordinate without a grid.
+bool searched_across(const std::vector<CandidateSpec>& library, const std::vector<MemberFit>& base,
+                     const CandidateSpec& spec, bool resonance);
 
 // A set of effects fitted jointly from `start` (one member per effect, e.g. the single fits).
 // Search: the Subplex at the search rate only (train_gap is its objective; no held-out score, gap

@@ -11,8 +11,9 @@ namespace idm::analysis {
 SweepCells collect_cells(const Dataset& ds, int min_trials) {
   std::vector<TrialSeries> series(ds.trials.size());
   for (std::size_t i = 0; i < ds.trials.size(); ++i) series[i] = read_trial(ds, i);
-  SweepCells out =
-      collect_cells(ds.stage, ds.trials, series, ds.path, min_trials, ds.progress.marked());
+  // a cell short of trials is left out and listed, whether the recorder marked the sweep as cut
+  // off or a lab's writer dropped a trial (the format sets no number of trials a cell)
+  SweepCells out = collect_cells(ds.stage, ds.trials, series, ds.path, min_trials, true);
   out.progress = ds.progress;
   return out;
 }
@@ -20,17 +21,23 @@ SweepCells collect_cells(const Dataset& ds, int min_trials) {
 namespace {
 
 // The spread of the readings of x_m over [from_s, to_s) of one trial; none with fewer than 4.
+// Two passes, about the mean: x_m is absolute, and where an interferometer's zero lies 1.2 m away
+// the sum of squares loses the nanometres (x^2 carries 16 digits of 1.44 m^2, the noise's variance
+// is 1e-18 m^2).
 std::optional<double> rest_sd_m(const TrialSeries& s, double from_s, double to_s) {
-  double sum = 0, sum2 = 0;
+  double sum = 0;
   int n = 0;
   for (std::size_t k = 0; k < s.size(); ++k)
     if (s.t_s[k] >= from_s && s.t_s[k] < to_s) {
       sum += s.x_m[k];
-      sum2 += s.x_m[k] * s.x_m[k];
       ++n;
     }
   if (n < 4) return std::nullopt;
-  return std::sqrt(std::max(0.0, sum2 / n - (sum / n) * (sum / n)));
+  const double mean = sum / n;
+  double ss = 0;
+  for (std::size_t k = 0; k < s.size(); ++k)
+    if (s.t_s[k] >= from_s && s.t_s[k] < to_s) ss += (s.x_m[k] - mean) * (s.x_m[k] - mean);
+  return std::sqrt(ss / n);
 }
 
 // The median spread of the readings while the slider rests before each burst, and after it once
@@ -49,6 +56,31 @@ std::optional<double> median_rest_sd_m(const std::vector<TrialInfo>& infos,
   }
   if (rest_sd.empty()) return std::nullopt;
   return median(rest_sd);
+}
+
+// Without a reading at rest (the format allows a trial without rows before 0 or after its burst):
+// the readings' spread from the second differences of successive samples inside the bursts. Of
+// white noise of spread s they have spread sqrt(6) s, and their median absolute value is 0.6745
+// times that; the slider's own motion adds little (between corners it stands or decelerates at
+// mu g, mu g dt^2 a few nm at 20 kHz) and only to the samples where it slides, which a median
+// passes over. Per trial the median; over the trials the lower quartile (the trials that slide
+// least). None when no trial has 8 samples in its burst.
+std::optional<double> burst_noise_sd_m(const std::vector<TrialInfo>& infos,
+                                       const std::vector<TrialSeries>& series) {
+  std::vector<double> per_trial;
+  for (std::size_t i = 0; i < infos.size(); ++i) {
+    const TrialSeries& s = series[i];
+    const double end_s = infos[i].cycles / infos[i].freq_hz;
+    std::vector<double> d2;
+    for (std::size_t k = 1; k + 1 < s.size(); ++k)
+      if (s.t_s[k - 1] >= 0 && s.t_s[k + 1] <= end_s)
+        d2.push_back(std::fabs(s.x_m[k + 1] - 2 * s.x_m[k] + s.x_m[k - 1]));
+    if (d2.size() >= 8) per_trial.push_back(median(d2) / (0.6745 * std::sqrt(6.0)));
+  }
+  if (per_trial.empty()) return std::nullopt;
+  const auto q = per_trial.begin() + static_cast<std::ptrdiff_t>(per_trial.size() / 4);
+  std::nth_element(per_trial.begin(), q, per_trial.end());
+  return *q;
 }
 
 // Appends one cell per distinct (f, duty, stroke) to out.cells in the order of first appearance;
@@ -89,8 +121,8 @@ void skip_small_cells(SweepCells& out, std::vector<std::vector<std::size_t>>& me
   }
   if (kept.empty())
     throw InputError(out.name + ": the sweep is too small to diagnose: no cell has " +
-                     std::to_string(min_trials) + " trials (the recording was cut off after " +
-                     std::to_string(trial_count) + " trials)");
+                     std::to_string(min_trials) + " trials, some to fit and some held out (" +
+                     std::to_string(trial_count) + " trials in all)");
   out.cells = std::move(kept);
   members = std::move(kept_members);
 }
@@ -125,9 +157,12 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
   SweepCells out;
   out.stage = stage;
   out.resolution_m = stage.interferometer.resolution_m;
-  // noise: the readings' spread at rest, at least the quantization's
+  // noise: the readings' spread at rest (or, with no reading at rest, inside the bursts), at least
+  // the quantization's
   const double quant_sd = out.resolution_m / std::sqrt(12.0);
-  out.reading_sd_m = std::max(quant_sd, median_rest_sd_m(infos, series).value_or(quant_sd));
+  std::optional<double> sd = median_rest_sd_m(infos, series);
+  if (!sd) sd = burst_noise_sd_m(infos, series);
+  out.reading_sd_m = std::max(quant_sd, sd.value_or(quant_sd));
   const double noise_m =
       std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
   out.noise_m = noise_m;
@@ -152,6 +187,19 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
 
 std::string progress_summary(const SweepCells& sweep) {
   const recording::SweepProgress& p = sweep.progress;
+  constexpr std::size_t kListed = 8;
+  if (!p.marked() && !sweep.skipped.empty()) {  // a sweep from elsewhere with short cells
+    std::ostringstream s;
+    s << sweep.skipped.size() << " cell(s) left out with fewer than 3 trials (some to fit, some "
+      << "held out); diagnosed on the other " << sweep.cells.size() << ":";
+    for (std::size_t i = 0; i < sweep.skipped.size() && i < kListed; ++i)
+      s << (i ? "," : "") << " " << sweep.skipped[i].freq_hz << " Hz duty " << sweep.skipped[i].duty
+        << " stroke " << sweep.skipped[i].stroke_m * 1e6 << " um";
+    if (sweep.skipped.size() > kListed)
+      s << " and " << sweep.skipped.size() - kListed << " more (all in the JSON)";
+    s << "\n";
+    return s.str();
+  }
   if (!p.marked() || (!p.interrupted() && p.missing.empty())) return "";
   std::ostringstream s;
   int empty = 0;
@@ -163,7 +211,6 @@ std::string progress_summary(const SweepCells& sweep) {
     << " short of trials; diagnosed on the " << sweep.cells.size() << " cells with enough trials";
   if (!sweep.skipped.empty()) s << " (" << sweep.skipped.size() << " left out with too few)";
   s << "\n";
-  constexpr std::size_t kListed = 8;
   s << "missing or short:";
   for (std::size_t i = 0; i < p.missing.size() && i < kListed; ++i) {
     const recording::MissingCell& m = p.missing[i];

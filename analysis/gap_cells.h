@@ -36,17 +36,17 @@ struct SweepCells {
   double noise_m = 0;  // the sensor's noise without quantization (reading_sd_m less one count's)
   std::string name;    // the dataset's path as given (messages, the report)
   model::StageFile stage;
-  // The recorder's mark (recording/sweep_plan.h): Unmarked for data from elsewhere. A marked sweep
-  // that was cut off is diagnosed on the cells it has (`skipped`: cells with fewer trials than a
-  // diagnosis needs, left out); progress.missing lists every planned cell short of its trials.
+  // The recorder's mark (recording/sweep_plan.h): Unmarked for data from elsewhere;
+  // progress.missing lists every planned cell short of its trials. A sweep is diagnosed on the
+  // cells it has (`skipped`: cells with fewer trials than a diagnosis needs, left out).
   recording::SweepProgress progress;
   std::vector<CellKey> skipped;
 };
 
-// Reads every trial (each error names its file) and groups them. Throws InputError when a cell has
-// fewer than `min_trials` trials ("the sweep is too small to diagnose: ..."), except in a sweep the
-// recorder marked (dataset.progress): there such a cell is left out and listed in `skipped`, and
-// only a sweep with no cell left is refused.
+// Reads every trial (each error names its file) and groups them. A cell with fewer than
+// `min_trials` trials is left out and listed in `skipped` (a sweep the recorder cut off, or a lab's
+// writer that dropped a trial: the format sets no number of trials a cell); a sweep with no cell
+// left is refused (InputError: "the sweep is too small to diagnose: ...").
 SweepCells collect_cells(const Dataset& dataset, int min_trials = 3);
 
 // The same from a sweep held in memory (validate, tests): trials[i] is the time series of infos[i].
@@ -57,8 +57,9 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
                          int min_trials = 3, bool skip_small = false);
 
 // For a sweep the recorder marked: whether it was cut off, which planned cells are missing or
-// short of trials, and which cells the diagnosis left out (a few lines, each ending in a newline).
-// "" for an unmarked sweep and for a complete one with every planned trial.
+// short of trials, and which cells the diagnosis left out (a few lines, each ending in a newline);
+// for an unmarked sweep the cells left out (one line). "" for a complete sweep with every planned
+// trial and for an unmarked one with no cell left out.
 std::string progress_summary(const SweepCells& sweep);
 
 }  // namespace idm::analysis

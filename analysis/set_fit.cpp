@@ -10,6 +10,7 @@
 #include <map>
 #include <nlopt.hpp>
 #include <numeric>
+#include <optional>
 
 #include "analysis/candidates.h"
 #include "model/yaml_util.h"
@@ -562,22 +563,35 @@ double screening_gap(const SweepCells& sweep, const std::vector<CandidateSpec>& 
 
 namespace {
 
+// The scanned one of a pair (first) and the one on one coordinate, or none when the pair is not
+// searched across (searched_across).
+std::optional<std::pair<const CandidateSpec*, const CandidateSpec*>> across_roles(
+    const CandidateSpec& set_spec, const CandidateSpec& spec, bool resonance) {
+  const bool narrow_first = set_spec.scans(true) && !spec.scans(true);
+  const CandidateSpec& narrow = narrow_first ? set_spec : spec;
+  const CandidateSpec& wide = narrow_first ? spec : set_spec;
+  if (!narrow.scans(true) || (!narrow.scan_alone_only && !resonance) || wide.scans(true) ||
+      wide.axes.size() != 1 || !wide.grid.empty() || !wide.scanned_across)
+    return std::nullopt;
+  return std::make_pair(&narrow, &wide);
+}
+
 // The pair of `base`'s one member and `spec` searched across (scan_across) when one of them is
-// scanned alone only and the other is on one coordinate: at each point scan_across returns, the
-// narrow effect searched on top of the wide one (profiled and scanned held) and both jointly;
-// the members in the order (base, spec). None for other sets, or with opt.scan_across off.
+// scanned alone only (or, with opt.resonance_across, scanned on top of a set as well) and the
+// other is on one coordinate: at each point scan_across returns, the narrow effect searched on
+// top of the wide one (profiled and scanned held) and both jointly; the members in the order
+// (base, spec). None for other sets, or with opt.scan_across off.
 std::vector<SetFit> fits_across(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                                 const std::vector<MemberFit>& base, const CandidateSpec& spec,
                                 const FittedModel& baseline, const FitOptions& opt,
                                 Objective& coarse) {
   if (!opt.scan_across || base.size() != 1) return {};
   const CandidateSpec& set_spec = spec_of(library, base[0].effect);
-  const bool narrow_first = set_spec.scan_alone_only;
-  const CandidateSpec& narrow = narrow_first ? set_spec : spec;
-  const CandidateSpec& wide = narrow_first ? spec : set_spec;
-  if (!narrow.scan_alone_only || wide.scan_alone_only || wide.axes.size() != 1 ||
-      !wide.grid.empty() || !wide.scanned_across)
-    return {};
+  const auto roles = across_roles(set_spec, spec, opt.resonance_across);
+  if (!roles) return {};
+  const CandidateSpec& narrow = *roles->first;
+  const CandidateSpec& wide = *roles->second;
+  const bool narrow_first = &narrow == &set_spec;
   FitOptions once = opt;
   once.scan_across = false;
   std::vector<SetFit> fits;
@@ -592,6 +606,12 @@ std::vector<SetFit> fits_across(const SweepCells& sweep, const std::vector<Candi
 }
 
 }  // namespace
+
+bool searched_across(const std::vector<CandidateSpec>& library, const std::vector<MemberFit>& base,
+                     const CandidateSpec& spec, bool resonance) {
+  return base.size() == 1 &&
+         across_roles(spec_of(library, base[0].effect), spec, resonance).has_value();
+}
 
 SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
                   const std::vector<MemberFit>& base, const CandidateSpec& spec,

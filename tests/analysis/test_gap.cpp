@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <random>
 
 #include "analysis/gap.h"
@@ -180,6 +181,62 @@ TEST(Gap, IdealStageIsWithinTheNoiseOfTheBaseline) {
   EXPECT_NEAR(base.calibration.alpha, 1.0, 0.01);
   EXPECT_NEAR(base.calibration.mu, 0.4, 0.004);
   EXPECT_LT(base.test.gap, 2.0);
+}
+
+// The same sweep with its readings changed by `change` (the trial, its series).
+SweepCells changed_sweep(const model::StageFile& stage, const model::SimConfig& sim,
+                         const SweepPlan& plan,
+                         const std::function<void(const TrialInfo&, TrialSeries&)>& change) {
+  std::vector<TrialInfo> infos;
+  std::vector<TrialSeries> series;
+  simulate_sweep(stage, sim, plan, [&](const TrialInfo& i, TrialSeries&& s) {
+    infos.push_back(i);
+    series.push_back(std::move(s));
+    change(infos.back(), series.back());
+  });
+  return collect_cells(stage, infos, series, "memory");
+}
+
+TEST(Gap, TheReadingNoiseDoesNotDependOnWhereTheInterferometersZeroLies) {
+  // x_m is absolute: an interferometer whose zero lies 1.2 m away reads the same noise (a sum of
+  // squares read 1.4 to 15 nm for 2.45 nm as the offset went from 0.2 to 1.23 m).
+  model::StageFile stage;
+  stage.interferometer.resolution_m = 1e-9;
+  model::SimConfig sim;
+  sim.noise_m = 3e-9;
+  const SweepPlan plan = small_plan(25e3);
+  const SweepCells near = changed_sweep(stage, sim, plan, [](const TrialInfo&, TrialSeries&) {});
+  for (double offset_m : {0.3, 1.2345678, -2.5}) {
+    const SweepCells far = changed_sweep(stage, sim, plan, [&](const TrialInfo&, TrialSeries& s) {
+      for (double& x : s.x_m) x += offset_m;
+    });
+    EXPECT_NEAR(far.reading_sd_m, near.reading_sd_m, 1e-3 * near.reading_sd_m) << offset_m;
+    EXPECT_NEAR(far.cells[7].test[0].steady_step_m, near.cells[7].test[0].steady_step_m, 1e-12);
+  }
+  EXPECT_NEAR(near.reading_sd_m, std::sqrt(9e-18 + 1e-18 / 12), 0.3e-9);
+}
+
+TEST(Gap, WithoutReadingsAtRestTheNoiseIsReadInsideTheBursts) {
+  // The format allows trials without rows before 0 or after the burst: the noise is then read
+  // from the bursts' second differences, not taken to be the quantization's (0.29 nm here). One
+  // sample at or before 0 and one at or after the end are kept: the burst is covered.
+  model::StageFile stage;
+  stage.interferometer.resolution_m = 1e-9;
+  model::SimConfig sim;
+  sim.noise_m = 3e-9;
+  const SweepPlan plan = small_plan(25e3);
+  const SweepCells cut = changed_sweep(stage, sim, plan, [](const TrialInfo& i, TrialSeries& s) {
+    TrialSeries kept;
+    for (std::size_t k = 0; k < s.size(); ++k)
+      if (s.t_s[k] > -1 / i.sample_rate_hz &&
+          s.t_s[k] < i.cycles / i.freq_hz + 1 / i.sample_rate_hz) {
+        kept.t_s.push_back(s.t_s[k]);
+        kept.xi_cmd_m.push_back(s.xi_cmd_m[k]);
+        kept.x_m.push_back(s.x_m[k]);
+      }
+    s = std::move(kept);
+  });
+  EXPECT_NEAR(cut.reading_sd_m, std::sqrt(9e-18 + 1e-18 / 12), 0.5e-9);
 }
 
 TEST(Gap, TheBaselineFitsAFrictionOffset) {
