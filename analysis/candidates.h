@@ -57,8 +57,9 @@ struct CandidateSpec {
   // held (fit_on_top keeps the better start).
   bool scan_alone_only = false;
   bool scans(bool alone) const { return scan_ratio > 1 && (alone || !scan_alone_only); }
-  // On one coordinate beside an effect scanned alone only, that effect is scanned at every point
-  // of this one's grid (fit_on_top); not where an evaluation costs several simulations.
+  // On one coordinate beside an effect scanned alone only (or a resonance, when the selection
+  // asks: FitOptions::resonance_across), that effect is scanned at every point of this one's grid
+  // (fit_on_top); not where an evaluation costs several simulations.
   bool scanned_across = true;
   std::string physics;  // one line: what the coordinates mean (for the report)
 };
@@ -109,8 +110,9 @@ struct FitOptions {
   // scan at every point of the other's grid (fit_on_top; off where the same pair was searched so
   // the other way round already).
   bool scan_across = true;
-  // The same for an effect scanned on top of a set as well (a resonance): asked for by the
-  // selection where the pair's screen says the resonance is there and its basin was missed.
+  // The same for an effect scanned on top of a set as well (a resonance), and only that search
+  // (fit_on_top returns the best across, an infinite train_gap when there is none): asked for by
+  // the selection after the pair's screen said the resonance is there and its basin was missed.
   bool resonance_across = false;
 };
 

@@ -59,23 +59,39 @@ std::optional<double> median_rest_sd_m(const std::vector<TrialInfo>& infos,
 }
 
 // Without a reading at rest (the format allows a trial without rows before 0 or after its burst):
-// the readings' spread from the second differences of successive samples inside the bursts. Of
-// white noise of spread s they have spread sqrt(6) s, and their median absolute value is 0.6745
-// times that; the slider's own motion adds little (between corners it stands or decelerates at
-// mu g, mu g dt^2 a few nm at 20 kHz) and only to the samples where it slides, which a median
-// passes over. Per trial the median; over the trials the lower quartile (the trials that slide
-// least). None when no trial has 8 samples in its burst.
+// the readings' spread from the second differences of successive samples inside the bursts, whose
+// spread is sqrt(6) times that of white noise. The slider's own motion adds to the samples where
+// it slides (mu g dt^2: 40 nm at 10 kHz), so a trial's robust first estimate (the median absolute
+// second difference is 0.6745 sqrt(6) s) picks the samples where it stands: both first
+// differences and the second within 3 of their spreads. Their root mean square is the trial's
+// estimate (a median of quantized readings moves in whole counts: 3.03 nm for 2.45 nm at 5 nm
+// counts). Over the trials, the lower quartile (those that slide least). None when no trial has
+// 8 samples to go on.
 std::optional<double> burst_noise_sd_m(const std::vector<TrialInfo>& infos,
                                        const std::vector<TrialSeries>& series) {
+  constexpr double kMadOfSecondDifference = 0.6745 * 2.449489742783178;  // 0.6745 sqrt(6)
   std::vector<double> per_trial;
   for (std::size_t i = 0; i < infos.size(); ++i) {
     const TrialSeries& s = series[i];
     const double end_s = infos[i].cycles / infos[i].freq_hz;
-    std::vector<double> d2;
+    std::vector<double> d2, d1_before, d1_after;
     for (std::size_t k = 1; k + 1 < s.size(); ++k)
-      if (s.t_s[k - 1] >= 0 && s.t_s[k + 1] <= end_s)
+      if (s.t_s[k - 1] >= 0 && s.t_s[k + 1] <= end_s) {
         d2.push_back(std::fabs(s.x_m[k + 1] - 2 * s.x_m[k] + s.x_m[k - 1]));
-    if (d2.size() >= 8) per_trial.push_back(median(d2) / (0.6745 * std::sqrt(6.0)));
+        d1_before.push_back(std::fabs(s.x_m[k] - s.x_m[k - 1]));
+        d1_after.push_back(std::fabs(s.x_m[k + 1] - s.x_m[k]));
+      }
+    if (d2.size() < 8) continue;
+    const double first = median(d2) / kMadOfSecondDifference;
+    const double still = 3 * std::sqrt(2.0) * first, still2 = 3 * std::sqrt(6.0) * first;
+    double ss = 0;
+    std::size_t n = 0;
+    for (std::size_t k = 0; k < d2.size(); ++k)
+      if (d1_before[k] <= still && d1_after[k] <= still && d2[k] <= still2) {
+        ss += d2[k] * d2[k];
+        ++n;
+      }
+    per_trial.push_back(n >= 8 ? std::sqrt(ss / static_cast<double>(n) / 6.0) : first);
   }
   if (per_trial.empty()) return std::nullopt;
   const auto q = per_trial.begin() + static_cast<std::ptrdiff_t>(per_trial.size() / 4);
@@ -114,6 +130,7 @@ void skip_small_cells(SweepCells& out, std::vector<std::vector<std::size_t>>& me
   for (std::size_t c = 0; c < out.cells.size(); ++c) {
     if (static_cast<int>(members[c].size()) < min_trials) {
       out.skipped.push_back(out.cells[c].key);
+      out.skipped_trials.push_back(members[c].size());
       continue;
     }
     kept.push_back(out.cells[c]);
@@ -167,6 +184,7 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
       std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
   out.noise_m = noise_m;
   out.name = name;
+  out.min_trials = min_trials;
 
   std::vector<std::vector<std::size_t>> members = group_into_cells(infos, out);
   if (skip_small) skip_small_cells(out, members, min_trials, infos.size());
@@ -190,11 +208,13 @@ std::string progress_summary(const SweepCells& sweep) {
   constexpr std::size_t kListed = 8;
   if (!p.marked() && !sweep.skipped.empty()) {  // a sweep from elsewhere with short cells
     std::ostringstream s;
-    s << sweep.skipped.size() << " cell(s) left out with fewer than 3 trials (some to fit, some "
-      << "held out); diagnosed on the other " << sweep.cells.size() << ":";
+    s << sweep.skipped.size() << " cell(s) left out with fewer than " << sweep.min_trials
+      << " trials (some to fit, some held out); diagnosed on the other " << sweep.cells.size()
+      << ":";
     for (std::size_t i = 0; i < sweep.skipped.size() && i < kListed; ++i)
       s << (i ? "," : "") << " " << sweep.skipped[i].freq_hz << " Hz duty " << sweep.skipped[i].duty
-        << " stroke " << sweep.skipped[i].stroke_m * 1e6 << " um";
+        << " stroke " << sweep.skipped[i].stroke_m * 1e6 << " um (" << sweep.skipped_trials[i]
+        << " trials)";
     if (sweep.skipped.size() > kListed)
       s << " and " << sweep.skipped.size() - kListed << " more (all in the JSON)";
     s << "\n";

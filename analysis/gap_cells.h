@@ -32,7 +32,9 @@ struct Cell {
 struct SweepCells {
   std::vector<Cell> cells;
   double resolution_m = 0;
-  double reading_sd_m = 0;  // one position reading: noise and quantization, from the rest samples
+  // one position reading: noise and quantization, from the samples at rest (or, with none, from
+  // the bursts' second differences)
+  double reading_sd_m = 0;
   double noise_m = 0;  // the sensor's noise without quantization (reading_sd_m less one count's)
   std::string name;    // the dataset's path as given (messages, the report)
   model::StageFile stage;
@@ -41,6 +43,8 @@ struct SweepCells {
   // cells it has (`skipped`: cells with fewer trials than a diagnosis needs, left out).
   recording::SweepProgress progress;
   std::vector<CellKey> skipped;
+  std::vector<std::size_t> skipped_trials;  // the trials each skipped cell has
+  int min_trials = 3;                       // the trials a cell needs
 };
 
 // Reads every trial (each error names its file) and groups them. A cell with fewer than

@@ -115,14 +115,18 @@ class SetFits {
         screened.begin(), screened.end(),
         [](const SetFit& a, const SetFit& b) { return a.train_gap < b.train_gap; });
     const std::string k = key_of(lead->members);
-    if (finished_.count(k) || !across_.insert(k).second) return;
-    const CandidateSpec& spec = spec_of(library_, lead->members.back().effect);
+    if (lead->members.size() != 2 || finished_.count(k) || across_.count(k)) return;
+    // the newcomer: a pair screened from another start first keeps that start's order
+    const MemberFit& newcomer =
+        lead->members[0].effect == base[0].effect ? lead->members[1] : lead->members[0];
+    const CandidateSpec& spec = spec_of(library_, newcomer.effect);
     if (!searched_across(library_, base, spec, true) ||
         searched_across(library_, base, spec, false))
       return;
     if (!(lead->train_gap > kAcrossGap &&
           lead->train_gap < (1 - kAcrossShrink) * screened_gap(base)))
       return;
+    across_.insert(k);  // once a pair, whichever start asks
     FitOptions across = options_;
     across.resonance_across = true;
     SetFit f = fit_on_top(sweep_, library_, base, spec, baseline_, across);

@@ -464,8 +464,9 @@ std::vector<MemberFit> coarse_search(OnTop& on_top, const CandidateSpec& spec,
   return best;
 }
 
-// A pair of an effect scanned alone only (`narrow`: a valley across its grid, Stribeck's) and an
-// effect on one coordinate (`wide`: an amplifier, a tilt, creep): the scan, at twice its step,
+// A pair of a scanned effect (`narrow`: a valley across its grid, Stribeck's, or a resonance's
+// when the selection asks) and an effect on one coordinate (`wide`: an amplifier, a tilt, creep,
+// hysteresis): the scan, at twice its step,
 // with `wide` held at every point of its grid. Fitted alone, either can absorb part of the other
 // and sit where the pair's valley is not (an amplifier fitted to nothing beside a Stribeck valley
 // at a 6 times higher velocity): the profile refits the set only near its own optimum, and the
@@ -594,6 +595,7 @@ std::vector<SetFit> fits_across(const SweepCells& sweep, const std::vector<Candi
   const bool narrow_first = &narrow == &set_spec;
   FitOptions once = opt;
   once.scan_across = false;
+  once.resonance_across = false;
   std::vector<SetFit> fits;
   for (const MemberFit& w : scan_across(coarse, narrow, wide, opt)) {
     fits.push_back(fit_on_top(sweep, library, {w}, narrow, baseline, once));
@@ -625,17 +627,23 @@ SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   CoarseObjective coarse_set(sweep, library, baseline, opt.threads);
   const SweepCells& coarse_cells = coarse_set.cells;
   Objective& coarse = coarse_set.objective;
-  const bool scan = spec.scans(base.empty());
-  OnTop on_top(coarse, base, base.size() == 1 && !scan, opt);
-  double value = 0;
-  std::vector<MemberFit> start = coarse_search(on_top, spec, opt, scan, value);
-  if (!scan && spec.scans(true)) {
-    OnTop held(coarse, base, false, opt);
-    double scanned = 0;
-    std::vector<MemberFit> across = coarse_search(held, spec, opt, true, scanned);
-    if (scanned < value) start = std::move(across);
+  // With opt.resonance_across the selection has screened the pair already: only across.
+  SetFit out;
+  out.train_gap = std::numeric_limits<double>::infinity();
+  out.gap = out.train_gap;
+  if (!opt.resonance_across) {
+    const bool scan = spec.scans(base.empty());
+    OnTop on_top(coarse, base, base.size() == 1 && !scan, opt);
+    double value = 0;
+    std::vector<MemberFit> start = coarse_search(on_top, spec, opt, scan, value);
+    if (!scan && spec.scans(true)) {
+      OnTop held(coarse, base, false, opt);
+      double scanned = 0;
+      std::vector<MemberFit> across = coarse_search(held, spec, opt, true, scanned);
+      if (scanned < value) start = std::move(across);
+    }
+    out = fit_joint(coarse_cells, library, start, baseline, opt, JointStage::Search);
   }
-  SetFit out = fit_joint(coarse_cells, library, start, baseline, opt, JointStage::Search);
   int evaluations = out.evaluations;
   for (SetFit& other : fits_across(sweep, library, base, spec, baseline, opt, coarse)) {
     evaluations += other.evaluations;
