@@ -101,39 +101,50 @@ class SetFits {
     return screened;
   }
 
-  // The best screened pair searched again across the grid of its one-coordinate member
-  // (fits_across) when it is a resonance beside such an effect, and the screen says the resonance
-  // is there (the pair takes kAcrossShrink of the set's gap away) but not where (it leaves more
-  // than kAcrossGap): the scan with the set held looks only beside the set's own fit, which may
-  // have absorbed part of the resonance (a tilt of 10.8 degrees fitted alone at 12.2 with alpha
-  // 0.86 beside a 2.4 kHz resonance; scanned there, the resonance ended at 70 times the true
-  // stiffness and the pair left 28 of 343). Only the best lead: beside an amplifier that the
-  // resonance stands in for, the amplifier's pair leads and nothing is searched again.
+  // A screened pair searched again across the grid of its one-coordinate member (fits_across)
+  // when it is a resonance beside such an effect, the screen says the resonance is there (the
+  // pair takes kAcrossShrink of the set's gap away) but not where (it leaves more than
+  // kAcrossGap), and it is the best such pair and within kRunnerUpRatio of the best lead: the
+  // scan with the set held looks only beside the set's own fit, which may have absorbed part of
+  // the resonance (a tilt of 10.8 degrees fitted alone at 12.2 with alpha 0.86 beside a 2.4 kHz
+  // resonance; scanned there, the resonance ended at 70 times the true stiffness and the pair
+  // left 28 of 343). Near the lead only: beside an amplifier that the resonance stands in for,
+  // the amplifier's pair leads by far and nothing is searched again.
   void search_best_across(const std::vector<MemberFit>& base, std::vector<SetFit>& screened) {
     if (base.size() != 1 || screened.empty()) return;
-    const auto lead = std::min_element(
-        screened.begin(), screened.end(),
-        [](const SetFit& a, const SetFit& b) { return a.train_gap < b.train_gap; });
-    const std::string k = key_of(lead->members);
-    if (lead->members.size() != 2 || finished_.count(k) || across_.count(k)) return;
-    // the newcomer: a pair screened from another start first keeps that start's order
-    const MemberFit& newcomer =
-        lead->members[0].effect == base[0].effect ? lead->members[1] : lead->members[0];
-    const CandidateSpec& spec = spec_of(library_, newcomer.effect);
-    if (!searched_across(library_, base, spec, true) ||
-        searched_across(library_, base, spec, false))
-      return;
-    if (!(lead->train_gap > kAcrossGap &&
-          lead->train_gap < (1 - kAcrossShrink) * screened_gap(base)))
-      return;
+    double lead_gap = std::numeric_limits<double>::infinity();
+    for (const SetFit& f : screened) lead_gap = std::min(lead_gap, f.train_gap);
+    const double set_gap = screened_gap(base);
+    SetFit* pick = nullptr;
+    const CandidateSpec* pick_spec = nullptr;
+    for (SetFit& f : screened) {
+      const std::string k = key_of(f.members);
+      if (f.members.size() != 2 || finished_.count(k) || across_.count(k)) continue;
+      // the newcomer: a pair screened from another start first keeps that start's order
+      const MemberFit& newcomer =
+          f.members[0].effect == base[0].effect ? f.members[1] : f.members[0];
+      const CandidateSpec& spec = spec_of(library_, newcomer.effect);
+      if (!searched_across(library_, base, spec, true) ||
+          searched_across(library_, base, spec, false))
+        continue;
+      if (!(f.train_gap > kAcrossGap && f.train_gap < (1 - kAcrossShrink) * set_gap &&
+            f.train_gap <= kRunnerUpRatio * lead_gap))
+        continue;
+      if (!pick || f.train_gap < pick->train_gap) {
+        pick = &f;
+        pick_spec = &spec;
+      }
+    }
+    if (!pick) return;
+    const std::string k = key_of(pick->members);
     across_.insert(k);  // once a pair, whichever start asks
     FitOptions across = options_;
     across.resonance_across = true;
-    SetFit f = fit_on_top(sweep_, library_, base, spec, baseline_, across);
-    if (!(f.train_gap < lead->train_gap)) return;
-    f.evaluations += lead->evaluations;
+    SetFit f = fit_on_top(sweep_, library_, base, *pick_spec, baseline_, across);
+    if (!(f.train_gap < pick->train_gap)) return;
+    f.evaluations += pick->evaluations;
     screened_[k] = f;
-    *lead = std::move(f);
+    *pick = std::move(f);
   }
 
   // A set of one whose single fit shrinks the gap by less than kMinShrink: the effects of a pair
