@@ -25,18 +25,16 @@ namespace {
 // the sum of squares loses the nanometres (x^2 carries 16 digits of 1.44 m^2, the noise's variance
 // is 1e-18 m^2).
 std::optional<double> rest_sd_m(const TrialSeries& s, double from_s, double to_s) {
-  double sum = 0;
-  int n = 0;
+  std::vector<double> x;
   for (std::size_t k = 0; k < s.size(); ++k)
-    if (s.t_s[k] >= from_s && s.t_s[k] < to_s) {
-      sum += s.x_m[k];
-      ++n;
-    }
-  if (n < 4) return std::nullopt;
+    if (s.t_s[k] >= from_s && s.t_s[k] < to_s) x.push_back(s.x_m[k]);
+  if (x.size() < 4) return std::nullopt;
+  const double n = static_cast<double>(x.size());
+  double sum = 0;
+  for (double v : x) sum += v;
   const double mean = sum / n;
   double ss = 0;
-  for (std::size_t k = 0; k < s.size(); ++k)
-    if (s.t_s[k] >= from_s && s.t_s[k] < to_s) ss += (s.x_m[k] - mean) * (s.x_m[k] - mean);
+  for (double v : x) ss += (v - mean) * (v - mean);
   return std::sqrt(ss / n);
 }
 
@@ -72,23 +70,26 @@ std::optional<double> burst_noise_sd_m(const std::vector<TrialInfo>& infos,
   constexpr double kMadOfSecondDifference = 0.6745 * 2.449489742783178;  // 0.6745 sqrt(6)
   std::vector<double> per_trial;
   for (std::size_t i = 0; i < infos.size(); ++i) {
+    // the burst's samples [a, b) (t increases): first differences d1[j] = x[a+j+1] - x[a+j], second
+    // d2[j] about sample a+j+1, between d1[j] and d1[j+1]
     const TrialSeries& s = series[i];
     const double end_s = infos[i].cycles / infos[i].freq_hz;
-    std::vector<double> d2, d1_before, d1_after;
-    for (std::size_t k = 1; k + 1 < s.size(); ++k)
-      if (s.t_s[k - 1] >= 0 && s.t_s[k + 1] <= end_s) {
-        d2.push_back(std::fabs(s.x_m[k + 1] - 2 * s.x_m[k] + s.x_m[k - 1]));
-        d1_before.push_back(std::fabs(s.x_m[k] - s.x_m[k - 1]));
-        d1_after.push_back(std::fabs(s.x_m[k + 1] - s.x_m[k]));
-      }
-    if (d2.size() < 8) continue;
+    std::size_t a = 0;
+    while (a < s.size() && s.t_s[a] < 0) ++a;
+    std::size_t b = a;
+    while (b < s.size() && s.t_s[b] <= end_s) ++b;
+    if (b < a + 10) continue;  // 8 second differences
+    std::vector<double> d1, d2;
+    for (std::size_t k = a; k + 1 < b; ++k) d1.push_back(std::fabs(s.x_m[k + 1] - s.x_m[k]));
+    for (std::size_t k = a + 1; k + 1 < b; ++k)
+      d2.push_back(std::fabs(s.x_m[k + 1] - 2 * s.x_m[k] + s.x_m[k - 1]));
     const double first = median(d2) / kMadOfSecondDifference;
     const double still = 3 * std::sqrt(2.0) * first, still2 = 3 * std::sqrt(6.0) * first;
     double ss = 0;
     std::size_t n = 0;
-    for (std::size_t k = 0; k < d2.size(); ++k)
-      if (d1_before[k] <= still && d1_after[k] <= still && d2[k] <= still2) {
-        ss += d2[k] * d2[k];
+    for (std::size_t j = 0; j < d2.size(); ++j)
+      if (d1[j] <= still && d1[j + 1] <= still && d2[j] <= still2) {
+        ss += d2[j] * d2[j];
         ++n;
       }
     per_trial.push_back(n >= 8 ? std::sqrt(ss / static_cast<double>(n) / 6.0) : first);

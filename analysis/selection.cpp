@@ -117,6 +117,7 @@ class SetFits {
     const double set_gap = screened_gap(base);
     SetFit* pick = nullptr;
     const CandidateSpec* pick_spec = nullptr;
+    std::string pick_key;
     for (SetFit& f : screened) {
       const std::string k = key_of(f.members);
       if (f.members.size() != 2 || finished_.count(k) || across_.count(k)) continue;
@@ -133,17 +134,17 @@ class SetFits {
       if (!pick || f.train_gap < pick->train_gap) {
         pick = &f;
         pick_spec = &spec;
+        pick_key = k;
       }
     }
     if (!pick) return;
-    const std::string k = key_of(pick->members);
-    across_.insert(k);  // once a pair, whichever start asks
+    across_.insert(pick_key);  // once a pair, whichever start asks
     FitOptions across = options_;
     across.resonance_across = true;
     SetFit f = fit_on_top(sweep_, library_, base, *pick_spec, baseline_, across);
     if (!(f.train_gap < pick->train_gap)) return;
     f.evaluations += pick->evaluations;
-    screened_[k] = f;
+    screened_[pick_key] = f;
     *pick = std::move(f);
   }
 

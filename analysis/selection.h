@@ -56,8 +56,9 @@ constexpr double kFurtherGap = 1.5;     // a set's gap above which another effec
 constexpr double kRunnerUpRatio = 1.5;  // a second start when the runner-up's gap is this close
 constexpr double kBackwardTolerance = 0.25;
 constexpr double kNameShrink = 0.75;
-// The best screened pair of a resonance and a one-coordinate effect that takes this much of the
-// set's screened gap away and leaves more than kAcrossGap is searched across (SetFits).
+// The best screened pair of a resonance and a one-coordinate effect, within kRunnerUpRatio of the
+// best screen, that takes this much of the set's screened gap away and leaves more than kAcrossGap
+// is searched across (SetFits).
 constexpr double kAcrossShrink = 0.5;
 constexpr double kAcrossGap = 2.0;
 constexpr double kAmbiguousRatio = 1.25;

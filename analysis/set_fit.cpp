@@ -501,6 +501,27 @@ std::vector<MemberFit> scan_across(Objective& obj, const CandidateSpec& narrow,
   return best;
 }
 
+// The best of `u` and the points on rings around it, a quarter, half, one and two `step`s away
+// in the first of two coordinates and 4 times as far in the second (8 points a ring); `value`
+// holds f(u) on entry and the best value on return.
+std::vector<double> best_on_rings(const std::function<double(const std::vector<double>&)>& f,
+                                  const std::vector<double>& u, double step, double& value) {
+  std::vector<double> best = u;
+  for (double r : {0.25 * step, 0.5 * step, step, 2 * step})
+    for (int d0 = -1; d0 <= 1; ++d0)
+      for (int d1 = -1; d1 <= 1; ++d1) {
+        if (d0 == 0 && d1 == 0) continue;
+        const std::vector<double> p = {std::clamp(u[0] + d0 * r, 0.0, 1.0),
+                                       std::clamp(u[1] + d1 * 4 * r, 0.0, 1.0)};
+        const double v = f(p);
+        if (v < value) {
+          value = v;
+          best = p;
+        }
+      }
+  return best;
+}
+
 }  // namespace
 
 SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& library,
@@ -555,20 +576,8 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
     // while they find a better point (at most kRingRounds times).
     constexpr int kRingRounds = 3;
     for (int round = 0; spec.scans(true) && n == 2 && round < kRingRounds; ++round) {
-      std::vector<double> ring_best = best.u;
       double ring_value = best_value;
-      for (double r : {0.25 * step, 0.5 * step, step, 2 * step})
-        for (int d0 = -1; d0 <= 1; ++d0)
-          for (int d1 = -1; d1 <= 1; ++d1) {
-            if (d0 == 0 && d1 == 0) continue;
-            const std::vector<double> u = {std::clamp(best.u[0] + d0 * r, 0.0, 1.0),
-                                           std::clamp(best.u[1] + d1 * 4 * r, 0.0, 1.0)};
-            const double v = on_all(false)(u);
-            if (v < ring_value) {
-              ring_value = v;
-              ring_best = u;
-            }
-          }
+      const std::vector<double> ring_best = best_on_rings(on_all(false), best.u, step, ring_value);
       if (!(ring_value < best_value)) break;
       best_value = ring_value;
       best.u = subplex(on_all(false), ring_best, step, opt.polish_evals * n, 1e-4, best_value);
