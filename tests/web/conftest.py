@@ -88,6 +88,11 @@ def lab():
     with fixtures.idmd_in_temp_dir("idm-web-", edits=SLOW) as daemon:
         readonly = Web(daemon.tmp, ["--idmd", "127.0.0.1:%d" % daemon.port], "readonly")
         control = Web(daemon.tmp, ["--unix", daemon.unix, "--control"], "control")
+        # idm-web answers before its first poll of idmd has come back (connected: false until
+        # then); on a loaded machine that poll can take a while, so the tests start after it.
+        for web in (readonly, control):
+            wait_for("idm-web's first poll of idmd",
+                     lambda web=web: web.json("/api/state")["connected"], 30)
         yield daemon, readonly, control
         alive = readonly.alive() and control.alive()
         rc = [readonly.stop(), control.stop()]
