@@ -70,6 +70,14 @@ struct ValidateRun {
   double gap_before = 0, gap_after = 0;
   double where_rank = 0;  // Spearman of the report's located cells against the true footprint
   bool where_scored = false;
+  // A pair's hidden set itself, at its true parameters (alpha and mu fitted): its held-out gap and
+  // the members it does not earn a place for against the other member fitted alone (earns_place,
+  // into_noise). Such a member shows in this sweep by less than the selection's rule asks, so a
+  // miss that leaves it out is the sweep's limit, not the search's.
+  double truth_gap = 0;
+  bool truth_scored = false;
+  std::vector<std::string> truth_cannot_show;
+  bool missed_beyond_sweep = false;  // named the hidden set without just those members
   double seconds = 0;
   std::string error;  // what stopped the run when it threw (it then counts as wrong); "" when none
 };
@@ -84,7 +92,8 @@ struct ValidateOptions {
 
 struct ClassScore {
   int runs = 0, correct = 0;
-  int unexplained_said = 0;  // runs whose report says unexplained
+  int missed_beyond_sweep = 0;  // runs with ValidateRun::missed_beyond_sweep
+  int unexplained_said = 0;     // runs whose report says unexplained
   double shrink_sum = 0, where_sum = 0;
   int where_runs = 0;
 };

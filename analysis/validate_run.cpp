@@ -86,6 +86,36 @@ SweepCells scenario_sweep(const Scenario& sc) {
 
 namespace {
 
+// The hidden pair at its true parameters against each member's partner fitted alone (the
+// diagnosis's candidates): ValidateRun::truth_cannot_show.
+void score_truth(const Scenario& sc, const SweepCells& cells, const Diagnosis& d, int threads,
+                 ValidateRun& run) {
+  ModelConfig m;
+  m.stage = cells.stage.stage;
+  m.effects = sc.sim.effects;
+  m.chain_rate_hz = score_rate_hz(m.effects);
+  SetFit truth;
+  truth.fitted = fit_model(cells, m, threads, 4);
+  truth.gap = truth.fitted.test.gap;
+  run.truth_gap = truth.gap;
+  run.truth_scored = true;
+  for (const std::string& member : sc.expected)
+    for (const SetFit& alone : d.candidates) {
+      const std::vector<std::string> n = alone.names();
+      if (n.size() != 1 || n[0] == member ||
+          std::find(sc.expected.begin(), sc.expected.end(), n[0]) == sc.expected.end())
+        continue;
+      if (!earns_place(truth, alone) && !into_noise(truth, alone))
+        run.truth_cannot_show.push_back(member);
+    }
+  std::vector<std::string> shown;
+  for (const std::string& member : sc.expected)
+    if (std::find(run.truth_cannot_show.begin(), run.truth_cannot_show.end(), member) ==
+        run.truth_cannot_show.end())
+      shown.push_back(member);
+  run.missed_beyond_sweep = !run.correct && !run.truth_cannot_show.empty() && run.named == shown;
+}
+
 // The diagnosis of a run's sweep and how it compares with what was hidden.
 void diagnose_run(const Scenario& sc, int threads, ValidateRun& run, Diagnosis* out) {
   const SweepCells cells = scenario_sweep(sc);
@@ -117,6 +147,7 @@ void diagnose_run(const Scenario& sc, int threads, ValidateRun& run, Diagnosis* 
     run.where_rank = spearman(located, truth);
     run.where_scored = true;
   }
+  if (sc.cls == "pair") score_truth(sc, cells, d, threads, run);
   if (out) *out = d;
 }
 
@@ -167,6 +198,8 @@ ValidateResult run_validate(const ValidateOptions& options, void (*progress)(con
         ++tally.second;
         ++cs.correct;
         ++correct;
+      } else if (run.missed_beyond_sweep) {
+        ++cs.missed_beyond_sweep;
       }
       if (progress) progress(run);
       r.runs.push_back(std::move(run));
@@ -206,6 +239,9 @@ std::string validate_json(const ValidateResult& r) {
       << ", \"gap_before\": " << json_number(run.gap_before)
       << ", \"gap_after\": " << json_number(run.gap_after)
       << ", \"where_rank\": " << (run.where_scored ? json_number(run.where_rank) : "null")
+      << ", \"truth_gap\": " << (run.truth_scored ? json_number(run.truth_gap) : "null")
+      << ", \"truth_cannot_show\": " << names(run.truth_cannot_show)
+      << ", \"missed_beyond_sweep\": " << (run.missed_beyond_sweep ? "true" : "false")
       << ", \"seconds\": " << json_number(run.seconds)
       << ", \"error\": " << (run.error.empty() ? "null" : json_string(run.error)) << "}"
       << (i + 1 < r.runs.size() ? "," : "") << "\n";
@@ -221,7 +257,8 @@ std::string validate_json(const ValidateResult& r) {
   first = true;
   for (const auto& [c, t] : r.by_class) {
     s << (first ? "" : ", ") << json_string(c) << ": {\"runs\": " << t.runs
-      << ", \"correct\": " << t.correct << ", \"unexplained_said\": " << t.unexplained_said
+      << ", \"correct\": " << t.correct << ", \"missed_beyond_sweep\": " << t.missed_beyond_sweep
+      << ", \"unexplained_said\": " << t.unexplained_said
       << ", \"mean_shrink\": " << json_number(t.shrink_sum / t.runs) << ", \"mean_where_rank\": "
       << (t.where_runs ? json_number(t.where_sum / t.where_runs) : "null") << "}";
     first = false;
@@ -246,6 +283,15 @@ std::string validate_table(const ValidateResult& r) {
         t.where_runs ? std::to_string(t.where_sum / t.where_runs).substr(0, 5).c_str() : "-");
     s << buf;
   }
+  for (const auto& [c, t] : r.by_class)
+    if (t.missed_beyond_sweep > 0) {
+      std::snprintf(
+          buf, sizeof buf,
+          "  %s: %d of the %d misses name the hidden set but for a member that the true set "
+          "itself does not earn a place for in that sweep\n",
+          c.c_str(), t.missed_beyond_sweep, t.runs - t.correct);
+      s << buf;
+    }
   for (const auto& [e, t] : r.by_effect) {
     std::snprintf(buf, sizeof buf, "  %-40s %d / %d\n", e.c_str(), t.second, t.first);
     s << buf;

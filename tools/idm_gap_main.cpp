@@ -106,6 +106,12 @@ void print_run(const analysis::ValidateRun& r) {
       r.where_scored ? model::format_number(std::round(100 * r.where_rank) / 100).c_str() : "-",
       r.seconds);
   std::fprintf(stdout, "     %s; %s\n", r.setup.c_str(), params.c_str());
+  if (r.truth_scored) {
+    std::string cannot;
+    for (const std::string& n : r.truth_cannot_show) cannot += (cannot.empty() ? "" : ", ") + n;
+    std::fprintf(stdout, "     the true set: held-out gap %.3g%s%s\n", r.truth_gap,
+                 cannot.empty() ? "" : "; it does not earn a place for ", cannot.c_str());
+  }
   if (!r.error.empty()) std::fprintf(stdout, "     error: %s\n", r.error.c_str());
   std::fflush(stdout);
 }
