@@ -25,6 +25,16 @@ bool expensive(const std::string& effect) {
   return in_chain(effect) || effect == "actuator_compliance";
 }
 
+// An expensive effect whose share of a step a search carries over a friction spread as one offset
+// per cycle mark (simulated once at the nominal friction). Not an amplifier: its rounding of the
+// velocity corners decides when the slider breaks loose, which the friction sets, so its share
+// differs along the spread (validate amplifier + friction_spread seed 15: the offset put the true
+// pair at 2.8 on the screen's cells where it leaves 1.9 simulated whole, and the pair was never
+// finished).
+bool offset_under_spread(const std::string& effect) {
+  return expensive(effect) && effect != "amplifier";
+}
+
 // A sliding slider's speed changes by at most this share of the Stribeck velocity in a step
 // (within 0.5 nm of 0.2 us steps; a search takes 2 %).
 constexpr double kStribeckStep = 0.005, kStribeckSearchStep = 0.02;
@@ -233,11 +243,13 @@ CellPrediction predict_cell(const SweepCells& sweep, const ModelConfig& model, c
     // a search takes the spread through the plant without the expensive effects; the score
     // simulates every point whole (under a compliant actuator a cell can be deaf to the friction
     // that the rigid plant would spread)
-    const bool costly =
-        model.search && std::any_of(sim.effects.begin(), sim.effects.end(),
-                                    [](const model::EffectSpec& e) { return expensive(e.name); });
+    const bool costly = model.search && std::any_of(sim.effects.begin(), sim.effects.end(),
+                                                    [](const model::EffectSpec& e) {
+                                                      return offset_under_spread(e.name);
+                                                    });
     model::SimConfig cheap = sim;
-    std::erase_if(cheap.effects, [](const model::EffectSpec& e) { return expensive(e.name); });
+    std::erase_if(cheap.effects,
+                  [](const model::EffectSpec& e) { return offset_under_spread(e.name); });
     std::vector<double> full, base;
     if (costly) {
       full = simulate_marks(model.stage, sim, cell, tol, model.search);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <limits>
 #include <map>
 #include <optional>
@@ -347,6 +348,10 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     const SetFit* best = nullptr;
     double best_train = std::numeric_limits<double>::infinity();
     for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads; ++k) {
+      if (std::getenv("IDM_GAP_VERBOSE"))
+        std::fprintf(stderr, "  lead %s: screened %.3g, the set without it %.3g%s\n",
+                     joined(leads[k]->names()).c_str(), leads[k]->train_gap, here,
+                     worth_finishing(leads[k]->train_gap, here) ? "" : " (not worth finishing)");
       if (!worth_finishing(leads[k]->train_gap, here)) continue;
       const SetFit& f = fits.finish_nested(leads[k]->members, current);
       best_train = std::min(best_train, f.fitted.train.gap);
