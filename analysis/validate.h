@@ -78,6 +78,9 @@ struct ValidateRun {
   bool truth_scored = false;
   std::vector<std::string> truth_cannot_show;
   bool missed_beyond_sweep = false;  // named the hidden set without just those members
+  // Named the hidden set, but its fit leaves a significant remainder where the true set's gap is
+  // within the noise (kExplainedGap): the search stopped short of the true parameters.
+  bool fit_short = false;
   double seconds = 0;
   std::string error;  // what stopped the run when it threw (it then counts as wrong); "" when none
 };
@@ -93,6 +96,7 @@ struct ValidateOptions {
 struct ClassScore {
   int runs = 0, correct = 0;
   int missed_beyond_sweep = 0;  // runs with ValidateRun::missed_beyond_sweep
+  int fit_short = 0;            // runs with ValidateRun::fit_short
   int unexplained_said = 0;     // runs whose report says unexplained
   double shrink_sum = 0, where_sum = 0;
   int where_runs = 0;

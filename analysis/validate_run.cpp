@@ -114,6 +114,7 @@ void score_truth(const Scenario& sc, const SweepCells& cells, const Diagnosis& d
         run.truth_cannot_show.end())
       shown.push_back(member);
   run.missed_beyond_sweep = !run.correct && !run.truth_cannot_show.empty() && run.named == shown;
+  run.fit_short = run.named == sc.expected && run.unexplained && truth.gap <= kExplainedGap;
 }
 
 // The diagnosis of a run's sweep and how it compares with what was hidden.
@@ -201,6 +202,7 @@ ValidateResult run_validate(const ValidateOptions& options, void (*progress)(con
       } else if (run.missed_beyond_sweep) {
         ++cs.missed_beyond_sweep;
       }
+      if (run.fit_short) ++cs.fit_short;
       if (progress) progress(run);
       r.runs.push_back(std::move(run));
     }
@@ -242,6 +244,7 @@ std::string validate_json(const ValidateResult& r) {
       << ", \"truth_gap\": " << (run.truth_scored ? json_number(run.truth_gap) : "null")
       << ", \"truth_cannot_show\": " << names(run.truth_cannot_show)
       << ", \"missed_beyond_sweep\": " << (run.missed_beyond_sweep ? "true" : "false")
+      << ", \"fit_short\": " << (run.fit_short ? "true" : "false")
       << ", \"seconds\": " << json_number(run.seconds)
       << ", \"error\": " << (run.error.empty() ? "null" : json_string(run.error)) << "}"
       << (i + 1 < r.runs.size() ? "," : "") << "\n";
@@ -258,7 +261,7 @@ std::string validate_json(const ValidateResult& r) {
   for (const auto& [c, t] : r.by_class) {
     s << (first ? "" : ", ") << json_string(c) << ": {\"runs\": " << t.runs
       << ", \"correct\": " << t.correct << ", \"missed_beyond_sweep\": " << t.missed_beyond_sweep
-      << ", \"unexplained_said\": " << t.unexplained_said
+      << ", \"fit_short\": " << t.fit_short << ", \"unexplained_said\": " << t.unexplained_said
       << ", \"mean_shrink\": " << json_number(t.shrink_sum / t.runs) << ", \"mean_where_rank\": "
       << (t.where_runs ? json_number(t.where_sum / t.where_runs) : "null") << "}";
     first = false;
@@ -290,6 +293,14 @@ std::string validate_table(const ValidateResult& r) {
           "  %s: %d of the %d misses name the hidden set but for a member that the true set "
           "itself does not earn a place for in that sweep\n",
           c.c_str(), t.missed_beyond_sweep, t.runs - t.correct);
+      s << buf;
+    }
+  for (const auto& [c, t] : r.by_class)
+    if (t.fit_short > 0) {
+      std::snprintf(buf, sizeof buf,
+                    "  %s: %d named the hidden set and said a remainder unexplained that the true "
+                    "set leaves within the noise (the fit stopped short)\n",
+                    c.c_str(), t.fit_short);
       s << buf;
     }
   for (const auto& [e, t] : r.by_effect) {

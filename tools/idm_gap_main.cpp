@@ -109,8 +109,9 @@ void print_run(const analysis::ValidateRun& r) {
   if (r.truth_scored) {
     std::string cannot;
     for (const std::string& n : r.truth_cannot_show) cannot += (cannot.empty() ? "" : ", ") + n;
-    std::fprintf(stdout, "     the true set: held-out gap %.3g%s%s\n", r.truth_gap,
-                 cannot.empty() ? "" : "; it does not earn a place for ", cannot.c_str());
+    std::fprintf(stdout, "     the true set: held-out gap %.3g%s%s%s\n", r.truth_gap,
+                 cannot.empty() ? "" : "; it does not earn a place for ", cannot.c_str(),
+                 r.fit_short ? "; the fit of the named set stopped short of it" : "");
   }
   if (!r.error.empty()) std::fprintf(stdout, "     error: %s\n", r.error.c_str());
   std::fflush(stdout);

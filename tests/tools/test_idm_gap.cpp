@@ -227,7 +227,8 @@ TEST(IdmGap, QuickValidateNamesEachHiddenSetAndCallsTheUnknownUnexplained) {
   ASSERT_NE(pair, std::string::npos) << j;
   const std::string line = j.substr(pair, j.find('\n', pair) - pair);
   EXPECT_EQ(line.find("\"truth_gap\": null"), std::string::npos) << line;
-  EXPECT_NE(line.find("\"truth_cannot_show\": [], \"missed_beyond_sweep\": false"),
+  EXPECT_NE(line.find("\"truth_cannot_show\": [], \"missed_beyond_sweep\": false, "
+                      "\"fit_short\": false"),
             std::string::npos)
       << line;
   EXPECT_NE(j.find("\"hidden\": \"none\""), std::string::npos);
