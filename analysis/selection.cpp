@@ -348,11 +348,12 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     const SetFit* best = nullptr;
     double best_train = std::numeric_limits<double>::infinity();
     for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads; ++k) {
+      const bool worth = worth_finishing(leads[k]->train_gap, here);
       if (std::getenv("IDM_GAP_VERBOSE"))
         std::fprintf(stderr, "  lead %s: screened %.3g, the set without it %.3g%s\n",
                      joined(leads[k]->names()).c_str(), leads[k]->train_gap, here,
-                     worth_finishing(leads[k]->train_gap, here) ? "" : " (not worth finishing)");
-      if (!worth_finishing(leads[k]->train_gap, here)) continue;
+                     worth ? "" : " (not worth finishing)");
+      if (!worth) continue;
       const SetFit& f = fits.finish_nested(leads[k]->members, current);
       best_train = std::min(best_train, f.fitted.train.gap);
       if (f.plausible && (!best || f.gap < best->gap)) best = &f;

@@ -83,6 +83,18 @@ Fine fine(const model::SimConfig& sim, double f, double duty) {
   return out;
 }
 
+// A sweep of one cell of the Table 1 stage, read exactly at the generator's instants.
+SweepCells one_cell_sweep(double f, double duty) {
+  SweepCells sweep;
+  sweep.resolution_m = 1e-12;
+  Cell c;
+  c.key = {f, duty, model::StageParams{}.stroke_m};
+  c.cycles = 10;
+  c.read_t_s = fine(model::SimConfig{}, f, duty).read_t_s;
+  sweep.cells = {c};
+  return sweep;
+}
+
 }  // namespace
 
 TEST(ForwardModel, EventsMatchAFineIntegration) {
@@ -147,13 +159,8 @@ TEST(ForwardModel, ASpreadUnderACompliantActuatorIsScoredWhole) {
   double worst_search = 0;
   for (double f : {300.0, 700.0})
     for (double duty : {0.05, 0.3}) {
-      SweepCells sweep;
-      sweep.resolution_m = 1e-12;
-      Cell c;
-      c.key = {f, duty, model::StageParams{}.stroke_m};
-      c.cycles = 10;
-      c.read_t_s = fine(model::SimConfig{}, f, duty).read_t_s;
-      sweep.cells = {c};
+      const SweepCells sweep = one_cell_sweep(f, duty);
+      const Cell& c = sweep.cells.front();
       m.search = false;
       const CellPrediction score = predict_cell(sweep, m, c);
       m.search = true;
@@ -192,13 +199,8 @@ TEST(ForwardModel, ASearchTakesAnActuatorChainThroughEachPointOfTheSpread) {
     double worst_offset = 0;
     for (double f : {300.0, 700.0})
       for (double duty : {0.05, 0.3}) {
-        SweepCells sweep;
-        sweep.resolution_m = 1e-12;
-        Cell c;
-        c.key = {f, duty, model::StageParams{}.stroke_m};
-        c.cycles = 10;
-        c.read_t_s = fine(model::SimConfig{}, f, duty).read_t_s;
-        sweep.cells = {c};
+        const SweepCells sweep = one_cell_sweep(f, duty);
+        const Cell& c = sweep.cells.front();
         const CellPrediction search = predict_cell(sweep, m, c);
         ASSERT_EQ(search.trial_steps_m.size(), spread_quadrature().size());
         auto step_m = [&](const model::StageParams& st, const model::SimConfig& sim) {
