@@ -6,6 +6,7 @@
 #include <set>
 #include <utility>
 
+#include "daemon/server.h"
 #include "drivers/backends.h"
 #include "drivers/modbus/modbus_backend.h"
 #include "drivers/sim/sim_backend.h"
@@ -116,13 +117,6 @@ bool single_axis_key(const std::string& name) {
   for (const model::Param<AxisSections>& p : axis_params().params())
     if (p.name == name) return true;
   return false;
-}
-
-std::string single_axis_keys() {
-  std::string out;
-  for (const model::Param<AxisSections>& p : axis_params().params())
-    if (single_axis_key(p.name)) out += (out.empty() ? "" : ", ") + p.name;
-  return out + ", daq";
 }
 
 void check_range_order(double lo, double hi, const std::string& f, const Node& node,
@@ -267,6 +261,17 @@ void parse_globals(const Node& root, DaemonConfig& c) {
   if (c.server.unix_socket.size() > 100)
     throw InputError(located(f, child(root, "server"), "server.unix_socket",
                              "longer than 100 characters (sockaddr_un)"));
+  if (!c.server.tcp_address.empty() && !c.server.allow_remote &&
+      !is_loopback_address(c.server.tcp_address)) {
+    const Node server = child(root, "server");
+    throw InputError(located(
+        f, present(child(server, "tcp_address")) ? child(server, "tcp_address") : server,
+        "server.tcp_address",
+        "'" + c.server.tcp_address +
+            "' is not a loopback address (127.0.0.1, ::1, localhost): any machine that reaches "
+            "it could move the stage. Set server.allow_remote: true (and server.auth_token_file) "
+            "to mean it"));
+  }
   realtime_params().read(child(root, "realtime"), f, "realtime", c.realtime);
   logging_params().read(child(root, "logging"), f, "logging", c.logging);
   recording_params().read(child(root, "recording"), f, "recording", c.recording);
@@ -367,11 +372,17 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
       throw InputError(located(f, kv.first, name,
                                "with axes:, each axis has its own " + name + ": (axes.NAME." +
                                    name + "); devices are declared under devices:"));
+    std::vector<std::string> allowed = {"devices",  "axes",    "server",
+                                        "realtime", "logging", "recording"};
+    if (!multi) {
+      allowed.erase(allowed.begin(), allowed.begin() + 2);
+      for (const model::Param<AxisSections>& p : axis_params().params())
+        if (single_axis_key(p.name)) allowed.push_back(p.name);
+      allowed.emplace_back("daq");
+    }
     throw InputError(located(
         f, kv.first, name,
-        multi ? "unknown section, allowed devices, axes, server, realtime, logging, recording"
-              : "unknown section, allowed " + single_axis_keys() +
-                    ", server, realtime, logging, recording (or devices: and axes:)"));
+        model::unknown_name(name, allowed, "section") + (multi ? "" : " (or devices: and axes:)")));
   }
   DaemonConfig c;
   c.file = f;
@@ -382,6 +393,25 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
   else
     parse_single_axis(root, c);
   return c;
+}
+
+std::vector<std::string> config_warnings(const DaemonConfig& c) {
+  std::vector<std::string> out;
+  const ListenConfig& s = c.server;
+  if (s.tcp_address.empty()) return out;
+  const std::string where = "server.tcp_address " + s.tcp_address;
+  if (!is_loopback_address(s.tcp_address)) {
+    if (s.auth_token_file.empty())
+      out.push_back(where +
+                    " (server.allow_remote): any machine that reaches it can move the stage; "
+                    "server.auth_token_file is not set");
+    else
+      out.push_back(where +
+                    " (server.allow_remote): other machines can connect; motion and settings "
+                    "need the token of " +
+                    s.auth_token_file + ", queries and STOP do not");
+  }
+  return out;
 }
 
 DaemonConfig load_daemon_config(const std::string& path) {

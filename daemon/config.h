@@ -76,6 +76,11 @@ struct ListenConfig {
   int max_clients = 16;
   int overflow_slots = 4;
   double ready_timeout_s = 10.0;  // every axis must read a valid position within this at start
+  // A tcp_address other than loopback is refused unless this is true (then a warning).
+  bool allow_remote = false;
+  // A file holding the token TCP clients send with *AUTH before commands that move or change a
+  // setting ("": none needed). Read at start; it must not be readable by others.
+  std::string auth_token_file;
 };
 const model::ParamTable<ListenConfig>& server_params();
 
@@ -158,6 +163,10 @@ struct DaemonConfig {
   // The index of the axis called `name`, or -1.
   int axis_index(const std::string& name) const;
 };
+
+// What a valid configuration still does that a lab should know of, one sentence each (TCP open
+// to other machines, TCP without a token): --check-config prints them, idmd logs them at start.
+std::vector<std::string> config_warnings(const DaemonConfig& config);
 
 // Parses every section (constructs each device object to check its section, without I/O).
 DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& file);

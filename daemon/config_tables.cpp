@@ -93,6 +93,16 @@ const model::ParamTable<ListenConfig>& server_params() {
           "ready_timeout_s", "s", {0, 600, true},
           "every axis must read a valid position within this at start, or idmd exits 3",
           [](auto& c) -> auto& { return c.ready_timeout_s; }),
+      boolean<S>(
+          "allow_remote",
+          "let tcp_address be other than loopback (other machines can then connect: set "
+          "auth_token_file)",
+          [](auto& c) -> auto& { return c.allow_remote; }),
+      text<S>(
+          "auth_token_file",
+          "TCP clients send `*AUTH <token>` (the file's first line) before commands that move "
+          "or change settings; \"\": none. Not readable by others",
+          [](auto& c) -> auto& { return c.auth_token_file; }, "a path"),
   });
   return table;
 }

@@ -21,6 +21,7 @@
 
 #include "daemon/config.h"
 #include "daemon/daemon.h"
+#include "daemon/file_checks.h"
 #include "daemon/notify.h"
 #include "daemon/server.h"
 #include "model/stage.h"
@@ -181,6 +182,9 @@ std::optional<int> parse_arguments(int argc, char** argv, Options& o) {
 int check_config(const std::string& path) {
   try {
     const DaemonConfig c = load_daemon_config(path);
+    if (!c.server.auth_token_file.empty()) (void)read_token_file(c.server.auth_token_file);
+    for (const std::string& w : config_warnings(c))
+      std::fprintf(stderr, "idmd: %s: warning: %s\n", path.c_str(), w.c_str());
     std::printf("%s: ok (%s)\n", path.c_str(), describe(c).c_str());
     return exit_code::kOk;
   } catch (const std::exception& e) {
@@ -261,12 +265,36 @@ void log_stopped(Daemon& daemon) {
                outputs.empty() ? "" : outputs + ")");
 }
 
-// Opens the devices, listens, serves until a signal, shuts down; returns the exit code.
-int run(const DaemonConfig& config, const std::string& config_path, int sfd) {
+// The command server's settings from the config's server: section (the token already read).
+ServerConfig server_config(const DaemonConfig& config, const std::string& token) {
+  ServerConfig sc;
+  sc.tcp_host = config.server.tcp_address;
+  sc.tcp_port = config.server.tcp_port;
+  sc.unix_path = config.server.unix_socket;
+  sc.max_clients = config.server.max_clients;
+  sc.overflow_slots = config.server.overflow_slots;
+  sc.tcp_token = token;
+  sc.log = [](std::string_view line) { spdlog::debug("{}", line); };  // "command server: ..."
+  sc.warn = [](std::string_view line) { spdlog::warn("{}", line); };
+  return sc;
+}
+
+// Listens first (a second idmd on the same sockets stops here, before it touches a device),
+// opens the devices, serves until a signal, shuts down; returns the exit code.
+int run(const DaemonConfig& config, const std::string& config_path, const std::string& token,
+        int sfd) {
   Notifier notifier;
   spdlog::info("idmd {} starting: {} ({})", IDM_VERSION, config_path, describe(config));
-  notifier.status("Opening the devices: " + axes_text(config));
+  for (const std::string& w : config_warnings(config)) spdlog::warn("{}", w);
+  const ServerConfig sc = server_config(config, token);
   Daemon daemon(config);
+  Server server(daemon, sc);
+  if (const std::string err = server.listen(); !err.empty()) {
+    spdlog::error("cannot listen: {}", err);
+    notifier.status("Failed: cannot listen: " + err);
+    return exit_code::kListenFailed;
+  }
+  notifier.status("Opening the devices: " + axes_text(config));
   try {
     const std::string warning = daemon.start();
     if (!warning.empty()) spdlog::warn("{}", warning);
@@ -279,18 +307,9 @@ int run(const DaemonConfig& config, const std::string& config_path, int sfd) {
     return exit_code::kRuntimeError;
   }
   log_notes(daemon);  // calibrations that could not be loaded
-
-  ServerConfig sc;
-  sc.tcp_host = config.server.tcp_address;
-  sc.tcp_port = config.server.tcp_port;
-  sc.unix_path = config.server.unix_socket;
-  sc.max_clients = config.server.max_clients;
-  sc.overflow_slots = config.server.overflow_slots;
-  sc.log = [](std::string_view line) { spdlog::debug("{}", line); };  // "command server: ..."
-  Server server(daemon, sc);
   if (const std::string err = server.start(); !err.empty()) {
-    spdlog::error("cannot listen: {}", err);
-    notifier.status("Failed: cannot listen: " + err);
+    spdlog::error("cannot serve: {}", err);
+    notifier.status("Failed: cannot serve: " + err);
     daemon.shutdown();
     return exit_code::kListenFailed;
   }
@@ -321,8 +340,11 @@ int main(int argc, char** argv) {
   if (const std::optional<int> done = parse_arguments(argc, argv, o)) return *done;
   if (!o.check_path.empty()) return check_config(o.check_path);
   DaemonConfig config;
+  std::string token;
   try {
     config = load_daemon_config(o.config_path);
+    if (!config.server.auth_token_file.empty())
+      token = read_token_file(config.server.auth_token_file);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "idmd: %s\n", e.what());
     return exit_code::kBadConfig;
@@ -332,7 +354,7 @@ int main(int argc, char** argv) {
   setup_logging(config.logging);
   const int sfd = signal_fd();
   if (sfd < 0) return exit_code::kRuntimeError;
-  const int exit_status = run(config, o.config_path, sfd);
+  const int exit_status = run(config, o.config_path, token, sfd);
   close(sfd);
   return exit_status;
 }

@@ -31,6 +31,7 @@ inline constexpr int kUndefinedHeader = -113;
 inline constexpr int kHeaderSuffixOutOfRange = -114;  // AXIS<n> with no axis n
 inline constexpr int kNumericDataError = -120;        // not a number, not finite
 inline constexpr int kExecutionError = -200;
+inline constexpr int kCommandProtected = -203;    // a motion command on TCP before *AUTH
 inline constexpr int kSettingsConflict = -221;    // e.g. a move while in FAULT or busy
 inline constexpr int kDataOutOfRange = -222;      // e.g. a target past the soft limits
 inline constexpr int kDataCorruptOrStale = -230;  // a position that cannot be trusted

@@ -80,6 +80,8 @@ const char* standard_error_text(int code) {
       return "Numeric data error";
     case ec::kExecutionError:
       return "Execution error";
+    case ec::kCommandProtected:
+      return "Command protected";
     case ec::kSettingsConflict:
       return "Settings conflict";
     case ec::kDataOutOfRange:
@@ -144,6 +146,78 @@ bool looks_like_query(std::string_view line) {
   std::size_t end = i;
   while (end < line.size() && !is_blank(line[end]) && line[end] != '\r' && line[end] != '\n') ++end;
   return end > i && end <= kMaxLineBytes && line[end - 1] == '?';
+}
+
+namespace {
+
+bool is_token_char(char c) {
+  return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '-';
+}
+
+// "GET /x HTTP/1.1": a request line's method (any upper-case token before a blank) is one a
+// client of HTTP sends; no command of the protocol is called that.
+bool opens_with_http_method(std::string_view line) {
+  static constexpr std::string_view kMethods[] = {"GET",   "HEAD",    "POST",    "PUT",   "DELETE",
+                                                  "PATCH", "OPTIONS", "CONNECT", "TRACE", "PRI"};
+  const std::size_t blank = line.find(' ');
+  if (blank == std::string_view::npos) return false;
+  const std::string_view method = line.substr(0, blank);
+  for (std::string_view m : kMethods)
+    if (method == m) return true;
+  return false;
+}
+
+// "... HTTP/1.1" or "... HTTP/2": the end of any request line, whatever its method.
+bool ends_with_http_version(std::string_view line) {
+  const std::size_t at = line.rfind(" HTTP/");
+  if (at == std::string_view::npos) return false;
+  const std::string_view version = line.substr(at + 6);
+  if (version.empty() || version.size() > 3) return false;
+  for (char c : version)
+    if (!((c >= '0' && c <= '9') || c == '.')) return false;
+  return version.front() != '.' && version.back() != '.';
+}
+
+// "Host: ...", "Origin: ...": a request header a browser (or curl) sends. The names are matched
+// whole and case-insensitively; none is a keyword of the protocol.
+bool opens_with_http_header(std::string_view line) {
+  static constexpr std::string_view kHeaders[] = {"host",
+                                                  "origin",
+                                                  "referer",
+                                                  "user-agent",
+                                                  "accept",
+                                                  "accept-encoding",
+                                                  "accept-language",
+                                                  "content-type",
+                                                  "content-length",
+                                                  "connection",
+                                                  "cookie",
+                                                  "upgrade",
+                                                  "transfer-encoding",
+                                                  "cache-control",
+                                                  "pragma",
+                                                  "authorization",
+                                                  "upgrade-insecure-requests",
+                                                  "dnt",
+                                                  "priority",
+                                                  "te",
+                                                  "x-requested-with"};
+  std::size_t n = 0;
+  while (n < line.size() && is_token_char(line[n])) ++n;
+  if (n == 0 || n >= line.size() || line[n] != ':') return false;
+  const std::string_view name = line.substr(0, n);
+  if (name.size() > 4 && (iequals(name.substr(0, 4), "sec-"))) return true;  // Sec-Fetch-*, ...
+  for (std::string_view h : kHeaders)
+    if (iequals(name, h)) return true;
+  return false;
+}
+
+}  // namespace
+
+bool looks_like_http(std::string_view line) {
+  if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+  return opens_with_http_method(line) || ends_with_http_version(line) ||
+         opens_with_http_header(line);
 }
 
 namespace {

@@ -65,6 +65,13 @@ std::string format_value(double value);
 // lines too long, which the server judges by their first kMaxLineBytes + 2 bytes.
 bool looks_like_query(std::string_view line);
 
+// Does this line come from an HTTP client rather than from a client of this protocol: a request
+// line (a method browsers send and a blank, or anything ending in " HTTP/<version>") or a request
+// header a browser sends ("Host:", "Origin:", "Sec-Fetch-Mode:", ...)? Any web page the lab PC's
+// browser opens can POST to 127.0.0.1:5025 (a "no-cors" fetch needs no permission); its body would
+// be read as command lines. The session closes such a connection before any line of it runs.
+bool looks_like_http(std::string_view line);
+
 struct ParsedLine {
   std::string header;  // as sent, without the leading ':' and the trailing '?'
   bool query = false;
@@ -183,6 +190,13 @@ class Session {
   // The table SYSTem:CLIents? reads (the server's; it must outlive the session). Without one
   // (a session outside the server) those queries are -200.
   void set_client_table(const ClientTable* table) { client_table_ = table; }
+  // A session on a listener that wants a token (server.auth_token_file on TCP): until `*AUTH
+  // <token>` with exactly this token, every command but the queries, STOP/ABORt, *CLS, *WAI and
+  // *AUTH is refused with -203. The token must outlive the session; nullptr: none needed.
+  void require_token(const std::string* token) { token_ = token; }
+  // The session wants its connection closed (once its replies are written), and why: it sent a
+  // line of HTTP (nothing of that input runs), or a wrong token. "" while it does not.
+  const std::string& close_reason() const { return close_reason_; }
 
  private:
   enum class Wait { None, OpcQuery, Wai };
@@ -207,6 +221,8 @@ class Session {
   // Finds the command and the axis of a parsed line; an error when there is none.
   CommandError resolve(const ParsedLine& parsed, const Command*& command);
   void line_too_long(std::string_view start, std::string& replies);
+  // A line of HTTP: sets close_reason_ (true), nothing of it runs.
+  bool refuse_http(std::string_view line);
   void push(CommandError error);
   void notice_motion_end();
   void started_motion(const CommandError& result);
@@ -233,6 +249,10 @@ class Session {
   CommandError positions(const Args&, std::string& reply);
   CommandError sweep_query(const Args&, std::string& reply);
   CommandError stop(const Args&, std::string& reply);
+  CommandError auth(const Args&, std::string& reply);
+  CommandError auth_query(const Args&, std::string& reply);
+  // Refuses a command the token protects (require_token) while this session has not sent it.
+  CommandError check_token(const Command& command) const;
   // Axis commands (axis_: the line's axis).
   CommandError axis_name(const Args&, std::string& reply);
   CommandError resolution(const Args&, std::string& reply);
@@ -318,6 +338,9 @@ class Session {
       0;  // axes (bits) whose motion this session started, not yet seen end
   bool stop_only_ = false;
   const ClientTable* client_table_ = nullptr;
+  const std::string* token_ = nullptr;
+  bool authorised_ = false;
+  std::string close_reason_;
   // IEEE 488.2 standard event status register and its enable mask (*ESR?, *ESE).
   std::uint8_t esr_ = 0;
   std::uint8_t ese_ = 0xFF;

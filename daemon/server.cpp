@@ -33,6 +33,7 @@ enum Counter {
   kNoNewline,
   kSlowReader,
   kSocketError,
+  kRefused,
   kCounters
 };
 
@@ -72,6 +73,10 @@ struct Server::Impl final : ClientTable {
   std::map<int, std::unique_ptr<Client>> clients;
   bool listeners_paused = false;
   std::chrono::steady_clock::time_point resume_listeners_at;
+  // Refusals logged: the first at once, then at most one a minute with the count in between.
+  std::chrono::steady_clock::time_point refusal_logged_at;
+  std::uint64_t refusals_unlogged = 0;
+  bool refusal_logged = false;
 
   ClientTableStats client_table() const override {
     ClientTableStats t;
@@ -88,6 +93,33 @@ struct Server::Impl final : ClientTable {
     if (server.config_.log) server.config_.log(line);
   }
   void count(Counter c) const { server.counters_[c].fetch_add(1); }
+
+  // A session asked to be closed (it sent HTTP, or a wrong token): its last replies are written
+  // as far as the socket takes them, then it is closed and the refusal logged (rate-limited).
+  void refuse(Client& c) {
+    const std::string text = "client " + c.peer + " " + c.session.close_reason();
+    count(kRefused);
+    const auto now = std::chrono::steady_clock::now();
+    if (!refusal_logged || now - refusal_logged_at >= std::chrono::minutes(1)) {
+      std::string line = "command server: " + text;
+      if (refusals_unlogged > 0)
+        line += " (and " + std::to_string(refusals_unlogged) + " more refused since the last line)";
+      if (server.config_.warn)
+        server.config_.warn(line);
+      else
+        log(line);
+      refusal_logged = true;
+      refusal_logged_at = now;
+      refusals_unlogged = 0;
+    } else {
+      ++refusals_unlogged;
+    }
+    epoll_ctl(server.epoll_fd_, EPOLL_CTL_DEL, c.fd, nullptr);
+    ::close(c.fd);
+    const int fd = c.fd;
+    clients.erase(fd);
+    server.clients_.store(static_cast<int>(clients.size()));
+  }
 
   void accept_all(int listener) {
     for (;;) {
@@ -126,6 +158,8 @@ struct Server::Impl final : ClientTable {
       client->since = std::chrono::steady_clock::now();
       client->session.set_stop_only(overflow);
       client->session.set_client_table(this);
+      if (listener == server.tcp_fd_ && !server.config_.tcp_token.empty())
+        client->session.require_token(&server.config_.tcp_token);
       epoll_event ev{};
       ev.events = EPOLLIN;
       ev.data.fd = fd;
@@ -292,6 +326,10 @@ struct Server::Impl final : ClientTable {
   // close a finished client, set the epoll interest. Returns false when the client was dropped.
   bool settle(Client& c) {
     if (!flush(c)) return false;
+    if (!c.session.close_reason().empty()) {
+      refuse(c);
+      return false;
+    }
     if (c.pending_output() > server.config_.max_output_bytes) {
       drop(c, kSlowReader,
            "disconnected: does not read its replies (more than " +
@@ -395,6 +433,19 @@ struct Server::Impl final : ClientTable {
   }
 };
 
+bool is_loopback_address(std::string_view host) {
+  if (host == "localhost") return true;
+  const std::string text(host);
+  in_addr v4{};
+  if (inet_pton(AF_INET, text.c_str(), &v4) == 1) return (ntohl(v4.s_addr) >> 24) == 127;
+  in6_addr v6{};
+  if (inet_pton(AF_INET6, text.c_str(), &v6) == 1) {
+    if (IN6_IS_ADDR_LOOPBACK(&v6)) return true;
+    return IN6_IS_ADDR_V4MAPPED(&v6) && v6.s6_addr[12] == 127;
+  }
+  return false;
+}
+
 Server::Server(Instrument& instrument, ServerConfig config)
     : instrument_(instrument), config_(std::move(config)) {}
 
@@ -410,6 +461,7 @@ ServerCounters Server::counters() const {
   c.dropped_no_newline = counters_[kNoNewline].load();
   c.dropped_slow_reader = counters_[kSlowReader].load();
   c.dropped_error = counters_[kSocketError].load();
+  c.refused = counters_[kRefused].load();
   return c;
 }
 
@@ -443,7 +495,7 @@ int open_tcp(const std::string& host, int port, int& bound_port, std::string& er
         error += " (another program listens there; choose another port, or 0 for a free one)";
       ::close(fd);
       fd = -1;
-    } else if (listen(fd, 64) != 0) {
+    } else if (::listen(fd, 64) != 0) {
       error = where + ": " + error_text("listen", errno);
       ::close(fd);
       fd = -1;
@@ -502,7 +554,7 @@ int open_unix(const std::string& path, unsigned mode, std::string& error) {
     return -1;
   }
   // Before listen(): nobody can connect while the mode is still the umask's.
-  if (chmod(path.c_str(), static_cast<mode_t>(mode)) != 0 || listen(fd, 64) != 0) {
+  if (chmod(path.c_str(), static_cast<mode_t>(mode)) != 0 || ::listen(fd, 64) != 0) {
     error = where + ": " + error_text("chmod/listen", errno);
     ::close(fd);
     unlink(path.c_str());
@@ -514,7 +566,15 @@ int open_unix(const std::string& path, unsigned mode, std::string& error) {
 }  // namespace
 
 std::string Server::start() {
-  if (thread_.joinable() || epoll_fd_ >= 0) return "command server: already started";
+  if (thread_.joinable()) return "command server: already started";
+  if (epoll_fd_ < 0)
+    if (std::string error = listen(); !error.empty()) return error;
+  thread_ = StackThread(kServerStackBytes, [this] { run(); });
+  return {};
+}
+
+std::string Server::listen() {
+  if (thread_.joinable() || epoll_fd_ >= 0) return "command server: already listening";
   if (config_.tcp_host.empty() && config_.unix_path.empty())
     return "command server: neither a TCP host nor a Unix socket path is configured";
   if (config_.tcp_port < 0 || config_.tcp_port > 65535)
@@ -560,7 +620,6 @@ std::string Server::start() {
       return error;
     }
   }
-  thread_ = StackThread(kServerStackBytes, [this] { run(); });
   return {};
 }
 

@@ -28,6 +28,10 @@ using drivers::kServerStackBytes;
 using drivers::kSmallStackBytes;
 using drivers::StackThread;
 
+// Is `host` (as server.tcp_address gives it) an address of this machine only: 127.0.0.0/8, ::1,
+// ::ffff:127.x, "localhost"? A name that would need a lookup, 0.0.0.0 and :: are not.
+bool is_loopback_address(std::string_view host);
+
 struct ServerConfig {
   // TCP listener; an empty host: none. Port 0 picks a free port (tcp_port() says which).
   std::string tcp_host = "127.0.0.1";
@@ -55,8 +59,14 @@ struct ServerConfig {
   std::size_t max_held_bytes = std::size_t{64} << 10;
   // How often motion_done() is polled for sessions that wait.
   double wait_poll_s = 0.005;
+  // TCP clients must send `*AUTH <token>` before any command that moves or changes a setting
+  // (Session::require_token); "": none needed. The Unix socket's file mode is its permission.
+  std::string tcp_token;
   // Connections, disconnections and why, one line each (called on the server thread); optional.
   std::function<void(std::string_view)> log;
+  // Connections closed because they sent HTTP or a wrong token: one line, then at most one a
+  // minute saying how many more (a web page can send many); optional (then `log` gets them).
+  std::function<void(std::string_view)> warn;
 };
 
 struct ServerCounters {
@@ -66,6 +76,7 @@ struct ServerCounters {
   std::uint64_t dropped_no_newline = 0;   // streamed past max_unterminated_bytes
   std::uint64_t dropped_slow_reader = 0;  // output past max_output_bytes
   std::uint64_t dropped_error = 0;        // a socket error
+  std::uint64_t refused = 0;              // closed: it sent HTTP, or a wrong *AUTH token
 };
 
 class Server {
@@ -75,10 +86,14 @@ class Server {
   Server(const Server&) = delete;
   Server& operator=(const Server&) = delete;
 
-  // Opens the listeners and starts the thread. Returns "" on success, otherwise what failed
-  // ("TCP 127.0.0.1:5025: bind: Address already in use"); then nothing is left open. May be
-  // called again after stop().
+  // Opens the listeners and starts the thread (listen() first, when it has not been called).
+  // Returns "" on success, otherwise what failed ("TCP 127.0.0.1:5025: bind: Address already in
+  // use"); then nothing is left open. May be called again after stop().
   [[nodiscard]] std::string start();
+  // Binds and listens without serving: clients that connect wait in the backlog until start().
+  // idmd binds before it opens a device, so that a second idmd on the same sockets fails before
+  // it touches the hardware the first one drives. "" or what failed (nothing left open then).
+  [[nodiscard]] std::string listen();
   // Idempotent; returns after the thread has ended and every socket is closed.
   void stop();
 
@@ -103,7 +118,7 @@ class Server {
   bool unix_bound_ = false;
   std::uint64_t unix_dev_ = 0, unix_ino_ = 0;  // the file we bound, so stop() unlinks only it
   std::atomic<int> clients_{0};
-  std::atomic<std::uint64_t> counters_[6] = {};
+  std::atomic<std::uint64_t> counters_[7] = {};
   StackThread thread_;
 };
 

@@ -62,6 +62,8 @@ const std::vector<Session::Command>& Session::commands() {
       {{"*OPC", true, 0, 0, "", S::Instrument}, &Session::opc_query},
       {{"*WAI", false, 0, 0, "", S::Instrument}, &Session::wai},
       {{"*TST", true, 0, 0, "", S::Instrument}, &Session::tst},
+      {{"*AUTH", false, 1, 1, "<token>", S::Instrument}, &Session::auth},
+      {{"*AUTH", true, 0, 0, "", S::Instrument}, &Session::auth_query},
       {{"*STB", true, 0, 0, "", S::Instrument}, &Session::stb},
       {{"*ESR", true, 0, 0, "", S::Instrument}, &Session::esr},
       {{"*ESE", false, 1, 1, "<mask 0-255>", S::Instrument}, &Session::ese},
@@ -163,7 +165,7 @@ void Session::poll(std::string& replies) {
 
 void Session::process(std::string& replies) {
   std::size_t pos = 0;
-  while (wait_ == Wait::None) {
+  while (wait_ == Wait::None && close_reason_.empty()) {
     const std::size_t newline = input_.find('\n', pos);
     if (newline == std::string::npos) {
       const std::size_t pending = input_.size() - pos;
@@ -183,15 +185,25 @@ void Session::process(std::string& replies) {
       continue;
     }
     if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+    if (refuse_http(line)) break;
     if (line.size() > kMaxLineBytes)
       line_too_long(line, replies);
     else
       execute_line(line, replies);
   }
+  if (!close_reason_.empty()) pos = input_.size();  // nothing more of this input runs
   input_.erase(0, pos);
 }
 
+bool Session::refuse_http(std::string_view line) {
+  if (!looks_like_http(line)) return false;
+  close_reason_ = "sent HTTP ('" + replace_controls(line.substr(0, 40)) +
+                  "'), not command lines: a web page's request? Closed before any line of it ran";
+  return true;
+}
+
 void Session::line_too_long(std::string_view start, std::string& replies) {
+  if (refuse_http(start.substr(0, kMaxLineBytes))) return;
   push(make_error(ec::kInputBufferOverrun,
                   "line longer than " + std::to_string(kMaxLineBytes) + " bytes, discarded"));
   if (looks_like_query(start)) replies += "\n";
@@ -268,6 +280,7 @@ CommandError Session::resolve(const ParsedLine& parsed, const Command*& command)
                                                          std::to_string(count));
     axis_ = axis - 1;
   }
+  if (CommandError e = check_token(*command); !e.ok()) return e;
   if (stop_only_ && command->handler != &Session::stop && command->handler != &Session::idn &&
       command->handler != &Session::cls && command->handler != &Session::error_next &&
       command->handler != &Session::error_count && command->handler != &Session::error_all)
@@ -557,6 +570,43 @@ CommandError Session::sweep_query(const Args&, std::string& reply) {
   const SweepStatus s = instrument_.sweep_status();
   reply = s.state + "," + std::to_string(s.axis + 1) + "," + std::to_string(s.written) + "," +
           std::to_string(s.failed) + "," + std::to_string(s.planned) + "," + quote(s.directory);
+  return {};
+}
+
+namespace {
+
+// Equal, in a time that depends on the lengths only (a token is not guessed byte by byte).
+bool same_secret(std::string_view a, std::string_view b) {
+  unsigned char diff = a.size() == b.size() ? 0 : 1;
+  const std::size_t n = std::max(a.size(), b.size());
+  for (std::size_t i = 0; i < n; ++i)
+    diff |= static_cast<unsigned char>((i < a.size() ? a[i] : 0) ^ (i < b.size() ? b[i] : 0));
+  return diff == 0;
+}
+
+}  // namespace
+
+CommandError Session::check_token(const Command& command) const {
+  if (!token_ || authorised_ || command.info.query) return {};
+  const Handler h = command.handler;
+  if (h == &Session::stop || h == &Session::cls || h == &Session::wai || h == &Session::auth)
+    return {};
+  return make_error(ec::kCommandProtected,
+                    "this listener needs *AUTH <token> before commands that move or change "
+                    "settings (server.auth_token_file); queries and STOP need none");
+}
+
+CommandError Session::auth(const Args& args, std::string&) {
+  if (!token_ || same_secret(args[0], *token_)) {
+    authorised_ = true;
+    return {};
+  }
+  close_reason_ = "sent a wrong *AUTH token";
+  return make_error(ec::kCommandProtected, "*AUTH: wrong token; the connection is closed");
+}
+
+CommandError Session::auth_query(const Args&, std::string& reply) {
+  reply = (!token_ || authorised_) ? "1" : "0";
   return {};
 }
 

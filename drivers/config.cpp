@@ -30,9 +30,8 @@ void check_keys(const YAML::Node& map, const std::string& file, const std::strin
     bool known = false;
     for (const char* a : allowed) known = known || key == a;
     if (known) continue;
-    std::string list;
-    for (const char* a : allowed) list += (list.empty() ? "" : ", ") + std::string(a);
-    throw InputError(located(file, kv.first, section + "." + key, "unknown key, allowed " + list));
+    const std::vector<std::string> names(allowed.begin(), allowed.end());
+    throw InputError(located(file, kv.first, section + "." + key, model::unknown_name(key, names)));
   }
 }
 

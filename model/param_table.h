@@ -58,7 +58,7 @@ class ParamTable {
       const std::string key = section.empty() ? name : section + "." + name;
       const Param<S>* p = find(name);
       if (p == nullptr)
-        throw InputError(located(file, kv.first, key, "unknown key, allowed " + names()));
+        throw InputError(located(file, kv.first, key, unknown_name(name, name_list())));
       if (!kv.second.IsDefined() || kv.second.IsNull())
         throw InputError(located(file, kv.first, key, "no value"));
       p->read(out, kv.second, file, key);
@@ -85,6 +85,11 @@ class ParamTable {
     for (const Param<S>& p : params_)
       if (p.name == name) return &p;
     return nullptr;
+  }
+  std::vector<std::string> name_list() const {
+    std::vector<std::string> out;
+    for (const Param<S>& p : params_) out.push_back(p.name);
+    return out;
   }
   std::string names() const {
     std::string out;

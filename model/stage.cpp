@@ -126,7 +126,8 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
       for (const auto& kv : stage) {
         const std::string key = kv.first.as<std::string>();
         if (!known.count(key))
-          throw InputError(located(file, kv.first, "stage." + key, "unknown key"));
+          throw InputError(located(file, kv.first, "stage." + key,
+                                   unknown_name(key, {known.begin(), known.end()})));
       }
     }
   }

@@ -1,9 +1,18 @@
 #include "model/yaml_util.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <sstream>
+#include <vector>
 
 #include "model/stage.h"
 
@@ -90,64 +99,186 @@ std::string read_string(const YAML::Node& node, const std::string& file, const s
 
 namespace {
 
-constexpr int kMaxYamlDepth = 32;
-
-// What every reader of a section takes for granted: every key is a plain name (a scalar, not a
-// map, a list or nothing) and appears once in its map, and the document is a tree of bounded
-// depth (an alias to a node that holds it would be endless).
-void check_document(const YAML::Node& node, const std::string& file, const std::string& path,
-                    int depth) {
-  if (depth > kMaxYamlDepth)
-    throw InputError(located(file, node, path.empty() ? "(document)" : path,
-                             "nested deeper than " + std::to_string(kMaxYamlDepth) +
-                                 " levels (an alias to a node that holds it?)"));
-  if (node.IsSequence()) {
-    for (std::size_t i = 0; i < node.size(); ++i)
-      check_document(node[i], file, path + "[" + std::to_string(i) + "]", depth + 1);
-    return;
+// Levenshtein distance, case ignored.
+std::size_t edits(const std::string& a, const std::string& b) {
+  const auto lower = [](char c) {
+    return static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  };
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min(
+          {row[j] + 1, row[j - 1] + 1, diagonal + (lower(a[i - 1]) == lower(b[j - 1]) ? 0 : 1)});
+      diagonal = up;
+    }
   }
-  if (!node.IsMap()) return;
-  std::map<std::string, int> seen;  // key -> 1-based line of its first appearance
-  for (const auto& kv : node) {
-    if (!kv.first.IsScalar())
-      throw InputError(located(file, kv.first, path.empty() ? "(key)" : path + ".(key)",
-                               "a key must be a plain name, not a map, a list or nothing"));
-    const std::string key = kv.first.Scalar();
-    const std::string full = path.empty() ? key : path + "." + key;
-    const int line = kv.first.Mark().line + 1;
-    const auto [it, fresh] = seen.emplace(key, line);
-    if (!fresh)
-      throw InputError(located(file, kv.first, full,
-                               "duplicate key: also at line " + std::to_string(it->second) +
-                                   " (YAML would silently keep one of them; remove the other)"));
-    check_document(kv.second, file, full, depth + 1);
-  }
+  return row[b.size()];
 }
 
 }  // namespace
 
-void require_unique_keys(const YAML::Node& root, const std::string& file) {
-  check_document(root, file, "", 0);
+std::string unknown_name(const std::string& given, const std::vector<std::string>& allowed,
+                         const std::string& what) {
+  std::string best, list;
+  std::size_t best_edits = std::min<std::size_t>(3, std::max<std::size_t>(1, given.size() / 3)) + 1;
+  for (const std::string& a : allowed) {
+    list += (list.empty() ? "" : ", ") + a;
+    if (given.size() > 64) continue;  // no suggestion for a long word: no quadratic work on it
+    if (const std::size_t e = edits(given, a); e < best_edits) {
+      best_edits = e;
+      best = a;
+    }
+  }
+  std::string out = "unknown " + what + ", ";
+  if (!best.empty()) out += "did you mean '" + best + "'? ";
+  return out + "allowed " + list;
 }
 
-YAML::Node load_yaml_text(const std::string& text, const std::string& name) {
+namespace {
+
+constexpr int kMaxYamlDepth = 32;
+
+// What every reader of a section takes for granted: every key is a plain name (a scalar, not a
+// map, a list or nothing) and appears once in its map, and the document is a tree of bounded
+// depth (an alias to a node that holds it would be endless) and of bounded size counted as its
+// readers see it, every alias expanded. The path in messages is built only for a message.
+class DocumentCheck {
+ public:
+  DocumentCheck(const std::string& file, const YamlLimits& limits) : file_(file), limits_(limits) {}
+
+  void check(const YAML::Node& node, int depth) {
+    if (++nodes_ > limits_.max_nodes)
+      fail(node, "the document expands to more than " + std::to_string(limits_.max_nodes) +
+                     " nodes with its aliases resolved (an alias bomb?); refused");
+    if (depth > kMaxYamlDepth)
+      fail(node, "nested deeper than " + std::to_string(kMaxYamlDepth) +
+                     " levels (an alias to a node that holds it?)");
+    if (node.IsSequence()) {
+      for (std::size_t i = 0; i < node.size(); ++i) {
+        path_.push_back("[" + std::to_string(i) + "]");
+        check(node[i], depth + 1);
+        path_.pop_back();
+      }
+      return;
+    }
+    if (!node.IsMap()) return;
+    std::map<std::string, int> seen;  // key -> 1-based line of its first appearance
+    for (const auto& kv : node) {
+      if (!kv.first.IsScalar()) {
+        path_.emplace_back(".(key)");
+        fail(kv.first, "a key must be a plain name, not a map, a list or nothing");
+      }
+      const std::string& key = kv.first.Scalar();
+      const int line = kv.first.Mark().line + 1;
+      path_.push_back((path_.empty() ? "" : ".") + key);
+      const auto [it, fresh] = seen.emplace(key, line);
+      if (!fresh)
+        fail(kv.first, "duplicate key: also at line " + std::to_string(it->second) +
+                           " (YAML would silently keep one of them; remove the other)");
+      check(kv.second, depth + 1);
+      path_.pop_back();
+    }
+  }
+
+ private:
+  [[noreturn]] void fail(const YAML::Node& node, const std::string& message) const {
+    std::string path;
+    for (const std::string& p : path_) path += p;
+    if (!path.empty() && path[0] == '.') path.erase(0, 1);
+    throw InputError(located(file_, node, path.empty() ? "(document)" : path, message));
+  }
+
+  const std::string& file_;
+  const YamlLimits& limits_;
+  std::vector<std::string> path_;
+  std::size_t nodes_ = 0;
+};
+
+// YAML forbids tabs in indentation, and yaml-cpp's message does not say so: "; the line is
+// indented with a tab ..." when the failing line (or the one before it) is.
+std::string tab_hint(const std::string& text, int line0) {
+  std::size_t start = 0;
+  for (int l = 0; l < line0 - 1 && start != std::string::npos; ++l) {
+    start = text.find('\n', start);
+    if (start != std::string::npos) ++start;
+  }
+  for (int l = std::max(0, line0 - 1);
+       l <= line0 && start != std::string::npos && start < text.size(); ++l) {
+    for (std::size_t i = start; i < text.size() && (text[i] == ' ' || text[i] == '\t'); ++i)
+      if (text[i] == '\t')
+        return "; line " + std::to_string(l + 1) +
+               " is indented with a tab: YAML allows only spaces for indentation";
+    start = text.find('\n', start);
+    if (start != std::string::npos) ++start;
+  }
+  return {};
+}
+
+}  // namespace
+
+void require_unique_keys(const YAML::Node& root, const std::string& file,
+                         const YamlLimits& limits) {
+  DocumentCheck(file, limits).check(root, 0);
+}
+
+YAML::Node load_yaml_text(const std::string& text, const std::string& name,
+                          const YamlLimits& limits) {
+  if (text.size() > limits.max_bytes)
+    throw InputError(name + ": " + std::to_string(text.size()) + " bytes, more than the " +
+                     std::to_string(limits.max_bytes) + " allowed for this file; refused");
   YAML::Node root;
   try {
     root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     throw InputError(name + ":" + std::to_string(e.mark.line + 1) +
-                     ": YAML syntax error: " + e.msg);
+                     ": YAML syntax error: " + e.msg + tab_hint(text, e.mark.line));
   }
-  require_unique_keys(root, name);
+  require_unique_keys(root, name, limits);
   return root;
 }
 
-YAML::Node load_yaml_file(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw InputError(path + ": cannot open file");
-  std::stringstream text;
-  text << in.rdbuf();
-  return load_yaml_text(text.str(), path);
+YAML::Node load_yaml_file(const std::string& path, const YamlLimits& limits) {
+  return load_yaml_text(read_regular_file(path, limits.max_bytes), path, limits);
+}
+
+std::string read_regular_file(const std::string& path, std::size_t max_bytes) {
+  // O_NONBLOCK: opening a FIFO must not wait for a writer; fstat then refuses it.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
+  if (fd < 0) throw InputError(path + ": cannot open file: " + std::strerror(errno));
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+    ::close(fd);
+    throw InputError(path + ": not a regular file (a FIFO, a device or a directory); refused");
+  }
+  if (static_cast<std::uintmax_t>(st.st_size) > max_bytes) {
+    ::close(fd);
+    throw InputError(path + ": " + std::to_string(st.st_size) + " bytes, more than the " +
+                     std::to_string(max_bytes) + " allowed; refused");
+  }
+  std::string text;
+  char buf[65536];
+  for (;;) {
+    const ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const int e = errno;
+      ::close(fd);
+      throw InputError(path + ": cannot read: " + std::strerror(e));
+    }
+    if (n == 0) break;
+    text.append(buf, static_cast<std::size_t>(n));
+    if (text.size() > max_bytes) {  // it grew while read
+      ::close(fd);
+      throw InputError(path + ": more than the " + std::to_string(max_bytes) +
+                       " bytes allowed; refused");
+    }
+  }
+  ::close(fd);
+  return text;
 }
 
 }  // namespace idm::model

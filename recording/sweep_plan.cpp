@@ -101,7 +101,8 @@ void validate_plan(const std::vector<PlannedCell>& cells, const std::string& whe
 }
 
 SweepPlanFile read_plan_file(const std::string& path) {
-  const YAML::Node root = model::load_yaml_file(path);
+  // A line per planned cell: up to recording.sweep_max_trials cells, each a map of a few keys.
+  const YAML::Node root = model::load_yaml_file(path, {std::size_t{64} << 20, 4000000});
   if (!root.IsMap()) throw InputError(path + ":1: expected a map with status and cells");
   SweepPlanFile plan;
   const YAML::Node status = root["status"];

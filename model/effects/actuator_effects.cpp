@@ -8,6 +8,7 @@
 #include "model/effects/param_check.h"
 #include "model/effects/quantization.h"
 #include "model/stage.h"
+#include "model/yaml_util.h"
 
 namespace idm::model {
 
@@ -35,9 +36,7 @@ void check_keys(const std::string& name, const std::vector<std::string>& allowed
                 const std::map<std::string, double>& params) {
   for (const auto& [key, value] : params) {
     if (std::find(allowed.begin(), allowed.end(), key) != allowed.end()) continue;
-    std::string list;
-    for (const std::string& k : allowed) list += (list.empty() ? "" : ", ") + k;
-    throw InputError(name + "." + key + ": unknown parameter, allowed: " + list);
+    throw InputError(name + "." + key + ": " + model::unknown_name(key, allowed, "parameter"));
   }
 }
 

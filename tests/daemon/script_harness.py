@@ -108,7 +108,7 @@ class Daemon:
                                      stdout=subprocess.PIPE, stderr=self.err, text=True,
                                      env=dict(os.environ, **(env or {})))
         line = self.proc.stdout.readline()
-        m = re.search(r"127\.0\.0\.1:(\d+)", line)
+        m = re.search(r"tcp \S+?:(\d+)", line)
         if not m:
             self.proc.wait(10)
             fail("idmd did not start: %r\n%s" % (line, self.log()))

@@ -9,7 +9,8 @@ out="$(systemd-analyze verify "$tmp/idmd.service" 2>&1)" || { echo "$out"; echo 
 if echo "$out" | grep -i "idmd.service"; then echo "FAIL: verify warned about the unit"; exit 1; fi
 for d in Type=notify WatchdogSec= Restart=on-failure User=idmd NoNewPrivileges=yes \
          ProtectSystem=strict ReadWritePaths= DeviceAllow= "AmbientCapabilities=CAP_SYS_NICE CAP_IPC_LOCK" \
-         LimitMEMLOCK=infinity; do
+         LimitMEMLOCK=infinity "RestartPreventExitStatus=2 3" SystemCallFilter=@system-service \
+         IPAddressAllow=localhost IPAddressDeny=any After=network-online.target; do
   grep -q "^$d" "$unit" || { echo "FAIL: $d missing"; exit 1; }
 done
 echo "PASS: systemd-analyze verify"

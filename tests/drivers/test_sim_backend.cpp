@@ -239,7 +239,9 @@ TEST(SimConfig, DriverSectionsNameTheKeyTheLineAndTheAllowedValues) {
       std::string::npos)
       << e;
   e = error_of("daq:\n  sim:\n    faults: {beam_lots: true}\n");
-  EXPECT_NE(e.find("daq.sim.faults.beam_lots: unknown key, allowed beam_lost,"), std::string::npos)
+  EXPECT_NE(
+      e.find("daq.sim.faults.beam_lots: unknown key, did you mean 'beam_lost'? allowed beam_lost,"),
+      std::string::npos)
       << e;
   e = error_of("daq:\n  sim:\n    output: volts\n");
   EXPECT_NE(

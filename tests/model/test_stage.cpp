@@ -56,7 +56,12 @@ TEST(Stage, BadValuesNameFileLineKeyAndRange) {
   EXPECT_NE(error_of("stage:\n  stroke_m: .nan\n").find("stage.stroke_m: must be finite"),
             std::string::npos);
   EXPECT_EQ(error_of("stage:\n  wobble: 1\n", {.strict = true}),
-            "stage.yaml:2: stage.wobble: unknown key");
+            "stage.yaml:2: stage.wobble: unknown key, allowed counter_mass_kg, damping_n_s_m, "
+            "friction_coefficient, gravity_m_s2, slider_mass_kg, step_correction, stiffness_n_m, "
+            "stroke_m, travel_m");
+  EXPECT_NE(
+      error_of("stage:\n  strok_m: 1e-5\n", {.strict = true}).find("did you mean 'stroke_m'?"),
+      std::string::npos);
   EXPECT_EQ(error_of("stage:\n  wobble: 1\n"), "");  // ignored unless strict
   EXPECT_NE(error_of("stage:\n  slider_mass_kg: 0.1\n", {.require_dataset_keys = true})
                 .find("missing required key"),

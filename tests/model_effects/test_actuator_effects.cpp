@@ -72,10 +72,10 @@ TEST(ActuatorEffects, OtherNamesAreNotActuatorEffects) {
 
 TEST(ActuatorEffects, ErrorsNameTheEffectAndTheKey) {
   EXPECT_EQ(error_of("amplifier", {{"gain", 2.0}}),
-            "amplifier.gain: unknown parameter, allowed: order, cutoff_hz, slew_rate_m_s");
+            "amplifier.gain: unknown parameter, allowed order, cutoff_hz, slew_rate_m_s");
   EXPECT_EQ(error_of("quantization", {{"update_rate", 1e5}}),
-            "quantization.update_rate: unknown parameter, allowed: bits, update_rate_hz, "
-            "full_scale_m");
+            "quantization.update_rate: unknown parameter, did you mean 'update_rate_hz'? allowed "
+            "bits, update_rate_hz, full_scale_m");
   EXPECT_EQ(error_of("amplifier", {{"cutoff_hz", -3}}),
             "amplifier.cutoff_hz: -3 is out of range, allowed (0, 1000000]");
   EXPECT_EQ(error_of("amplifier", {{"order", 1.5}}),
