@@ -400,6 +400,7 @@ void IdmAxis::reference() {
   publish();
 }
 
+// n is sent as given, sign and all: idmd picks the direction from it.
 void IdmAxis::step(Tango::DevLong cycles) {
   command("STEP " + std::to_string(cycles), "IdmAxis::Step");
   refresh();
@@ -460,8 +461,11 @@ class StepCmd : public Tango::Command {
  public:
   StepCmd()
       : Command("Step", Tango::DEV_LONG, Tango::DEV_VOID,
-                "cycles of an open-loop burst (negative: the other direction)", "",
-                Tango::OPERATOR) {}
+                "cycles of an open-loop burst (idmd's STEP n): |n| cycles at the duty and "
+                "frequency idmd picks (its map's largest-step cell); the sign of n alone picks "
+                "the direction (positive: the positive direction), the duty is given as for the "
+                "positive direction and mirrored for negative n",
+                "", Tango::OPERATOR) {}
   CORBA::Any* execute(Tango::DeviceImpl* d, const CORBA::Any& in) override {
     Tango::DevLong cycles = 0;
     extract(in, cycles);

@@ -1,5 +1,7 @@
 #include "tools/cli.h"
 
+#include <array>
+#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -119,6 +121,65 @@ std::vector<double> parse_list(const std::string& text, const std::string& what)
   }
   if (out.empty()) throw InputError(what + ": empty list");
   return out;
+}
+
+namespace {
+
+constexpr std::array<LengthUnit, 4> kLengthUnits{{{"nm", 1e9}, {"um", 1e6}, {"mm", 1e3}, {"m", 1}}};
+
+bool is_letter(char c) {
+  return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z');
+}
+
+}  // namespace
+
+const LengthUnit* find_length_unit(std::string_view name) {
+  for (const LengthUnit& u : kLengthUnits)
+    if (u.name == name) return &u;
+  return nullptr;
+}
+
+std::string length_unit_names() {
+  std::string names;
+  for (const LengthUnit& u : kLengthUnits)
+    names += (names.empty() ? "" : ", ") + std::string(u.name);
+  return names;
+}
+
+double parse_length(const std::string& text, const std::string& what, const LengthUnit* bare) {
+  const std::string accepted =
+      "a number and a unit, one of " + length_unit_names() + " (e.g. 250nm, 1.5mm)";
+  std::size_t end = text.size();
+  while (end > 0 && is_letter(text[end - 1])) --end;
+  const std::string number = text.substr(0, end), suffix = text.substr(end);
+  if (text.find("\xC2\xB5") != std::string::npos || text.find("\xCE\xBC") != std::string::npos)
+    throw InputError(what + ": '" + text + "': write um for micrometres; " + accepted);
+  if (number.empty() || number.find_first_not_of("0123456789.eE+-") != std::string::npos)
+    throw InputError(what + ": '" + text + "' is not a length: " + accepted);
+  const LengthUnit* unit = suffix.empty() ? bare : find_length_unit(suffix);
+  if (suffix.empty() && !unit)
+    throw InputError(what + ": '" + text + "' has no unit: write " + text + "um, " + text +
+                     "m, ... (a bare number is metres only without --unit or with --unit m)");
+  if (!unit)
+    throw InputError(what + ": '" + text + "': unknown unit '" + suffix + "', accepted " +
+                     length_unit_names() + " (case matters; a bare number is metres)");
+  double value = 0;
+  try {
+    value = parse_number(number, what);
+  } catch (const InputError&) {
+    throw InputError(what + ": '" + text + "' is not a length: " + accepted);
+  }
+  return value / unit->per_metre;
+}
+
+std::string format_length(double metres, const LengthUnit& unit) {
+  return model::format_number(metres * unit.per_metre, 12);
+}
+
+std::string exact_number(double value) {
+  std::array<char, 32> buf{};
+  const auto [end, ec] = std::to_chars(buf.data(), buf.data() + buf.size(), value);
+  return ec == std::errc() ? std::string(buf.data(), end) : model::format_number(value, 17);
 }
 
 int run_subcommands(const char* tool, const char* usage, std::initializer_list<Subcommand> commands,

@@ -5,6 +5,7 @@
 #include <initializer_list>
 #include <map>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "model/stage.h"
@@ -33,6 +34,25 @@ class Flags {
 double parse_number(const std::string& text, const std::string& what);
 // "a,b,c" or "start:stop:step" (inclusive of stop within 1e-9 of a step).
 std::vector<double> parse_list(const std::string& text, const std::string& what);
+
+// A unit of length on the command line: its name and how many of it make a metre (exact in a
+// double, so that a length divided by it is rounded once).
+struct LengthUnit {
+  std::string_view name;
+  double per_metre;
+};
+// nm, um, mm or m; nullptr for anything else (names are case-sensitive: Mm would be megametres).
+const LengthUnit* find_length_unit(std::string_view name);
+// "nm, um, mm, m"
+std::string length_unit_names();
+// A length in metres from "250nm", "1.5mm", "-2e-6m", "1um": a plain decimal or exponent number
+// and one of the units. A bare number is in `bare` (nullptr: refused, as ambiguous). InputError
+// naming `what`, the text and the accepted units.
+double parse_length(const std::string& text, const std::string& what, const LengthUnit* bare);
+// `metres` in `unit`, 12 significant digits (1e-6 m in nm: "1000").
+std::string format_length(double metres, const LengthUnit& unit);
+// The shortest text that reads back as exactly `value` ("2.5e-07"), for a protocol line.
+std::string exact_number(double value);
 
 // One subcommand of a tool: `tool NAME --flags...`; run gets the whole argv.
 struct Subcommand {

@@ -3,11 +3,14 @@
 Pure standard library. ``idm.Client`` (synchronous) and ``idm.aio.AsyncClient`` (asyncio)
 speak idmd's SCPI-style line protocol over TCP or its Unix socket; ``client.axis(n or name)``
 gives an :class:`Axis` (move, move_by, step, stop, position, status, reference, sweep, ...);
-``axis.movable()`` a Bluesky-style movable (:mod:`idm.bluesky`). Every error the daemon queues
+``axis.movable()`` a Bluesky-style movable (:mod:`idm.bluesky`); :mod:`idm.units` reads and
+writes lengths with units ("250nm"). Every error the daemon queues
 is raised as :class:`ScpiError` with its code and text.
 """
 
-from .client import DEFAULT_PORT, Axis, Client, Sweep
+from . import units
+from .address import DEFAULT_PORT, address_from_environment
+from .client import Axis, Client, Sweep
 from ._core import AxisNotFound
 from ._sweep import SweepProgress
 from .errors import (CommandError, DeviceFault, DeviceSpecificError, ExecutionError,
@@ -19,7 +22,8 @@ from .status import (AxisStatus, EventStatus, LoopStats, MoveResult, Operation, 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Client", "Axis", "Sweep", "SweepProgress", "DEFAULT_PORT",
+    "Client", "Axis", "Sweep", "SweepProgress", "DEFAULT_PORT", "address_from_environment",
+    "units",
     "AxisStatus", "Operation", "StatusByte", "EventStatus", "MoveResult", "SweepState",
     "LoopStats",
     "IdmError", "ScpiError", "CommandError", "ExecutionError", "DeviceSpecificError",

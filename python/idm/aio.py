@@ -15,19 +15,19 @@ import asyncio
 from typing import Any, Optional
 
 from ._core import Line, Plan, PlanRun, Session, Sleep
-from .client import DEFAULT_PORT, _Api, _exchange, _Read, _Send
+from .client import _Api, _exchange, _Read, _Send
 
 __all__ = ["AsyncClient", "connect"]
 
 
 class AsyncClient(_Api):
-    """An asyncio connection to idmd. Open it with ``await client.connect()`` or
-    ``async with AsyncClient(...) as client``; ``timeout``, ``wait_timeout`` and
-    ``poll_interval`` as for :class:`idm.Client`. Tasks may share it (one line and its error
-    drain at a time). A task cancelled while it waits for a reply closes the connection (the
-    late reply would otherwise be taken for the next one's)."""
+    """An asyncio connection to idmd. Open it with ``await client.connect()`` or ``async with
+    AsyncClient(...) as client``; the address (no address: the environment's), ``timeout``,
+    ``wait_timeout`` and ``poll_interval`` as for :class:`idm.Client`. Tasks may share it (one
+    line and its error drain at a time). A task cancelled while it waits for a reply closes the
+    connection (the late reply would otherwise be taken for the next one's)."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
+    def __init__(self, host: Optional[str] = None, port: Optional[int] = None, *,
                  unix: Optional[str] = None, timeout: float = 5.0,
                  wait_timeout: Optional[float] = 60.0, poll_interval: float = 0.01):
         self._settings(host, port, unix, timeout, wait_timeout, poll_interval)
@@ -156,6 +156,7 @@ class AsyncClient(_Api):
         return raw[:-1].rstrip(b"\r").decode("utf-8", "replace")
 
 
-async def connect(host: str = "127.0.0.1", port: int = DEFAULT_PORT, **kwargs: Any) -> AsyncClient:
+async def connect(host: Optional[str] = None, port: Optional[int] = None,
+                  **kwargs: Any) -> AsyncClient:
     """``await idm.aio.connect(...)``: an open :class:`AsyncClient`."""
     return await AsyncClient(host, port, **kwargs).connect()

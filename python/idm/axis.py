@@ -78,8 +78,11 @@ class Axis:
     def step(self, cycles: int, duty: Optional[float] = None, freq_hz: Optional[float] = None,
              stroke_m: Optional[float] = None, *, wait: bool = True,
              timeout: Optional[float] = None):
-        """``STEP cycles[,duty,freq_hz[,stroke_m]]``: an open-loop burst (negative cycles: the
-        other direction). Returns the position after it when waiting."""
+        """``STEP cycles[,duty,freq_hz[,stroke_m]]``: an open-loop burst of |cycles| cycles.
+        The sign of cycles alone picks the direction (positive: the positive direction);
+        ``duty`` is given as for the positive direction, and the daemon mirrors it for negative
+        cycles (the protocol's STEP). ``cycles`` is sent as given, sign and all (a float that is
+        a whole number as an integer). Returns the position after it when waiting."""
         return self._run(_core.p_step(self._s, self.key, cycles, duty, freq_hz, stroke_m, wait,
                                       self._timeout(timeout), self.client.poll_interval))
 

@@ -9,6 +9,7 @@ from typing import Any, Generator, List, NamedTuple, Optional, Tuple
 
 from . import _core, _sweep
 from ._core import AxisKey, Line, Plan, Session, Sleep
+from .address import DEFAULT_HOST, DEFAULT_PORT, address_from_environment
 from .axis import Axis, Sweep
 from .errors import (IdmConnectionError, IdmTimeout, ProtocolError, error_from_code,
                      parse_error_line)
@@ -16,7 +17,6 @@ from .status import EventStatus, StatusByte
 
 __all__ = ["Client", "Axis", "Sweep", "DEFAULT_PORT"]
 
-DEFAULT_PORT = 5025
 # A daemon's queue holds 32 errors (then -350): more than this many in one drain is a broken peer.
 _MAX_DRAIN = 64
 
@@ -81,10 +81,15 @@ class _Api:
     def _fail(self, why: str) -> None:  # pragma: no cover - defined by the clients
         raise NotImplementedError
 
-    def _settings(self, host: str, port: int, unix: Optional[str], timeout: float,
-                  wait_timeout: Optional[float], poll_interval: float) -> None:
+    def _settings(self, host: Optional[str], port: Optional[int], unix: Optional[str],
+                  timeout: float, wait_timeout: Optional[float], poll_interval: float) -> None:
         if timeout is None or not timeout > 0:
             raise ValueError("timeout must be a positive number of seconds, not %r" % (timeout,))
+        if host is None and port is None and unix is None:
+            # No address given: IDMD_SOCKET, else IDMD_ADDRESS, else 127.0.0.1:5025.
+            host, port, unix = address_from_environment()
+        host = DEFAULT_HOST if host is None else host
+        port = DEFAULT_PORT if port is None else port
         self.host = host
         self.port = port
         self.unix = unix
@@ -228,15 +233,19 @@ class _Api:
 class Client(_Api):
     """A synchronous connection to idmd.
 
-    ``Client()`` connects to TCP 127.0.0.1:5025; ``Client(unix="/run/idmd/idmd.sock")`` to the
-    Unix socket. ``timeout`` bounds every reply (s); ``wait_timeout`` is the default bound of
-    the waits for motion (moves, steps, reference, ``wait()``); ``poll_interval`` the
-    ``MOVE:DONE?`` polling period. After each line the error queue is drained
-    (``SYSTem:ERRor?`` until ``0``) and a queued error is raised as :class:`~idm.ScpiError`.
-    Safe to share between threads (one line and its drain at a time). A context manager:
-    ``with idm.Client() as c: ...`` closes the connection at the end."""
+    ``Client(unix="/run/idmd/idmd.sock")`` connects to the Unix socket, ``Client("host", 5025)``
+    (or either of host and port alone, the other one's default 127.0.0.1 / 5025) over TCP;
+    ``Client()`` with no address asks the environment, as idmctl, idm-web and idm-tango do:
+    ``IDMD_SOCKET=path``, else ``IDMD_ADDRESS=host:port``, else TCP 127.0.0.1:5025 (both set, or
+    an address that does not parse, is a ValueError naming the variable). ``timeout`` bounds
+    every reply (s); ``wait_timeout`` is the default bound of the waits for motion (moves,
+    steps, reference, ``wait()``); ``poll_interval`` the ``MOVE:DONE?`` polling period. After
+    each line the error queue is drained (``SYSTem:ERRor?`` until ``0``) and a queued error is
+    raised as :class:`~idm.ScpiError`. Safe to share between threads (one line and its drain at
+    a time). A context manager: ``with idm.Client() as c: ...`` closes the connection at the
+    end."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
+    def __init__(self, host: Optional[str] = None, port: Optional[int] = None, *,
                  unix: Optional[str] = None, timeout: float = 5.0,
                  wait_timeout: Optional[float] = 60.0, poll_interval: float = 0.01):
         self._settings(host, port, unix, timeout, wait_timeout, poll_interval)

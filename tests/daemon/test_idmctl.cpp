@@ -4,8 +4,12 @@
 #include <sys/wait.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <memory>
+#include <random>
+#include <sstream>
 #include <string>
 
 #include "daemon/server.h"
@@ -34,6 +38,28 @@ Result run_shell(const std::string& command) {
 
 const std::string kIdmctl = std::string(IDM_BUILD_DIR) + "/tools/idmctl";
 
+// An environment variable set for the life of one test (so an idmctl started by popen sees it).
+class ScopedEnv {
+ public:
+  ScopedEnv(const char* name, const std::string& value) : name_(name) {
+    if (const char* old = std::getenv(name)) old_ = old, had_ = true;
+    setenv(name, value.c_str(), 1);
+  }
+  ~ScopedEnv() {
+    if (had_)
+      setenv(name_, old_.c_str(), 1);
+    else
+      unsetenv(name_);
+  }
+  ScopedEnv(const ScopedEnv&) = delete;
+  ScopedEnv& operator=(const ScopedEnv&) = delete;
+
+ private:
+  const char* name_;
+  std::string old_;
+  bool had_ = false;
+};
+
 class IdmctlTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -50,6 +76,26 @@ class IdmctlTest : public ::testing::Test {
   }
   Result idmctl(const std::string& args) {
     return run_shell(kIdmctl + " --port " + std::to_string(server_->tcp_port()) + " " + args);
+  }
+  // A shell command whose stdout and stderr are kept apart: {status, stdout}, and stderr in err.
+  Result run_apart(const std::string& command, std::string& err) {
+    const std::string err_file = dir_ + "/stderr";
+    FILE* p = popen((command + " 2>" + err_file).c_str(), "r");
+    std::string out;
+    char buf[4096];
+    while (p && fgets(buf, sizeof buf, p)) out += buf;
+    const int raw = p ? pclose(p) : -1;
+    std::ifstream in(err_file);
+    std::stringstream text;
+    text << in.rdbuf();
+    err = text.str();
+    return {WIFEXITED(raw) ? WEXITSTATUS(raw) : -1, out};
+  }
+  // idmctl (over the Unix socket) reading `lines` from stdin.
+  Result piped(const std::string& lines, std::string& err, const std::string& flags = "") {
+    std::ofstream(dir_ + "/stdin") << lines;
+    return run_apart(
+        kIdmctl + " --unix " + server_->unix_path() + " " + flags + " < " + dir_ + "/stdin", err);
   }
 
   FakeInstrument fake_;
@@ -152,13 +198,176 @@ TEST_F(IdmctlTest, RawSendsOneLineAndShowsErrors) {
   EXPECT_EQ(fake_.motion_calls(), 1u);
 }
 
-TEST_F(IdmctlTest, InteractivePrintsTheReplyOfEveryQuery) {
+TEST_F(IdmctlTest, PipedLinesPrintTheReplyOfEveryQueryAndEveryErrorWithItsLine) {
   fake_.set_polls_until_done(10);
-  const Result r =
-      run_shell("printf 'POS?\\nMOVE:ABS 2e-6\\n*OPC?\\npos?\\nBOGUS\\n\\nSYST:ERR?\\n' | " +
-                kIdmctl + " --unix " + server_->unix_path());
+  std::string err;
+  const Result r = piped("POS?\nMOVE:ABS 2e-6\n*OPC?\npos?\nBOGUS\n\nSYST:ERR?\n", err);
+  EXPECT_EQ(r.status, 1) << err;
+  // The error was read right after its line: the script's own SYST:ERR? finds the queue empty.
+  EXPECT_EQ(r.out, "0\n1\n2e-06\n0,\"No error\"\n");
+  EXPECT_EQ(err,
+            "idmctl: line 5 (BOGUS): error -113,\"Undefined header; 'BOGUS'\"\n"
+            "idmctl: 1 of 6 lines failed\n");
+}
+
+TEST_F(IdmctlTest, PipedLinesThatFailAreEachNamedAndTheStatusIsOne) {
+  fake_.set_refusal({error_code::kDataOutOfRange, "target 99 m outside the soft limits"});
+  std::string err;
+  Result r = piped("FOO 1\nMOVE:ABS 99\nPOS?\n", err);
+  EXPECT_EQ(r.status, 1);
+  EXPECT_EQ(r.out, "0\n");
+  EXPECT_EQ(err,
+            "idmctl: line 1 (FOO 1): error -113,\"Undefined header; 'FOO'\"\n"
+            "idmctl: line 2 (MOVE:ABS 99): error -222,\"Data out of range; target 99 m outside "
+            "the soft limits\"\n"
+            "idmctl: 2 of 3 lines failed\n");
+  fake_.set_refusal({});
+  r = piped("MOVE:ABS 1e-6\n*OPC?\n", err);
+  EXPECT_EQ(r.status, 0) << err;
+  EXPECT_EQ(err, "");
+}
+
+TEST_F(IdmctlTest, IdmctlsVerbsOnPipedLinesRunAsOnTheCommandLine) {
+  fake_.set_polls_until_done(3);
+  std::string err;
+  Result r = piped(
+      "move 1um\nrel -250nm\n  step -100 0.9 250\nstep 7,0.2,300,2um\nlimits -2mm 2mm\n"
+      "limits\npos\nraw MOVE:REL 1e-7\n*OPC?\n",
+      err);
+  EXPECT_EQ(r.status, 0) << err;
+  EXPECT_EQ(err, "");
+  EXPECT_EQ(r.out, "1e-06\n7.5e-07\n-0.002,0.002\n7.5e-07\n1\n");
+  const std::vector<std::string> want = {"move_absolute(1e-06)",          "move_relative(-2.5e-07)",
+                                         "step(-100,0.9,250,9.91e+37)",   "step(7,0.2,300,2e-06)",
+                                         "set_soft_limits(-0.002,0.002)", "move_relative(1e-07)"};
+  std::vector<std::string> got;
+  for (const std::string& c : fake_.calls())
+    if (c.rfind("move", 0) == 0 || c.rfind("step", 0) == 0 || c.rfind("set_soft", 0) == 0)
+      got.push_back(c);
+  EXPECT_EQ(got, want);
+  // A verb used wrongly is refused, naming its line, and the next lines still run.
+  r = piped("move\nmove 5km\npos\n", err);
+  EXPECT_EQ(r.status, 1);
+  EXPECT_EQ(r.out, "8.5e-07\n");
+  EXPECT_EQ(err,
+            "idmctl: line 1 (move): move: usage: idmctl move X\n"
+            "idmctl: line 2 (move 5km): move X: '5km': unknown unit 'km', accepted nm, um, mm, m "
+            "(case matters; a bare number is metres)\n"
+            "idmctl: 2 of 3 lines failed\n");
+}
+
+TEST_F(IdmctlTest, APositionThatIsNotValidIsAnErrorNeverANumber) {
+  fake_.set_position(1e-6, false);
+  std::string err;
+  Result r = run_apart(kIdmctl + " --unix " + server_->unix_path() + " pos", err);
+  EXPECT_EQ(r.status, 1);
+  EXPECT_EQ(r.out, "");
+  EXPECT_NE(err.find("idmctl: error -230,"), std::string::npos) << err;
+  r = piped("pos\n", err, "--unit nm");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_EQ(r.out, "");
+  EXPECT_NE(err.find("idmctl: line 1 (pos): error -230,"), std::string::npos) << err;
+  // The protocol line itself is idmd's: its reply is printed as it came, the error named.
+  r = piped("POS?\n", err);
+  EXPECT_EQ(r.out, "9.91E37\n");
+  EXPECT_NE(err.find("idmctl: line 1 (POS?): error -230,"), std::string::npos) << err;
+  fake_.set_position(1e-6, true);
+  r = run_apart(kIdmctl + " --unix " + server_->unix_path() + " pos", err);
+  EXPECT_EQ(r.status, 0) << err;
+  EXPECT_EQ(r.out, "1e-06\n");
+}
+
+TEST_F(IdmctlTest, TheEnvironmentNamesTheDaemonUnlessAFlagDoes) {
+  const std::string tcp = "127.0.0.1:" + std::to_string(server_->tcp_port());
+  {
+    ScopedEnv socket("IDMD_SOCKET", server_->unix_path());
+    Result r = run_shell(kIdmctl + " idn");
+    EXPECT_EQ(r.status, 0) << r.out;
+    EXPECT_EQ(r.out, "idm,idmd,0,test\n");
+    // A flag wins over the environment (which is then not read at all).
+    r = run_shell(kIdmctl + " --port " + std::to_string(server_->tcp_port()) + " idn");
+    EXPECT_EQ(r.status, 0) << r.out;
+    ScopedEnv address("IDMD_ADDRESS", tcp);
+    r = run_shell(kIdmctl + " idn");
+    EXPECT_EQ(r.status, 2);
+    EXPECT_EQ(r.out, "idmctl: IDMD_SOCKET and IDMD_ADDRESS are both set: set one\n");
+    r = run_shell(kIdmctl + " --unix " + server_->unix_path() + " idn");
+    EXPECT_EQ(r.status, 0) << r.out;
+  }
+  {
+    ScopedEnv address("IDMD_ADDRESS", tcp);
+    Result r = run_shell(kIdmctl + " idn");
+    EXPECT_EQ(r.status, 0) << r.out;
+    ScopedEnv bad("IDMD_ADDRESS", "127.0.0.1:http");
+    r = run_shell(kIdmctl + " idn");
+    EXPECT_EQ(r.status, 2);
+    EXPECT_EQ(r.out,
+              "idmctl: IDMD_ADDRESS: '127.0.0.1:http': the port is not a number in 1..65535\n");
+  }
+  {
+    ScopedEnv nowhere("IDMD_SOCKET", dir_ + "/nowhere.sock");
+    const Result r = run_shell(kIdmctl + " pos");
+    EXPECT_EQ(r.status, 1);
+    EXPECT_EQ(r.out, "idmctl: cannot connect to unix socket " + dir_ +
+                         "/nowhere.sock: No such file or directory\n");
+  }
+}
+
+TEST_F(IdmctlTest, LengthsTakeUnitsAndArePrintedInTheUnitAsked) {
+  fake_.set_position(1e-6);
+  EXPECT_EQ(idmctl("--unit nm pos").out, "1000\n");
+  EXPECT_EQ(idmctl("--unit um pos").out, "1\n");
+  EXPECT_EQ(idmctl("--unit mm pos").out, "0.001\n");
+  EXPECT_EQ(idmctl("--unit m pos").out, "1e-6\n");
+  EXPECT_EQ(idmctl("--unit um limits").out, "-1000,1000\n");
+  EXPECT_EQ(idmctl("--unit nm region 200 0.1 5um").out, "ONESTEP,-200\n");
+  EXPECT_EQ(fake_.last_call(), "region(200,0.1,5e-06)");
+  Result r = idmctl("--unit nm move 1.5um");
   EXPECT_EQ(r.status, 0) << r.out;
-  EXPECT_EQ(r.out, "0\n1\n2e-06\n-113,\"Undefined header; 'BOGUS'\"\n");
+  EXPECT_EQ(r.out, "1500\n");
+  EXPECT_EQ(idmctl("rel 2e-7m").out, "1.7e-06\n");
+  EXPECT_EQ(idmctl("--unit mm limits -1.5mm 2000um").status, 0);
+  EXPECT_EQ(fake_.last_call(), "set_soft_limits(-0.0015,0.002)");
+  // A bare number is metres; with --unit nm, um or mm it is ambiguous and refused.
+  r = idmctl("--unit um move 5");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_EQ(r.out,
+            "idmctl: move X: '5' has no unit: write 5um, 5m, ... (a bare number is metres only "
+            "without --unit or with --unit m)\n");
+  for (const char* bad : {"5km", "5MM", "5Um", "1e", "5 um", "um", "0x10m", "1..2mm", "infm"}) {
+    r = idmctl(std::string("move '") + bad + "'");
+    EXPECT_EQ(r.status, 2) << bad;
+    EXPECT_EQ(r.out.rfind(std::string("idmctl: move X: '") + bad + "'", 0), 0u) << r.out;
+    EXPECT_NE(r.out.find("nm, um, mm, m"), std::string::npos) << r.out;
+  }
+  r = idmctl("--unit km pos");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_EQ(r.out, "idmctl: --unit: 'km' is not a unit, allowed nm, um, mm, m\n");
+  EXPECT_EQ(fake_.motion_calls(), 2u);  // nothing refused ever moved
+}
+
+TEST_F(IdmctlTest, StepSendsTheSignOfNAsGivenAndTheHelpSaysWhatItMeans) {
+  std::mt19937 random(7);
+  std::uniform_int_distribution<long> cycles(-1000000, 1000000);
+  for (int k = 0; k < 12; ++k) {
+    long n = cycles(random);
+    if (n == 0) n = 1;
+    const Result r = idmctl("--no-wait step " + std::to_string(n) + " 0.3 250");
+    EXPECT_EQ(r.status, 0) << r.out;
+    EXPECT_EQ(fake_.last_call(), "step(" + std::to_string(n) + ",0.3,250,9.91e+37)");
+  }
+  const Result help = run_shell(kIdmctl + " --help");
+  EXPECT_EQ(help.status, 0);
+  EXPECT_NE(help.out.find("the sign of N alone picks the\n"), std::string::npos) << help.out;
+  EXPECT_NE(help.out.find("as for the positive direction (mirrored for negative N)"),
+            std::string::npos)
+      << help.out;
+}
+
+TEST_F(IdmctlTest, VersionIsTheProjectsVersion) {
+  const Result r = run_shell(kIdmctl + " --version");
+  EXPECT_EQ(r.status, 0);
+  EXPECT_EQ(r.out, std::string("idmctl ") + IDM_PROJECT_VERSION + "\n");
 }
 
 TEST_F(IdmctlTest, BadUsageExitsTwoAndConnectionErrorsNameTheAddress) {

@@ -36,6 +36,25 @@ def test_move_over_both_transports(idmd, transport):
     run(main())
 
 
+def test_no_address_given_asks_the_environment(idmd, monkeypatch):
+    monkeypatch.delenv("IDMD_ADDRESS", raising=False)
+    monkeypatch.setenv("IDMD_SOCKET", idmd.unix)
+
+    async def main():
+        async with idm.aio.AsyncClient() as c:
+            assert c.address == "unix:" + idmd.unix
+            assert (await c.idn()).split(",")[1] == "idmd"
+        monkeypatch.delenv("IDMD_SOCKET")
+        monkeypatch.setenv("IDMD_ADDRESS", "127.0.0.1:%d" % idmd.port)
+        c = await idm.aio.connect()
+        try:
+            assert c.address == "127.0.0.1:%d" % idmd.port
+            await c.idn()
+        finally:
+            await c.close()
+    run(main())
+
+
 def test_errors_are_raised_with_code_and_text(idmd):
     async def main():
         c = await idm.aio.connect("127.0.0.1", idmd.port)

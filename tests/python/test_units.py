@@ -5,6 +5,8 @@ STATus:OPERation?), to a daemon before the extension (no AXIS:COUNt?, no SWEEP?)
 handles replies that are hard to get from the real daemon on demand. What the daemon of this
 tree answers is tested against the real idmd in the other modules."""
 import math
+import random
+import re
 
 import pytest
 
@@ -288,3 +290,100 @@ def test_sweep_on_a_daemon_without_sweep_query():
     with pytest.raises(idm.SweepError, match="stopped"):
         daemon.run(_sweep.p_sweep_wait(info, 10, 0))
     assert "SWEEP?" not in daemon.sent[7:]  # not asked again on this connection
+
+
+# ---- the address from the environment (idm.address; the C++ clients' rules) --------------------
+
+def test_address_from_the_environment_in_order():
+    env = idm.address_from_environment
+    assert env({}) == ("127.0.0.1", 5025, None)
+    assert env({"IDMD_SOCKET": "/run/idmd/idmd.sock"}).unix == "/run/idmd/idmd.sock"
+    assert env({"IDMD_ADDRESS": "192.168.1.5:6000"}) == ("192.168.1.5", 6000, None)
+    assert env({"IDMD_ADDRESS": "lab-pc"}) == ("lab-pc", 5025, None)
+    assert env({"IDMD_ADDRESS": "[::1]:7000"}) == ("::1", 7000, None)
+    assert env({"IDMD_SOCKET": "", "IDMD_ADDRESS": "h:1"}) == ("h", 1, None)  # empty is unset
+    with pytest.raises(ValueError, match="^IDMD_SOCKET and IDMD_ADDRESS are both set: set one$"):
+        env({"IDMD_SOCKET": "/s", "IDMD_ADDRESS": "h:1"})
+    for bad, why in [("127.0.0.1:http", "the port is not a number in 1..65535"),
+                     ("h:0", "the port is out of range, allowed 1..65535"),
+                     ("h:70000", "the port is out of range"), ("h:", "an empty port"),
+                     (":5025", "an empty host"), ("::1:5025", "an IPv6 address goes in brackets"),
+                     ("[::1", "a '\\[' without its '\\]'"),
+                     ("h/x:1", "the host holds a character a host name cannot")]:
+        with pytest.raises(ValueError, match="^IDMD_ADDRESS: '%s': %s" % (re.escape(bad), why)):
+            env({"IDMD_ADDRESS": bad})
+
+
+def test_host_and_port_read_back_for_generated_addresses():
+    rnd = random.Random(5)
+    letters = "abcdefghijklmnopqrstuvwxyz0123456789-."
+    for _ in range(500):
+        port = rnd.randint(1, 65535)
+        if rnd.random() < 0.3:
+            host = ":".join("%x" % rnd.randint(0, 0xffff) for _ in range(rnd.randint(2, 8)))
+            text = "[%s]:%d" % (host, port)
+        else:
+            host = "".join(rnd.choice(letters) for _ in range(rnd.randint(1, 30)))
+            text = "%s:%d" % (host, port)
+        assert idm.address.parse_host_port(text) == (host, port, None), text
+
+
+# ---- lengths with units (idm.units; idmctl's rules) ---------------------------------------------
+
+def test_every_number_with_every_unit_reads_back_as_its_metres():
+    rnd = random.Random(11)
+    for k in range(2000):
+        number = rnd.uniform(-10, 10) * 10.0 ** rnd.randint(-12, 6)
+        text = ("%.17g" if k % 2 else "%.6e") % number
+        written = float(text)
+        for name, per_metre in idm.units.UNITS.items():
+            metres = idm.units.length(text + name)
+            assert metres == written / per_metre, text + name
+            assert float(idm.units.format_length(metres, name)) == pytest.approx(written,
+                                                                                   rel=1e-11)
+        assert idm.units.length(text) == written  # a bare number: metres
+        assert idm.units.length(text, bare="um") == written / 1e6
+
+
+def test_lengths_formatted_as_idmctl_prints_them():
+    assert idm.units.format_length(1e-6, "nm") == "1000"
+    assert idm.units.format_length(-2.5e-7, "um") == "-0.25"
+    assert idm.units.format_length(9.93993679687e-07, "nm") == "993.993679687"
+    assert idm.units.format_length(1e-6, "m") == "1e-6"
+    assert idm.units.in_unit(0.0015, "mm") == pytest.approx(1.5)
+    with pytest.raises(ValueError, match="'km' is not one of nm, um, mm, m"):
+        idm.units.in_unit(1, "km")
+
+
+def test_what_is_not_a_length_is_refused_naming_it_and_the_units():
+    for bad in ["5km", "5MM", "5Mm", "5Um", "5nM", "1e", "um", "", "-", "5 um", "0x10m",
+                "1..2mm", "infm", "nanum", "1e400m", "5m5", "5mm,", "5\u00b5m"]:
+        with pytest.raises(ValueError) as e:
+            idm.units.length(bad, "move X")
+        assert str(e.value).startswith("move X: '%s'" % bad), str(e.value)
+        assert "nm, um, mm, m" in str(e.value)
+    with pytest.raises(ValueError, match="'5km': unknown unit 'km', accepted nm, um, mm, m"):
+        idm.units.length("5km")
+    with pytest.raises(ValueError, match="write um for micrometres"):
+        idm.units.length("5\u00b5m")
+    with pytest.raises(ValueError, match="'5' has no unit"):
+        idm.units.length("5", bare=None)
+    with pytest.raises(TypeError):
+        idm.units.length(5e-6)
+
+
+# ---- STEP: the sign of n alone picks the direction -----------------------------------------------
+
+def test_step_sends_the_sign_of_cycles_as_given_and_says_what_it_means():
+    rnd = random.Random(3)
+    for _ in range(200):
+        n = rnd.choice([-1, 1]) * rnd.randint(1, 10 ** 6)
+        cycles = float(n) if rnd.random() < 0.3 else n
+        daemon = Scripted({"AXIS:COUNt?": "1", "AXIS1:MOVE:RESult?": "NONE,0",
+                           "AXIS1:STATus:OPERation?": "256", "SWEEP?": 'NONE,1,0,0,0,""'})
+        daemon.replies["AXIS1:STEP %d,0.3,250" % n] = None
+        assert daemon.run(_core.p_step(Session(), 1, cycles, 0.3, 250, None, False, 10, 0)) is None
+        assert daemon.sent[-1] == "AXIS1:STEP %d,0.3,250" % n
+    doc = " ".join(idm.Axis.step.__doc__.split())
+    assert "The sign of cycles alone picks the direction (positive: the positive direction)" in doc
+    assert "``duty`` is given as for the positive direction" in doc

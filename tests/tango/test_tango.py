@@ -196,6 +196,16 @@ def test_step_bursts_both_ways(lab, axis):
     assert (p1 - p0) * (p2 - p1) < 0, "the two bursts went the same way: %r" % ((p0, p1, p2),)
 
 
+def test_step_says_what_the_sign_of_n_means(lab, axis):
+    """What a Tango client (Jive, a script's command_query) reads about Step: the protocol's
+    STEP, the sign of n alone picking the direction, the duty as for the positive direction."""
+    info = axis.command_query("Step")
+    assert info.in_type == tango.CmdArgType.DevLong
+    desc = " ".join(info.in_type_desc.split())
+    assert "the sign of n alone picks the direction (positive: the positive direction)" in desc
+    assert "the duty is given as for the positive direction and mirrored for negative n" in desc
+
+
 def test_step_outside_the_daemon_s_range_is_a_tango_exception(lab, axis):
     with pytest.raises(tango.DevFailed) as failed:
         axis.Step(0)
