@@ -47,8 +47,8 @@ const char* kUsage =
     "  --gap-report FILE  the JSON of idm-gap diagnose --json to show (read at each request)\n"
     "  --poll S           how often idmd is polled (default 0.1 s)\n"
     "  --timeout S        longest wait for one of idmd's replies (default 5 s)\n"
-    "  --region-freq LIST, --region-duty LIST  the region map's grid (default 100:1000:50 Hz,\n"
-    "                     0.05:0.95:0.05 without 0.5)\n";
+    "  --region-freq LIST, --region-duty LIST  the region map's grid (default: rows over\n"
+    "                     the axis's frequency range from idmd; duty 0.05:0.95:0.05 but 0.5)\n";
 
 constexpr std::size_t kMaxGapReportBytes = std::size_t{16} * 1024 * 1024;
 constexpr int kMaxAxes = 64;
@@ -117,7 +117,6 @@ WebOptions parse_options(int argc, char** argv) {
   WebOptions o;
   idm::web::MonitorOptions& options = o.monitor;
   bool have_idmd = false, have_unix = false;
-  options.region_freqs_hz = idm::tools::parse_list("100:1000:50", "--region-freq");
   for (const double d : idm::tools::parse_list("0.05:0.95:0.05", "--region-duty"))
     if (std::abs(d - 0.5) > 1e-9) options.region_duties.push_back(d);
   for (int i = 1; i < argc; ++i) {
