@@ -3,7 +3,7 @@
 
 const HISTORY_S = 60;
 const COLORS = ['#1f77b4', '#d62728', '#2ca02c', '#9467bd', '#ff7f0e', '#17becf', '#8c564b'];
-const view = { axes: [], control: false, history: {}, maps: {}, built: '' };
+const view = { axes: [], control: false, token: '', history: {}, maps: {}, built: '' };
 
 function el(tag, attrs, text) {
   const e = document.createElement(tag);
@@ -20,11 +20,9 @@ async function getJSON(url) {
 }
 
 async function post(url, params) {
-  const r = await fetch(url, {
-    method: 'POST',
-    headers: { 'X-Idm-Control': '1', 'Content-Type': 'application/x-www-form-urlencoded' },
-    body: new URLSearchParams(params).toString(),
-  });
+  const headers = { 'X-Idm-Control': '1', 'Content-Type': 'application/x-www-form-urlencoded' };
+  if (view.token) headers.Authorization = 'Bearer ' + view.token;
+  const r = await fetch(url, { method: 'POST', headers, body: new URLSearchParams(params).toString() });
   const body = await r.json();
   if (!r.ok || !body.ok) throw new Error(body.error || ('HTTP ' + r.status));
 }
@@ -103,7 +101,7 @@ function buildTable(axes) {
   }
 }
 
-function buildControl() {
+function buildControl(tokenRequired) {
   const c = document.getElementById('control');
   c.textContent = '';
   if (!view.control) {
@@ -113,6 +111,13 @@ function buildControl() {
   const stop = el('button', { class: 'stop', id: 'stop-all' }, 'STOP all axes');
   stop.onclick = () => post('/api/stop', {}).then(() => message(''), e => message('STOP: ' + e.message));
   c.appendChild(stop);
+  if (tokenRequired) {
+    // The control token (idm-web --token-file): kept in this page only, sent with each POST.
+    const input = el('input', { id: 'token', type: 'password', size: 24, autocomplete: 'off',
+                                placeholder: 'control token' });
+    input.oninput = () => { view.token = input.value.trim(); };
+    c.append(' ', input);
+  }
 }
 
 function update(s) {
@@ -120,24 +125,28 @@ function update(s) {
   conn.textContent = s.connected ? 'connected to idmd' : ('idmd not reached: ' + s.error);
   conn.className = s.connected ? 'ok' : 'bad';
   document.getElementById('idn').textContent = s.idn;
-  const shape = JSON.stringify([s.control, s.axes.map(a => [a.axis, a.name])]);
+  const shape = JSON.stringify([s.control, s.token_required, s.axes.map(a => [a.axis, a.name])]);
   if (shape !== view.built) {
     view.control = s.control;
     view.built = shape;
-    buildControl();
+    buildControl(s.token_required);
     buildTable(s.axes);
   }
   view.axes = s.axes;
   for (const a of s.axes) {
     const pos = document.getElementById('pos-' + a.axis);
-    pos.textContent = a.position_valid ? um(a.position_m) : 'not valid';
+    document.getElementById('axis-' + a.axis).className = a.stale ? 'stale' : '';
+    // Stale (idmd not reached): the last position is shown as such, never as the current one.
+    pos.textContent = a.stale ? 'stale (last ' + um(a.last_position_m) + ')'
+      : a.position_valid ? um(a.position_m) : 'not valid';
     pos.setAttribute('data-position-m', a.position_valid ? String(a.position_m) : '');
     document.getElementById('target-' + a.axis).textContent = um(a.target_m);
     const st = document.getElementById('state-' + a.axis);
     st.textContent = a.state || ('unknown: ' + (a.status_error || ''));
     st.className = 'state-' + a.state;
-    document.getElementById('status-' + a.axis).textContent = statusWords(a);
-    document.getElementById('limits-' + a.axis).textContent = limit(a.lower_m) + ' .. ' + limit(a.upper_m) + ' \u00b5m';
+    document.getElementById('status-' + a.axis).textContent = a.stale ? 'idmd not reached' : statusWords(a);
+    document.getElementById('limits-' + a.axis).textContent = a.stale ? '\u2014'
+      : limit(a.lower_m) + ' .. ' + limit(a.upper_m) + ' \u00b5m';
     document.getElementById('ref-' + a.axis).textContent = a.referenced ? 'yes' : 'no';
     document.getElementById('moves-' + a.axis).textContent = a.moves === undefined ? '' : String(a.moves);
     if (a.position_valid && s.connected) {
@@ -156,40 +165,67 @@ function updateSweep(sw) {
   if (!sw || sw.state === 'NONE') { box.textContent = 'no sweep'; return; }
   const done = sw.written + sw.failed;
   const p = el('progress', { id: 'sweep-progress', max: Math.max(sw.planned, 1), value: done });
-  box.append(sw.state + ' on axis ' + sw.axis + ': ' + sw.written + ' of ' + sw.planned +
+  const named = view.axes.find(a => a.axis === sw.axis);
+  box.append(sw.state + ' on axis ' + sw.axis + (named ? ' (' + named.name + ')' : '') + ': ' +
+             sw.written + ' of ' + sw.planned +
              ' trials written, ' + sw.failed + ' failed, into ' + sw.directory + ' ', p);
+}
+
+// Round ticks over [lo, hi] m: a step of 1, 2 or 5 times a power of ten, at most about `most`
+// ticks, the range widened to whole steps; labels in mm, µm or nm after the step's size, with as
+// many decimals as the step needs.
+function niceTicks(lo, hi, most) {
+  if (!(hi > lo)) { const c = isFinite(lo) ? lo : 0; lo = c - 5e-10; hi = c + 5e-10; }
+  const raw = (hi - lo) / Math.max(1, most - 1);
+  const decade = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 5, 10].map(m => m * decade).find(v => v >= raw * (1 - 1e-9));
+  const first = Math.floor(lo / step + 1e-9), last = Math.ceil(hi / step - 1e-9);
+  const unit = step >= 1e-3 ? ['mm', 1e3] : step >= 1e-9 ? ['\u00b5m', 1e6] : ['nm', 1e9];
+  const decimals = Math.max(0, -Math.floor(Math.log10(step * unit[1]) + 1e-9));
+  const ticks = [];
+  for (let k = first; k <= last; k++) {
+    const v = k * step;
+    ticks.push({ m: v, label: (v * unit[1]).toFixed(decimals) + ' ' + unit[0] });
+  }
+  return { lo: first * step, hi: last * step, step, ticks };
+}
+
+// The last minute of positions on a 2D context of W x H: axes and round ticks, each axis's line
+// clipped to the plot area (a point older than the minute, or off the scale, is never drawn
+// outside it).
+function plotOn(g, W, H, history, axes, now) {
+  const L = 90, R = 10, T = 10, B = 30, PW = W - L - R, PH = H - T - B;
+  g.clearRect(0, 0, W, H);
+  let lo = Infinity, hi = -Infinity;
+  for (const k in history) for (const [t, x] of history[k]) {
+    if (t < now - HISTORY_S) continue;
+    lo = Math.min(lo, x); hi = Math.max(hi, x);
+  }
+  g.strokeStyle = '#999'; g.strokeRect(L, T, PW, PH);
+  g.fillStyle = '#444'; g.font = '12px sans-serif';
+  for (let s = 0; s <= HISTORY_S; s += 10) g.fillText((s - HISTORY_S) + ' s', L + PW * s / HISTORY_S - 12, H - 10);
+  if (!isFinite(lo)) { g.fillText('no valid position yet', L + 10, T + 20); return null; }
+  const scale = niceTicks(lo, hi, 6);
+  const y = x => T + PH - PH * (x - scale.lo) / (scale.hi - scale.lo);
+  for (const tick of scale.ticks) g.fillText(tick.label, 2, y(tick.m) + 4);
+  g.save();
+  g.beginPath(); g.rect(L, T, PW, PH); g.clip();
+  axes.forEach((a, i) => {
+    const h = history[a.axis] || [];
+    g.strokeStyle = COLORS[i % COLORS.length]; g.lineWidth = 1.5; g.beginPath();
+    h.forEach(([t, x], j) => {
+      const px = L + PW * (t - (now - HISTORY_S)) / HISTORY_S;
+      if (j) g.lineTo(px, y(x)); else g.moveTo(px, y(x));
+    });
+    g.stroke();
+  });
+  g.restore();
+  return scale;
 }
 
 function drawPlot(now) {
   const c = document.getElementById('plot');
-  const g = c.getContext('2d');
-  const W = c.width, H = c.height, L = 90, R = 10, T = 10, B = 30;
-  g.clearRect(0, 0, W, H);
-  let lo = Infinity, hi = -Infinity;
-  for (const k in view.history) for (const [, x] of view.history[k]) { lo = Math.min(lo, x); hi = Math.max(hi, x); }
-  g.strokeStyle = '#999'; g.strokeRect(L, T, W - L - R, H - T - B);
-  g.fillStyle = '#444'; g.font = '12px sans-serif';
-  for (let s = 0; s <= HISTORY_S; s += 10) {
-    const x = L + (W - L - R) * s / HISTORY_S;
-    g.fillText((s - HISTORY_S) + ' s', x - 12, H - 10);
-  }
-  if (!isFinite(lo)) { g.fillText('no valid position yet', L + 10, T + 20); return; }
-  if (hi - lo < 1e-9) { lo -= 5e-10; hi += 5e-10; }
-  const pad = (hi - lo) * 0.05; lo -= pad; hi += pad;
-  for (let i = 0; i <= 4; i++) {
-    const v = lo + (hi - lo) * i / 4, y = H - B - (H - T - B) * i / 4;
-    g.fillText((v * 1e6).toFixed(3) + ' \u00b5m', 2, y + 4);
-  }
-  view.axes.forEach((a, i) => {
-    const h = view.history[a.axis] || [];
-    g.strokeStyle = COLORS[i % COLORS.length]; g.lineWidth = 1.5; g.beginPath();
-    h.forEach(([t, x], j) => {
-      const px = L + (W - L - R) * (t - (now - HISTORY_S)) / HISTORY_S;
-      const py = H - B - (H - T - B) * (x - lo) / (hi - lo);
-      if (j) g.lineTo(px, py); else g.moveTo(px, py);
-    });
-    g.stroke();
-  });
+  plotOn(c.getContext('2d'), c.width, c.height, view.history, view.axes, now);
 }
 
 function cellColor(cell, maxLog, minLog) {
@@ -291,4 +327,6 @@ async function start() {
   setInterval(() => { for (const a of view.axes) loadRegions(a.axis); }, 60000);
 }
 
-start();
+// In a browser: run. Under node (tests/web/test_app.js): only the functions, no page.
+if (typeof document !== 'undefined') start();
+if (typeof module !== 'undefined') module.exports = { niceTicks, plotOn, HISTORY_S };

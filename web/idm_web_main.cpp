@@ -1,24 +1,25 @@
 // idm-web: a status page and Prometheus metrics for idmd, as a separate process and a client of
 // the daemon's socket (README.md here).
 //
-//   idm-web [--idmd HOST:PORT | --unix PATH] [--listen HOST:PORT] [--control] [--gap-report FILE]
+//   idm-web [--idmd HOST:PORT | --unix PATH] [--listen HOST:PORT] [--allow-host NAME]...
+//           [--control [--allow-remote-control] [--token-file FILE]] [--gap-report FILE]
 //           [--poll S] [--timeout S] [--region-freq LIST] [--region-duty LIST]
-#include <httplib.h>
+//           [--max-connections N] [--version]
 #include <poll.h>
 #include <signal.h>
 #include <sys/eventfd.h>
 #include <sys/signalfd.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
-#include <atomic>
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
-#include <filesystem>
-#include <fstream>
-#include <iostream>
-#include <sstream>
+#include <iterator>
+#include <optional>
 #include <string>
 #include <thread>
 
@@ -26,74 +27,75 @@
 #include "daemon/protocol.h"
 #include "model/stage.h"
 #include "tools/cli.h"
+#include "web/access.h"
+#include "web/http_server.h"
 #include "web/monitor.h"
 #include "web/page.h"
 
 using idm::model::InputError;
+using idm::web::HttpRequest;
+using idm::web::HttpResponse;
 
 namespace {
 
 const char* kUsage =
-    "usage: idm-web [--idmd HOST:PORT | --unix PATH] [--listen HOST:PORT] [--control]\n"
+    "usage: idm-web [--idmd HOST:PORT | --unix PATH] [--listen HOST:PORT] [--allow-host NAME]...\n"
+    "               [--control [--allow-remote-control] [--token-file FILE]]\n"
     "               [--gap-report FILE] [--poll S] [--timeout S] [--region-freq LIST]\n"
-    "               [--region-duty LIST]\n"
+    "               [--region-duty LIST] [--max-connections N] [--version]\n"
     "A status page (/), JSON (/api/state, /api/history, /api/regions?axis=N, /api/gap) and\n"
     "Prometheus metrics (/metrics) for idmd, as a client of its socket.\n"
     "  --idmd HOST:PORT   idmd's TCP address (default: IDMD_SOCKET or IDMD_ADDRESS from the\n"
     "                     environment, else 127.0.0.1:5025)\n"
     "  --unix PATH        idmd's Unix socket instead\n"
     "  --listen HOST:PORT where to serve (default 127.0.0.1:8080; port 0: a free port)\n"
+    "  --allow-host NAME  a Host name requests may carry besides localhost, 127.x and [::1] and\n"
+    "                     the listen address (repeatable): how other machines name it\n"
     "  --control          allow STOP and moves from the page (POST); without it only GET\n"
-    "  --gap-report FILE  the JSON of idm-gap diagnose --json to show (read at each request)\n"
+    "  --allow-remote-control  allow --control on a listen address that is not loopback (needs\n"
+    "                     a token)\n"
+    "  --token-file FILE  control requests must carry this token (Authorization: Bearer TOKEN);\n"
+    "                     the file is yours and mode 600; or IDM_WEB_TOKEN in the environment\n"
+    "  --gap-report FILE  the JSON of idm-gap diagnose --json to show (read at each request,\n"
+    "                     never through a symbolic link)\n"
     "  --poll S           how often idmd is polled (default 0.1 s)\n"
     "  --timeout S        longest wait for one of idmd's replies (default 5 s)\n"
-    "  --region-freq LIST, --region-duty LIST  the region map's grid (default 100:1000:50 Hz,\n"
-    "                     0.05:0.95:0.05 without 0.5)\n";
+    "  --region-freq LIST, --region-duty LIST  the region map's grid (default: rows over\n"
+    "                     the axis's frequency range from idmd; duty 0.05:0.95:0.05 but 0.5)\n"
+    "  --max-connections N  HTTP connections open at once (default 128, 1..1000)\n"
+    "  --version          print the version\n";
 
 constexpr std::size_t kMaxGapReportBytes = std::size_t{16} * 1024 * 1024;
 constexpr int kMaxAxes = 64;
 
-// Counts the HTTP connections being served: every connection is one task of the pool.
-class CountingQueue : public httplib::TaskQueue {
- public:
-  CountingQueue(std::size_t threads, std::atomic<std::uint64_t>& open)
-      : pool_(threads), open_(open) {}
-  void enqueue(std::function<void()> fn) override {
-    pool_.enqueue([this, fn = std::move(fn)] {
-      ++open_;
-      fn();
-      --open_;
-    });
-  }
-  void shutdown() override { pool_.shutdown(); }
-
- private:
-  httplib::ThreadPool pool_;
-  std::atomic<std::uint64_t>& open_;
-};
-
-bool is_loopback(const std::string& host) {
-  return host == "127.0.0.1" || host == "localhost" || host == "::1" || host.rfind("127.", 0) == 0;
-}
-
-// An axis number from a request: digits only, 1..kMaxAxes; 0 when absent or bad.
-int axis_param(const httplib::Request& req) {
-  if (!req.has_param("axis")) return 0;
-  const std::string v = req.get_param_value("axis");
-  if (v.empty() || v.size() > 2 || v.find_first_not_of("0123456789") != std::string::npos)
+// An axis number from a request: digits only, 1..kMaxAxes; 0 when absent, -1 when bad.
+int axis_param(const HttpRequest& req) {
+  const auto v = req.param("axis");
+  if (!v) return 0;
+  if (v->empty() || v->size() > 2 || v->find_first_not_of("0123456789") != std::string::npos)
     return -1;
-  const int n = std::stoi(v);
+  const int n = std::stoi(*v);
   return n >= 1 && n <= kMaxAxes ? n : -1;
 }
 
-void json_reply(httplib::Response& res, int status, const std::string& body) {
+HttpResponse json_reply(int status, std::string body) {
+  HttpResponse res;
   res.status = status;
-  res.set_header("Cache-Control", "no-store");
-  res.set_content(body, "application/json");
+  res.content_type = "application/json";
+  res.body = std::move(body);
+  res.headers.emplace_back("Cache-Control", "no-store");
+  return res;
 }
 
-void json_error(httplib::Response& res, int status, const std::string& text) {
-  json_reply(res, status, "{\"ok\":false,\"error\":" + idm::web::json_string(text) + "}");
+HttpResponse json_error(int status, const std::string& text) {
+  return json_reply(status, "{\"ok\":false,\"error\":" + idm::web::json_string(text) + "}");
+}
+
+HttpResponse text_reply(int status, std::string body) {
+  HttpResponse res;
+  res.status = status;
+  res.body = std::move(body);
+  return res;
 }
 
 std::string format_number(double v) {
@@ -107,219 +109,274 @@ struct WebOptions {
   idm::web::MonitorOptions monitor;
   std::string listen_host = "127.0.0.1";
   int listen_port = 8080;
+  std::vector<std::string> allow_hosts;
   bool control = false;
+  bool allow_remote_control = false;
+  std::string token_file;
   std::string gap_report;
-  bool help = false;  // --help: print the usage and do nothing else
+  long max_connections = 128;
+  bool help = false;     // --help: print the usage and do nothing else
+  bool version = false;  // --version: the same
 };
+
+// The flags that take a value.
+const char* const kValueFlags[] = {
+    "--idmd", "--unix",    "--listen",      "--allow-host",  "--token-file",     "--gap-report",
+    "--poll", "--timeout", "--region-freq", "--region-duty", "--max-connections"};
+
+// One flag's value (a flag of kValueFlags) into `o`.
+void take_value(WebOptions& o, const std::string& flag, const std::string& value, bool& have_idmd,
+                bool& have_unix) {
+  idm::web::MonitorOptions& options = o.monitor;
+  if (flag == "--idmd") {
+    const auto a = idm::client::parse_host_port(value);
+    options.address.host = a.host;
+    options.address.port = a.port;
+    have_idmd = true;
+  } else if (flag == "--unix") {
+    if (value.empty()) throw InputError("--unix: an empty path");
+    options.address.unix_path = value;
+    have_unix = true;
+  } else if (flag == "--listen") {
+    const auto a = idm::client::parse_host_port(value, 8080, true);
+    o.listen_host = a.host;
+    o.listen_port = a.port;
+  } else if (flag == "--allow-host") {
+    idm::web::HostPolicy check;
+    if (!check.allow(value))
+      throw InputError("--allow-host: '" + value.substr(0, 100) + "' is not a host name");
+    o.allow_hosts.push_back(value);
+  } else if (flag == "--token-file") {
+    o.token_file = value;
+  } else if (flag == "--gap-report") {
+    o.gap_report = value;
+  } else if (flag == "--poll") {
+    options.poll_s = idm::tools::parse_number(value, flag);
+    if (options.poll_s < 0.01 || options.poll_s > 60)
+      throw InputError("--poll: " + value + " is out of range, allowed 0.01..60 s");
+  } else if (flag == "--timeout") {
+    options.timeout_s = idm::tools::parse_number(value, flag);
+    if (options.timeout_s < 0.1 || options.timeout_s > 600)
+      throw InputError("--timeout: " + value + " is out of range, allowed 0.1..600 s");
+  } else if (flag == "--max-connections") {
+    const double n = idm::tools::parse_number(value, flag);
+    if (n != std::floor(n) || n < 1 || n > 1000)
+      throw InputError("--max-connections: " + value + " is out of range, allowed 1..1000");
+    o.max_connections = static_cast<long>(n);
+  } else {  // --region-freq, --region-duty
+    const auto list = idm::tools::parse_list(value, flag);
+    if (list.empty() || list.size() > 100)
+      throw InputError(flag + ": 1 to 100 values, got " + std::to_string(list.size()));
+    (flag == "--region-freq" ? options.region_freqs_hz : options.region_duties) = list;
+  }
+}
 
 // The command line; InputError or AddressError for a bad one.
 WebOptions parse_options(int argc, char** argv) {
   WebOptions o;
-  idm::web::MonitorOptions& options = o.monitor;
   bool have_idmd = false, have_unix = false;
-  options.region_freqs_hz = idm::tools::parse_list("100:1000:50", "--region-freq");
   for (const double d : idm::tools::parse_list("0.05:0.95:0.05", "--region-duty"))
-    if (std::abs(d - 0.5) > 1e-9) options.region_duties.push_back(d);
+    if (std::abs(d - 0.5) > 1e-9) o.monitor.region_duties.push_back(d);
   for (int i = 1; i < argc; ++i) {
     const std::string flag = argv[i];
-    if (flag == "--help") {
-      o.help = true;
+    if (flag == "--help" || flag == "--version") {
+      (flag == "--help" ? o.help : o.version) = true;
       return o;
     }
-    if (flag == "--control") {
-      o.control = true;
+    if (flag == "--control" || flag == "--allow-remote-control") {
+      (flag == "--control" ? o.control : o.allow_remote_control) = true;
       continue;
     }
-    if (flag != "--idmd" && flag != "--unix" && flag != "--listen" && flag != "--gap-report" &&
-        flag != "--poll" && flag != "--timeout" && flag != "--region-freq" &&
-        flag != "--region-duty")
-      throw InputError(flag + ": unknown flag (idm-web --help)");
+    if (flag == "--token")
+      throw InputError(
+          "--token: a token is never taken from the command line (ps shows it to every user): use "
+          "--token-file FILE (mode 600) or IDM_WEB_TOKEN in the environment");
+    const bool takes_value =
+        std::find(std::begin(kValueFlags), std::end(kValueFlags), flag) != std::end(kValueFlags);
+    if (!takes_value) throw InputError(flag + ": unknown flag (idm-web --help)");
     if (i + 1 >= argc) throw InputError(flag + ": missing value");
-    const std::string value = argv[++i];
-    if (flag == "--idmd") {
-      const auto a = idm::client::parse_host_port(value);
-      options.address.host = a.host;
-      options.address.port = a.port;
-      have_idmd = true;
-    } else if (flag == "--unix") {
-      if (value.empty()) throw InputError("--unix: an empty path");
-      options.address.unix_path = value;
-      have_unix = true;
-    } else if (flag == "--listen") {
-      const auto a = idm::client::parse_host_port(value, 8080, true);
-      o.listen_host = a.host;
-      o.listen_port = a.port;
-    } else if (flag == "--gap-report") {
-      o.gap_report = value;
-    } else if (flag == "--poll") {
-      options.poll_s = idm::tools::parse_number(value, flag);
-      if (options.poll_s < 0.01 || options.poll_s > 60)
-        throw InputError("--poll: " + value + " is out of range, allowed 0.01..60 s");
-    } else if (flag == "--timeout") {
-      options.timeout_s = idm::tools::parse_number(value, flag);
-      if (options.timeout_s < 0.1 || options.timeout_s > 600)
-        throw InputError("--timeout: " + value + " is out of range, allowed 0.1..600 s");
-    } else {
-      const auto list = idm::tools::parse_list(value, flag);
-      if (list.empty() || list.size() > 100)
-        throw InputError(flag + ": 1 to 100 values, got " + std::to_string(list.size()));
-      (flag == "--region-freq" ? options.region_freqs_hz : options.region_duties) = list;
-    }
+    take_value(o, flag, argv[i + 1], have_idmd, have_unix);
+    ++i;
   }
   if (have_idmd && have_unix) throw InputError("--unix: give either --idmd or --unix");
-  if (!have_idmd && !have_unix) options.address = idm::client::address_from_environment();
+  if (!have_idmd && !have_unix) o.monitor.address = idm::client::address_from_environment();
   return o;
 }
 
-// Security headers, the Host and method checks in front of every route, and the error replies.
-// bound_port is read at each request (it is known once the server is bound).
-void guard_requests(httplib::Server& server, const WebOptions& o, const int& bound_port,
-                    std::atomic<std::uint64_t>& requests) {
-  server.set_default_headers({{"X-Content-Type-Options", "nosniff"},
-                              {"X-Frame-Options", "DENY"},
-                              {"Referrer-Policy", "no-referrer"},
-                              {"Content-Security-Policy",
-                               "default-src 'self'; style-src 'self' 'unsafe-inline'; "
-                               "frame-ancestors 'none'"}});
+// What the options allow, checked against where idm-web listens: control reachable from other
+// machines needs --allow-remote-control and a token; InputError says what is missing.
+std::string check_access(const WebOptions& o, bool loopback) {
+  const char* env = std::getenv("IDM_WEB_TOKEN");
+  const bool env_token = env != nullptr && *env != '\0';
+  if (env_token && !o.token_file.empty())
+    throw InputError("--token-file: IDM_WEB_TOKEN is set too: give the token one way");
+  std::string token;
+  if (!o.token_file.empty()) token = idm::web::token_from_file(o.token_file);
+  if (env_token) token = idm::web::token_from_text(env, "IDM_WEB_TOKEN");
+  if (o.allow_remote_control && !o.control)
+    throw InputError("--allow-remote-control: only with --control");
+  if (o.control && !loopback) {
+    const std::string where =
+        o.listen_host + " is not a loopback address: other machines could move the stage";
+    if (!o.allow_remote_control)
+      throw InputError("--control: " + where +
+                       "; add --allow-remote-control and a token (--token-file FILE or "
+                       "IDM_WEB_TOKEN), or listen on 127.0.0.1");
+    if (token.empty())
+      throw InputError("--allow-remote-control: " + where +
+                       "; a token is needed (--token-file FILE or IDM_WEB_TOKEN)");
+  }
+  if (!o.gap_report.empty()) {
+    struct stat st {};
+    if (lstat(o.gap_report.c_str(), &st) == 0 && S_ISLNK(st.st_mode))
+      throw InputError("--gap-report: " + o.gap_report +
+                       " is a symbolic link: not followed (give the file itself)");
+    if (lstat(o.gap_report.c_str(), &st) == 0 && !S_ISREG(st.st_mode))
+      throw InputError("--gap-report: " + o.gap_report + " is not a regular file");
+  }
+  return token;
+}
 
-  const bool loopback = is_loopback(o.listen_host);
-  const bool control = o.control;
-  const std::string listen_host = o.listen_host;
-  server.set_pre_routing_handler([&bound_port, &requests, loopback, control, listen_host](
-                                     const httplib::Request& req, httplib::Response& res) {
-    ++requests;
-    // Bound to loopback, a page from elsewhere may still reach us through a DNS name that points
-    // to 127.0.0.1: only requests naming this host are served.
-    if (loopback && req.has_header("Host")) {
-      std::string host = req.get_header_value("Host");
-      const std::string port_suffix = ":" + std::to_string(bound_port);
-      if (host.size() > port_suffix.size() &&
-          host.compare(host.size() - port_suffix.size(), port_suffix.size(), port_suffix) == 0)
-        host.resize(host.size() - port_suffix.size());
-      if (host != "127.0.0.1" && host != "localhost" && host != "[::1]" && host != listen_host) {
-        res.status = 403;
-        res.set_content("forbidden: Host " + host.substr(0, 100) + " is not this server\n",
-                        "text/plain");
-        return httplib::Server::HandlerResponse::Handled;
-      }
-    }
+// What every request is checked for before its route: the Host it names (DNS rebinding: on every
+// listen address), the method, and for control the header a cross-site form cannot send and, with a
+// token, the token. A refusal, or nothing.
+struct Guard {
+  idm::web::HostPolicy hosts;
+  bool control = false;
+  std::string token;
+
+  std::optional<HttpResponse> refuse(const HttpRequest& req) const {
+    const std::string& host = *req.header("host");  // exactly one: the server checked
+    if (!hosts.allows(host))
+      return text_reply(403, "forbidden: Host " + host.substr(0, 100) +
+                                 " is not a name of this server (idm-web --allow-host NAME)\n");
     const bool read = req.method == "GET" || req.method == "HEAD";
-    const bool control_post =
-        control && req.method == "POST" && (req.path == "/api/stop" || req.path == "/api/move");
+    const bool control_post = control && is_control(req);
     if (!read && !control_post) {
-      res.status = 405;
-      res.set_header("Allow", control ? "GET, HEAD, POST" : "GET, HEAD");
-      res.set_content(control
-                          ? "method not allowed\n"
-                          : "method not allowed: idm-web is read-only (start it with --control)\n",
-                      "text/plain");
-      return httplib::Server::HandlerResponse::Handled;
+      HttpResponse res = text_reply(
+          405, control ? "method not allowed\n"
+                       : "method not allowed: idm-web is read-only (start it with --control)\n");
+      res.headers.emplace_back("Allow", control ? "GET, HEAD, POST" : "GET, HEAD");
+      return res;
     }
+    if (!control_post) return std::nullopt;
     // A form on another site cannot set this header; a script there cannot without a CORS
     // preflight, which is never granted.
-    if (control_post && req.get_header_value("X-Idm-Control") != "1") {
-      json_error(res, 403, "control requests need the header X-Idm-Control: 1");
-      return httplib::Server::HandlerResponse::Handled;
-    }
-    return httplib::Server::HandlerResponse::Unhandled;
-  });
-  server.set_exception_handler(
-      [](const httplib::Request&, httplib::Response& res, const std::exception_ptr& ep) {
-        std::string what = "internal error";
-        try {
-          if (ep) std::rethrow_exception(ep);
-        } catch (const std::exception& e) {
-          what = e.what();
-        } catch (...) {
-        }
-        json_error(res, 500, what);
-      });
-  server.set_error_handler([](const httplib::Request&, httplib::Response& res) {
-    if (res.body.empty())
-      res.set_content("HTTP " + std::to_string(res.status) + "\n", "text/plain");
-  });
-}
+    const std::string* mark = req.header("x-idm-control");
+    if (!mark || *mark != "1")
+      return json_error(403, "control requests need the header X-Idm-Control: 1");
+    if (token.empty()) return std::nullopt;
+    const std::string* auth = req.header("authorization");
+    const bool bearer = auth && auth->size() > 7 && auth->compare(0, 7, "Bearer ") == 0;
+    if (bearer && idm::web::same_secret(std::string_view(*auth).substr(7), token))
+      return std::nullopt;
+    HttpResponse res = json_error(401,
+                                  "control requests need the token: Authorization: Bearer TOKEN "
+                                  "(idm-web --token-file or IDM_WEB_TOKEN)");
+    res.headers.emplace_back("WWW-Authenticate", "Bearer realm=\"idm-web control\"");
+    return res;
+  }
 
-// The page, its script and the read-only JSON and metrics.
-void add_read_routes(httplib::Server& server, idm::web::Monitor& monitor, const WebOptions& o,
-                     const std::atomic<std::uint64_t>& open_connections,
-                     const std::atomic<std::uint64_t>& requests) {
-  server.Get("/", [](const httplib::Request&, httplib::Response& res) {
-    res.set_content(idm::web::page_html(), "text/html; charset=utf-8");
-  });
-  server.Get("/app.js", [](const httplib::Request&, httplib::Response& res) {
-    res.set_content(idm::web::page_js(), "text/javascript; charset=utf-8");
-  });
-  server.Get("/api/state",
-             [&monitor, control = o.control](const httplib::Request&, httplib::Response& res) {
-               json_reply(res, 200, idm::web::state_json(monitor.snapshot(), control));
-             });
-  server.Get("/api/history", [&](const httplib::Request&, httplib::Response& res) {
-    json_reply(res, 200, idm::web::history_json(monitor.snapshot()));
-  });
-  server.Get("/api/regions", [&](const httplib::Request& req, httplib::Response& res) {
+  static bool is_control(const HttpRequest& req) {
+    return req.method == "POST" && (req.path == "/api/stop" || req.path == "/api/move");
+  }
+};
+
+// Everything idm-web answers, after the guard.
+struct Routes {
+  idm::web::Monitor& monitor;
+  const WebOptions& options;
+  const idm::web::HttpServer* server = nullptr;  // set before it serves
+  bool token_required = false;
+
+  HttpResponse get(const HttpRequest& req) const;
+  HttpResponse gap() const;
+  HttpResponse post(const HttpRequest& req) const;
+};
+
+HttpResponse Routes::get(const HttpRequest& req) const {
+  HttpResponse res;
+  if (req.path == "/") {
+    res.content_type = "text/html; charset=utf-8";
+    res.body = idm::web::page_html();
+  } else if (req.path == "/app.js") {
+    res.content_type = "text/javascript; charset=utf-8";
+    res.body = idm::web::page_js();
+  } else if (req.path == "/api/state") {
+    return json_reply(200,
+                      idm::web::state_json(monitor.snapshot(), options.control, token_required));
+  } else if (req.path == "/api/history") {
+    return json_reply(200, idm::web::history_json(monitor.snapshot()));
+  } else if (req.path == "/api/regions") {
     const int axis = axis_param(req);
-    if (axis <= 0)
-      return json_error(res, 400, "axis=N (1.." + std::to_string(kMaxAxes) + ") is needed");
+    if (axis <= 0) return json_error(400, "axis=N (1.." + std::to_string(kMaxAxes) + ") is needed");
     const idm::web::RegionMap m = monitor.regions(axis);
-    json_reply(res, m.error.empty() ? 200 : 502, idm::web::regions_json(m));
-  });
-  server.Get("/api/gap",
-             [gap_report = o.gap_report](const httplib::Request&, httplib::Response& res) {
-               if (gap_report.empty())
-                 return json_error(res, 404, "no gap report (idm-web --gap-report FILE)");
-               std::error_code ec;
-               if (!std::filesystem::is_regular_file(gap_report, ec))
-                 return json_error(res, 404, "no gap report at " + gap_report + " yet");
-               std::ifstream in(gap_report, std::ios::binary);
-               if (!in) return json_error(res, 404, "cannot read the gap report " + gap_report);
-               std::string body;
-               body.resize(kMaxGapReportBytes + 1);
-               in.read(body.data(), static_cast<std::streamsize>(body.size()));
-               body.resize(static_cast<std::size_t>(in.gcount()));
-               if (body.size() > kMaxGapReportBytes)
-                 return json_error(res, 413, "the gap report is too large");
-               json_reply(res, 200, body);
-             });
-  server.Get("/metrics", [&](const httplib::Request&, httplib::Response& res) {
-    res.set_header("Cache-Control", "no-store");
-    res.set_content(idm::web::metrics_text(monitor.snapshot(), open_connections, requests),
-                    "text/plain; version=0.0.4; charset=utf-8");
-  });
+    return json_reply(m.error.empty() ? 200 : 502, idm::web::regions_json(m));
+  } else if (req.path == "/api/gap") {
+    return gap();
+  } else if (req.path == "/metrics") {
+    res.content_type = "text/plain; version=0.0.4; charset=utf-8";
+    res.body =
+        idm::web::metrics_text(monitor.snapshot(), server->open_connections(), server->requests());
+    res.headers.emplace_back("Cache-Control", "no-store");
+  } else {
+    return text_reply(404, "not found\n");
+  }
+  return res;
 }
 
-// STOP and moves (POST); guard_requests lets them through only with --control.
-void add_control_routes(httplib::Server& server, idm::web::Monitor& monitor) {
-  server.Post("/api/stop", [&](const httplib::Request& req, httplib::Response& res) {
-    const int axis = axis_param(req);
-    if (axis < 0) return json_error(res, 400, "axis: expected 1.." + std::to_string(kMaxAxes));
+// The gap report, read at each request through a descriptor opened without following a symbolic
+// link (a user who may write where the report lies must not make idm-web read another file for
+// them).
+HttpResponse Routes::gap() const {
+  using idm::web::FileRead;
+  if (options.gap_report.empty())
+    return json_error(404, "no gap report (idm-web --gap-report FILE)");
+  const FileRead f = idm::web::read_file_nofollow(options.gap_report, kMaxGapReportBytes);
+  switch (f.kind) {
+    case FileRead::kOk:
+      return json_reply(200, f.text);
+    case FileRead::kMissing:
+      return json_error(404, "no gap report at " + options.gap_report + " yet");
+    case FileRead::kSymlink:
+    case FileRead::kNotRegular:
+      return json_error(403, "the gap report " + f.why);
+    case FileRead::kTooLarge:
+      return json_error(413, "the gap report " + f.why);
+    case FileRead::kUnreadable:
+      break;
+  }
+  return json_error(404, "cannot read the gap report " + f.why);
+}
+
+// STOP and moves (POST); the guard lets them through only with --control.
+HttpResponse Routes::post(const HttpRequest& req) const {
+  const int axis = axis_param(req);
+  if (req.path == "/api/stop") {
+    if (axis < 0) return json_error(400, "axis: expected 1.." + std::to_string(kMaxAxes));
     try {
       monitor.command(axis == 0 ? std::string("STOP") : "AXIS" + std::to_string(axis) + ":STOP");
-      json_reply(res, 200, "{\"ok\":true}");
+      return json_reply(200, "{\"ok\":true}");
     } catch (const std::exception& e) {
-      json_error(res, 502, e.what());
+      return json_error(502, e.what());
     }
-  });
-  server.Post("/api/move", [&](const httplib::Request& req, httplib::Response& res) {
-    const int axis = axis_param(req);
-    if (axis <= 0)
-      return json_error(res, 400, "axis=N (1.." + std::to_string(kMaxAxes) + ") is needed");
-    double target = 0;
-    const std::string text = req.get_param_value("target");
-    if (text.size() > 64 || !idm::daemon::parse_number(text, "target", target).ok())
-      return json_error(res, 400, "target: a finite number of metres is needed");
-    try {
-      monitor.command("AXIS" + std::to_string(axis) + ":MOVE:ABS " + format_number(target));
-      json_reply(res, 200, "{\"ok\":true}");
-    } catch (const std::exception& e) {
-      json_error(res, 422, e.what());
-    }
-  });
+  }
+  if (axis <= 0) return json_error(400, "axis=N (1.." + std::to_string(kMaxAxes) + ") is needed");
+  double target = 0;
+  const std::string text = req.param("target").value_or("");
+  if (text.size() > 64 || !idm::daemon::parse_number(text, "target", target).ok())
+    return json_error(400, "target: a finite number of metres is needed");
+  try {
+    monitor.command("AXIS" + std::to_string(axis) + ":MOVE:ABS " + format_number(target));
+    return json_reply(200, "{\"ok\":true}");
+  } catch (const std::exception& e) {
+    return json_error(422, e.what());
+  }
 }
 
 // Serves until SIGINT or SIGTERM (blocked in every thread, read from a signalfd) or until the
 // server fails; a thread waits for either the signal or the server's end (an eventfd).
-bool serve_until_signal(httplib::Server& server, const sigset_t& signals) {
+bool serve_until_signal(idm::web::HttpServer& server, const sigset_t& signals) {
   const int signal_fd = signalfd(-1, &signals, SFD_CLOEXEC);
   const int done_fd = eventfd(0, EFD_CLOEXEC);
   if (signal_fd < 0 || done_fd < 0) {
@@ -334,8 +391,8 @@ bool serve_until_signal(httplib::Server& server, const sigset_t& signals) {
     }
     if (fds[0].revents & POLLIN) server.stop();
   });
-  const bool ok = server.listen_after_bind();
-  // listen ended (a signal, or an error): make sure the signal thread ends too.
+  const bool ok = server.run();
+  // run ended (a signal, or an error): make sure the signal thread ends too.
   const std::uint64_t one = 1;
   if (write(done_fd, &one, sizeof one) != sizeof one) std::perror("idm-web: eventfd");
   signal_thread.join();
@@ -344,24 +401,23 @@ bool serve_until_signal(httplib::Server& server, const sigset_t& signals) {
   return ok;
 }
 
-}  // namespace
+// Loud lines on stderr when the page is reachable from other machines.
+void warn_if_remote(const WebOptions& o, const Guard& guard, bool loopback, int port) {
+  if (loopback) return;
+  std::string names;
+  for (const std::string& n : guard.hosts.listed()) names += " " + n;
+  std::fprintf(stderr,
+               "idm-web: listening on %s, which other machines may reach; Host names accepted: "
+               "localhost, 127.x, [::1]%s\n",
+               o.listen_host.c_str(), names.c_str());
+  if (o.control)
+    std::fprintf(stderr,
+                 "idm-web: WARNING: CONTROL IS REACHABLE FROM OTHER MACHINES: anyone who reaches "
+                 "%s:%d with the token can STOP and MOVE the stage\n",
+                 o.listen_host.c_str(), port);
+}
 
-int main(int argc, char** argv) {
-  WebOptions o;
-  try {
-    o = parse_options(argc, argv);
-  } catch (const InputError& e) {
-    std::fprintf(stderr, "idm-web: %s\n", e.what());
-    return 2;
-  } catch (const idm::client::AddressError& e) {
-    std::fprintf(stderr, "idm-web: %s\n", e.what());
-    return 2;
-  }
-  if (o.help) {
-    std::fputs(kUsage, stdout);
-    return 0;
-  }
-
+int run(const WebOptions& o, const Guard& guard, bool loopback) {
   // SIGINT/SIGTERM end the server; they are blocked here, before any thread starts, and read
   // from a signalfd (serve_until_signal).
   sigset_t signals;
@@ -372,38 +428,72 @@ int main(int argc, char** argv) {
   signal(SIGPIPE, SIG_IGN);
 
   idm::web::Monitor monitor(o.monitor);
-  monitor.start();
-
-  httplib::Server server;
-  std::atomic<std::uint64_t> open_connections{0}, requests{0};
-  server.new_task_queue = [&] { return new CountingQueue(16, open_connections); };
-  server.set_payload_max_length(std::size_t{64} * 1024);
-  server.set_read_timeout(5, 0);
-  server.set_write_timeout(5, 0);
-  server.set_keep_alive_timeout(2);
-  server.set_keep_alive_max_count(1000);
-  int bound_port = 0;
-  guard_requests(server, o, bound_port, requests);
-  add_read_routes(server, monitor, o, open_connections, requests);
-  add_control_routes(server, monitor);
-
-  if (o.listen_port == 0) {
-    bound_port = server.bind_to_any_port(o.listen_host);
-  } else {
-    bound_port = server.bind_to_port(o.listen_host, o.listen_port) ? o.listen_port : -1;
-  }
-  if (bound_port <= 0) {
-    std::fprintf(stderr, "idm-web: cannot listen on %s:%d\n", o.listen_host.c_str(), o.listen_port);
-    monitor.stop();
+  Routes routes{monitor, o, nullptr, !guard.token.empty()};
+  idm::web::HttpLimits limits;
+  limits.max_connections = static_cast<std::size_t>(o.max_connections);
+  idm::web::HttpServer server(
+      limits,
+      [&routes, &guard](const HttpRequest& req) {
+        if (auto refusal = guard.refuse(req)) return *refusal;
+        return req.method == "POST" ? routes.post(req) : routes.get(req);
+      },
+      [](const HttpRequest& req) { return Guard::is_control(req); },
+      {{"X-Content-Type-Options", "nosniff"},
+       {"X-Frame-Options", "DENY"},
+       {"Referrer-Policy", "no-referrer"},
+       {"Content-Security-Policy",
+        "default-src 'self'; style-src 'self' 'unsafe-inline'; frame-ancestors 'none'"}});
+  routes.server = &server;
+  try {
+    server.bind(o.listen_host, o.listen_port);
+  } catch (const idm::web::BindError& e) {
+    std::fprintf(stderr, "idm-web: %s\n", e.what());
     return 4;
   }
+  warn_if_remote(o, guard, loopback && server.loopback(), server.port());
+  monitor.start();
   const std::string shown_host =
       o.listen_host.find(':') != std::string::npos ? "[" + o.listen_host + "]" : o.listen_host;
   std::printf("idm-web: listening on http://%s:%d/ (idmd at %s, control %s)\n", shown_host.c_str(),
-              bound_port, o.monitor.address.text().c_str(), o.control ? "on" : "off");
+              server.port(), o.monitor.address.text().c_str(),
+              !o.control            ? "off"
+              : guard.token.empty() ? "on"
+                                    : "on, with a token");
   std::fflush(stdout);
-
   const bool ok = serve_until_signal(server, signals);
   monitor.stop();
   return ok ? 0 : 1;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  WebOptions o;
+  Guard guard;
+  bool loopback = false;
+  try {
+    o = parse_options(argc, argv);
+    if (o.help || o.version) {
+      if (o.help) std::fputs(kUsage, stdout);
+      if (o.version) std::printf("idm-web %s\n", IDM_VERSION);
+      return 0;
+    }
+    try {
+      loopback = idm::web::listens_on_loopback(o.listen_host);
+    } catch (const idm::web::BindError& e) {
+      std::fprintf(stderr, "idm-web: %s\n", e.what());
+      return 4;
+    }
+    guard.token = check_access(o, loopback);
+  } catch (const InputError& e) {
+    std::fprintf(stderr, "idm-web: %s\n", e.what());
+    return 2;
+  } catch (const idm::client::AddressError& e) {
+    std::fprintf(stderr, "idm-web: %s\n", e.what());
+    return 2;
+  }
+  guard.control = o.control;
+  for (const std::string& name : o.allow_hosts) guard.hosts.allow(name);
+  guard.hosts.allow(o.listen_host);  // the literal listen address
+  return run(o, guard, loopback);
 }

@@ -3,6 +3,8 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
+#include <string_view>
 
 namespace idm::web {
 
@@ -10,6 +12,8 @@ namespace {
 
 constexpr int kMaxAxes = 64;
 constexpr double kRegionCacheS = 30;
+// A frequency no device plays: the configuration allows at most 1 MHz (daemon/config_tables.cpp).
+constexpr const char* kProbeStep = "STEP 1,0.25,1e9";
 
 std::string axis_prefix(int axis) {
   return "AXIS" + std::to_string(axis) + ":";
@@ -176,6 +180,7 @@ void Monitor::poll_once(client::Client& c, double& next_loop) {
     }
   }
   next.time = t;
+  next.last_seen = t;
   carry_history(old.axes, next.axes, t, options_.history_s);
   std::lock_guard<std::mutex> lock(mutex_);
   snapshot_ = std::move(next);
@@ -200,6 +205,69 @@ void Monitor::command(const std::string& line) {
   }
 }
 
+bool parse_frequency_range(const std::string& refusal, double& min_hz, double& max_hz) {
+  const std::size_t at = refusal.find("allowed [");
+  if (at == std::string::npos) return false;
+  const char* p = refusal.c_str() + at + 9;
+  char* end = nullptr;
+  const double lo = std::strtod(p, &end);
+  if (end == p || std::string_view(end).rfind(", ", 0) != 0) return false;
+  p = end + 2;
+  const double hi = std::strtod(p, &end);
+  if (end == p || std::string_view(end).rfind("] Hz", 0) != 0) return false;
+  if (!std::isfinite(lo) || !std::isfinite(hi) || !(lo > 0) || !(hi >= lo)) return false;
+  min_hz = lo;
+  max_hz = hi;
+  return true;
+}
+
+std::vector<double> frequency_rows(double min_hz, double max_hz) {
+  std::vector<double> rows;
+  if (!(min_hz > 0) || !std::isfinite(max_hz) || !(max_hz >= min_hz)) return rows;
+  rows.push_back(min_hz);
+  if (max_hz <= min_hz * (1 + 1e-9)) return rows;
+  const double raw = (max_hz - min_hz) / 20;
+  const double decade = std::pow(10.0, std::floor(std::log10(raw)));
+  double step = 10 * decade;
+  for (const double m : {1.0, 2.0, 5.0})
+    if (m * decade >= raw * (1 - 1e-9)) {
+      step = m * decade;
+      break;
+    }
+  for (double k = std::floor(min_hz / step * (1 + 1e-9)) + 1; k * step < max_hz * (1 - 1e-9); ++k)
+    rows.push_back(k * step);
+  rows.push_back(max_hz);
+  return rows;
+}
+
+// The rows of axis m.axis's map: --region-freq's, else over the axis's frequency range. idmd has
+// no query for that range; its refusal of a STEP at a frequency outside it names it (-222
+// "... allowed [10, 2000] Hz", daemon/README.md), and a STEP at 1 GHz is outside every device's.
+// Refused, it moves nothing and leaves no trace but this connection's error queue.
+void Monitor::region_rows(client::Client& c, RegionMap& m) {
+  if (!options_.region_freqs_hz.empty()) {
+    m.freqs_hz = options_.region_freqs_hz;
+    m.freq_source = "--region-freq";
+    return;
+  }
+  try {
+    c.command(axis_prefix(m.axis) + kProbeStep);
+    // Accepted: not an idmd that refuses what it cannot play. The axis is stopped at once.
+    c.command(axis_prefix(m.axis) + "STOP");
+    m.freq_range_error = std::string("idmd accepted ") + kProbeStep + ": its range is unknown";
+  } catch (const client::DaemonError& e) {
+    if (e.code == -114) throw;  // no such axis
+    if (parse_frequency_range(e.text, m.freq_min_hz, m.freq_max_hz)) {
+      m.freqs_hz = frequency_rows(m.freq_min_hz, m.freq_max_hz);
+      m.freq_source = "idmd";
+      return;
+    }
+    m.freq_range_error = std::string("idmd did not name the axis's frequency range: ") + e.what();
+  }
+  for (double f = 100; f <= 1000 + 1e-9; f += 50) m.freqs_hz.push_back(f);
+  m.freq_source = "default";
+}
+
 RegionMap Monitor::regions(int axis) {
   std::lock_guard<std::mutex> lock(regions_mutex_);
   const double t = now_s();
@@ -208,12 +276,12 @@ RegionMap Monitor::regions(int axis) {
     return it->second;
   RegionMap m;
   m.axis = axis;
-  m.freqs_hz = options_.region_freqs_hz;
   m.duties = options_.region_duties;
   m.time = t;
   try {
     if (!regions_client_)
       regions_client_ = std::make_unique<client::Client>(options_.address, options_.timeout_s);
+    region_rows(*regions_client_, m);
     for (const double f : m.freqs_hz) {
       std::vector<client::RegionReply> row;
       for (const double d : m.duties) {
@@ -271,8 +339,23 @@ std::string json_bool(bool b) {
   return b ? "true" : "false";
 }
 
+// An axis as last seen while idmd is not reached: its name, and its last position only as
+// `last_position_m` (position_valid false, position_m null), marked stale.
+std::string stale_axis_json(const AxisView& a, double last_seen) {
+  const bool known = a.status.has_value();
+  return "{\"axis\":" + std::to_string(a.axis) +
+         ",\"name\":" + json_string(known ? a.status->name : "axis" + std::to_string(a.axis)) +
+         ",\"stale\":true,\"state\":null,\"position_valid\":false,\"position_m\":null" +
+         ",\"last_position_m\":" +
+         json_number(known && a.status->position_valid ? a.status->position_m
+                                                       : std::numeric_limits<double>::quiet_NaN()) +
+         ",\"last_seen\":" + (last_seen > 0 ? json_number(last_seen) : "null") +
+         ",\"status_error\":" + json_string("idmd not reached") +
+         ",\"status_bits\":null,\"faults_seen\":" + std::to_string(a.faults_seen) + "}";
+}
+
 std::string axis_json(const AxisView& a) {
-  std::string o = "{\"axis\":" + std::to_string(a.axis);
+  std::string o = "{\"axis\":" + std::to_string(a.axis) + ",\"stale\":false";
   if (a.status) {
     const client::AxisStatus& s = *a.status;
     o += ",\"name\":" + json_string(s.name) + ",\"state\":" + json_string(s.state) +
@@ -301,17 +384,20 @@ std::string axis_json(const AxisView& a) {
 
 }  // namespace
 
-std::string state_json(const Snapshot& s, bool control) {
-  std::string o = "{\"connected\":" + json_bool(s.connected) +
-                  ",\"error\":" + json_string(s.error) + ",\"idn\":" + json_string(s.idn) +
-                  ",\"control\":" + json_bool(control) + ",\"time\":" + json_number(s.time) +
-                  ",\"axes\":[";
-  for (std::size_t k = 0; k < s.axes.size(); ++k) o += (k ? "," : "") + axis_json(s.axes[k]);
+std::string state_json(const Snapshot& s, bool control, bool token_required) {
+  std::string o =
+      "{\"connected\":" + json_bool(s.connected) + ",\"error\":" + json_string(s.error) +
+      ",\"idn\":" + json_string(s.idn) + ",\"control\":" + json_bool(control) +
+      ",\"token_required\":" + json_bool(token_required) + ",\"time\":" + json_number(s.time) +
+      ",\"last_seen\":" + (s.last_seen > 0 ? json_number(s.last_seen) : "null") + ",\"axes\":[";
+  for (std::size_t k = 0; k < s.axes.size(); ++k)
+    o += (k ? "," : "") +
+         (s.connected ? axis_json(s.axes[k]) : stale_axis_json(s.axes[k], s.last_seen));
   o += "],\"sweep\":";
-  if (s.sweep) {
+  // SWEEP?'s axis is 1-based, 0 before the first sweep (daemon/README.md).
+  if (s.sweep && s.connected) {
     o += "{\"state\":" + json_string(s.sweep->state) + ",\"axis\":" +
-         (s.sweep->axis >= 0 && s.sweep->state != "NONE" ? std::to_string(s.sweep->axis + 1)
-                                                         : "null") +
+         (s.sweep->axis >= 1 && s.sweep->state != "NONE" ? std::to_string(s.sweep->axis) : "null") +
          ",\"written\":" + std::to_string(s.sweep->written) +
          ",\"failed\":" + std::to_string(s.sweep->failed) +
          ",\"planned\":" + std::to_string(s.sweep->planned) +
@@ -320,7 +406,7 @@ std::string state_json(const Snapshot& s, bool control) {
     o += "null";
   }
   o += ",\"loop\":";
-  if (s.loop) {
+  if (s.loop && s.connected) {
     o += "{\"period_s\":" + json_number(s.loop->period_s) +
          ",\"wakeups\":" + std::to_string(s.loop->wakeups) +
          ",\"misses\":" + std::to_string(s.loop->misses) +
@@ -330,7 +416,7 @@ std::string state_json(const Snapshot& s, bool control) {
     o += "null";
   }
   o += ",\"clients\":";
-  if (s.clients) {
+  if (s.clients && s.connected) {
     o += "{\"connected\":" + std::to_string(s.clients->connected) +
          ",\"slots\":" + std::to_string(s.clients->slots) +
          ",\"max_clients\":" + std::to_string(s.clients->max_clients) +
@@ -344,7 +430,8 @@ std::string state_json(const Snapshot& s, bool control) {
 }
 
 std::string history_json(const Snapshot& s) {
-  std::string o = "{\"time\":" + json_number(s.time) + ",\"axes\":[";
+  std::string o = "{\"time\":" + json_number(s.time) + ",\"connected\":" + json_bool(s.connected) +
+                  ",\"axes\":[";
   for (std::size_t k = 0; k < s.axes.size(); ++k) {
     const AxisView& a = s.axes[k];
     o += (k ? "," : "") + std::string("{\"axis\":") + std::to_string(a.axis) +
@@ -362,7 +449,12 @@ std::string history_json(const Snapshot& s) {
 
 std::string regions_json(const RegionMap& m) {
   std::string o = "{\"axis\":" + std::to_string(m.axis) + ",\"error\":" + json_string(m.error) +
-                  ",\"freqs_hz\":[";
+                  ",\"freq_range_hz\":";
+  o += std::isfinite(m.freq_min_hz)
+           ? "[" + json_number(m.freq_min_hz) + "," + json_number(m.freq_max_hz) + "]"
+           : std::string("null");
+  o += ",\"freq_source\":" + json_string(m.freq_source) +
+       ",\"freq_range_error\":" + json_string(m.freq_range_error) + ",\"freqs_hz\":[";
   for (std::size_t k = 0; k < m.freqs_hz.size(); ++k)
     o += (k ? "," : "") + json_number(m.freqs_hz[k]);
   o += "],\"duties\":[";
@@ -506,8 +598,9 @@ std::string metrics_text(const Snapshot& s, std::uint64_t http_connections,
   std::string o;
   family(o, "idm_up", "gauge", "1 when idm-web reaches idmd and its last poll succeeded.");
   o += "idm_up " + std::string(s.connected ? "1" : "0") + "\n";
+  // Not connected: nothing of idmd's is current, so none of it is exported (idm_up 0 says why).
   if (s.connected) append_axis_metrics(o, s);
-  if (s.loop) append_loop_metrics(o, *s.loop);
+  if (s.connected && s.loop) append_loop_metrics(o, *s.loop);
   if (s.connected && s.clients) {
     family(
         o, "idm_clients_connected", "gauge",

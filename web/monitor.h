@@ -7,6 +7,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -38,7 +39,10 @@ struct Snapshot {
   bool connected = false;
   std::string error;  // why not connected, or the last poll's failure
   std::string idn;
-  double time = 0;  // seconds since the epoch, of the last poll
+  double time = 0;       // seconds since the epoch, of the last poll
+  double last_seen = 0;  // of the last poll that reached idmd (0: none yet)
+  // While not connected, `axes` are as last seen: names and history stay, nothing of them is
+  // presented as current (state_json marks them stale, metrics_text leaves them out).
   std::uint64_t polls = 0, poll_errors = 0;
   std::vector<AxisView> axes;
   std::optional<client::SweepInfo> sweep;
@@ -53,6 +57,11 @@ struct Snapshot {
 struct RegionMap {
   int axis = 0;
   std::vector<double> freqs_hz, duties;
+  // The axis's frequency range as idmd gave it (NaN when it did not), and where the rows came
+  // from: "idmd" (the range), "--region-freq", or "default" (freq_range_error says why).
+  double freq_min_hz = std::numeric_limits<double>::quiet_NaN();
+  double freq_max_hz = std::numeric_limits<double>::quiet_NaN();
+  std::string freq_source, freq_range_error;
   // cells[f][d]: the region ("" when the daemon refused the cell) and the predicted step
   std::vector<std::vector<client::RegionReply>> cells;
   std::string error;
@@ -65,8 +74,15 @@ struct MonitorOptions {
   double poll_s = 0.1;
   double history_s = 60;
   double loop_every_s = 1;
+  // The region map's grid; no frequencies: rows from the axis's frequency range (idmd's).
   std::vector<double> region_freqs_hz, region_duties;
 };
+
+// The region map's default rows over [min_hz, max_hz]: min_hz, the multiples of a 1-2-5 step
+// (about 20 rows) above it, and max_hz.
+std::vector<double> frequency_rows(double min_hz, double max_hz);
+// "[10, 2000] Hz" in idmd's refusal of a STEP frequency (-222): the range, or false.
+bool parse_frequency_range(const std::string& refusal, double& min_hz, double& max_hz);
 
 double now_s();
 
@@ -89,6 +105,7 @@ class Monitor {
  private:
   void run();
   void poll_once(client::Client& c, double& next_loop);
+  void region_rows(client::Client& c, RegionMap& m);
 
   MonitorOptions options_;
   mutable std::mutex mutex_;
@@ -107,7 +124,8 @@ class Monitor {
 };
 
 // JSON of the snapshot (GET /api/state), the history (GET /api/history) and a region map.
-std::string state_json(const Snapshot& s, bool control);
+// control: POSTs are served; token_required: they need the token too.
+std::string state_json(const Snapshot& s, bool control, bool token_required = false);
 std::string history_json(const Snapshot& s);
 std::string regions_json(const RegionMap& m);
 // The Prometheus text exposition format (GET /metrics).

@@ -23,25 +23,27 @@ SLOW = [("stroke_m: 20.35e-6", "stroke_m: 1.5e-6")]
 
 
 class Web(fixtures.ChildProcess):
-    """idm-web ARGS --listen 127.0.0.1:0; `url` is where it listens."""
+    """idm-web ARGS --listen LISTEN (default 127.0.0.1:0), the environment `env` (None: this
+    one's); `url` is where it listens (a wildcard listener through 127.0.0.1)."""
 
-    def __init__(self, tmp, args, name="web"):
+    def __init__(self, tmp, args, name="web", listen="127.0.0.1:0", env=None):
         fixtures.require_built(IDM_WEB, "idm-web")
         super().__init__(os.path.join(tmp, "idm-web-%s.log" % name))
-        line = self.start([IDM_WEB] + list(args) + ["--listen", "127.0.0.1:0"], 30)
-        m = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
+        line = self.start([IDM_WEB] + list(args) + ["--listen", listen], 30, env=env)
+        m = re.search(r"http://(\S+):(\d+)/", line)
         if not m:
             self.stop()
             pytest.fail("idm-web did not start: %r\n%s" % (line, self.log()))
-        self.port = int(m.group(1))
-        self.url = "http://127.0.0.1:%d" % self.port
+        self.port = int(m.group(2))
+        host = {"0.0.0.0": "127.0.0.1", "[::]": "[::1]"}.get(m.group(1), m.group(1))
+        self.url = "http://%s:%d" % (host, self.port)
 
-    def request(self, path, method="GET", data=None, headers=None):
+    def request(self, path, method="GET", data=None, headers=None, timeout=30):
         """(status, headers, body bytes); HTTP errors are returned, not raised."""
         req = urllib.request.Request(self.url + path, method=method, data=data,
                                      headers=headers or {})
         try:
-            with urllib.request.urlopen(req, timeout=30) as r:
+            with urllib.request.urlopen(req, timeout=timeout) as r:
                 return r.status, r.headers, r.read()
         except urllib.error.HTTPError as e:
             return e.code, e.headers, e.read()

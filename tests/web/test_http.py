@@ -5,6 +5,7 @@ bring it down."""
 import json
 import math
 import os
+import random
 import re
 import socket
 import tempfile
@@ -320,16 +321,31 @@ def test_the_gap_report_is_served_when_there_is_one(tmp_path, lab):
 
 
 def test_without_idmd_it_says_so_and_reconnects(tmp_path):
+    """With idmd gone nothing of it is shown as current: every axis is stale (no state, the
+    position not valid, the last one only as last_position_m), no sweep, loop or client table,
+    and /metrics has idm_up 0 and none of idmd's families."""
     daemon = fixtures.Idmd(str(tmp_path))
     web = Web(str(tmp_path), ["--unix", daemon.unix, "--poll", "0.05"], "gone")
     try:
         wait_for("connected", lambda: web.json("/api/state")["connected"], 10)
+        wait_for("a loop sample", lambda: web.json("/api/state")["loop"] is not None, 10)
+        last = web.json("/api/state")["axes"][0]
+        assert last["stale"] is False and last["position_valid"] is True
         daemon.stop()
         wait_for("disconnected", lambda: not web.json("/api/state")["connected"], 10)
-        assert web.json("/api/state")["error"]
+        s = web.json("/api/state")
+        assert s["error"] and s["last_seen"] is not None and s["last_seen"] <= s["time"]
+        (a,) = s["axes"]
+        assert a["name"] == "x" and a["stale"] is True and a["state"] is None
+        assert a["position_valid"] is False and a["position_m"] is None
+        assert a["last_position_m"] == pytest.approx(last["position_m"], abs=50e-9)
+        assert "target_m" not in a and a["status_error"] == "idmd not reached"
+        assert s["sweep"] is None and s["loop"] is None and s["clients"] is None
+        assert web.json("/api/history")["connected"] is False
         samples, _ = parse_metrics(web.metrics())
         assert samples[("idm_up", ())] == 0 and samples[("idm_web_poll_errors_total", ())] >= 1
-        assert not any(n == "idm_position_meters" for n, _ in samples)
+        idmd_s = [n for n, _ in samples if not n.startswith(("idm_up", "idm_web_"))]
+        assert idmd_s == [], idmd_s
         daemon = fixtures.Idmd(str(tmp_path))
         wait_for("connected again", lambda: web.json("/api/state")["connected"], 10)
         samples, _ = parse_metrics(web.metrics())
@@ -361,10 +377,85 @@ def test_sweep_progress_is_the_daemon_s(lab, restore):
         s = web.json("/api/state")["sweep"]
         return s if s["state"] == "DONE" else None
     s = wait_for("the sweep in /api/state", shown, 10)
+    # SWEEP?'s axis is 1-based already (daemon/README.md).
     assert (s["axis"], s["written"], s["failed"], s["planned"]) == \
-        (int(axis) + 1, int(written), int(failed), int(planned))
+        (int(axis), int(written), int(failed), int(planned)) and s["axis"] == 1
     assert s["directory"] == json.loads(directory)
     samples, _ = parse_metrics(web.metrics())
     assert samples[("idm_sweep_running", ())] == 0
     assert samples[("idm_sweep_trials", (("kind", "written"),))] == int(written)
     assert samples[("idm_sweep_trials", (("kind", "planned"),))] == 8
+
+
+def test_a_sweep_on_the_second_axis_is_shown_on_axis_2(tmp_path):
+    with fixtures.idmd_in_temp_dir("idm-web-xy-", config=lambda d: fixtures.axes_config(d)) as d:
+        web = Web(str(tmp_path), ["--idmd", "127.0.0.1:%d" % d.port], "xy")
+        try:
+            send(d, 'AXIS2:SWEEP "web-sweep-y",400,0.1,1,2')
+            wait_for("the sweep done", lambda: ask(d, "SWEEP?")[0].startswith("DONE,"), 60)
+            assert ask(d, "SWEEP?")[0].split(",")[1] == "2"
+
+            def shown():
+                s = web.json("/api/state")["sweep"]
+                return s if s and s["state"] == "DONE" else None
+            s = wait_for("the sweep in /api/state", shown, 10)
+            assert s["axis"] == 2, s
+            names = [a["name"] for a in web.json("/api/state")["axes"]]
+            assert names == ["x", "y"]
+        finally:
+            assert web.stop() == 0
+
+
+def check_rows(m, lo, hi):
+    """The map's rows span [lo, hi]: lo, the multiples of a 1-2-5 step inside, hi."""
+    f = m["freqs_hz"]
+    assert m["freq_source"] == "idmd" and m["freq_range_hz"] == [pytest.approx(lo), pytest.approx(hi)]
+    assert f[0] == pytest.approx(lo) and f[-1] == pytest.approx(hi) and f == sorted(set(f))
+    assert 10 <= len(f) <= 23, f
+    inner = f[1:-1]
+    step = inner[1] - inner[0]
+    mantissa = step / 10 ** math.floor(math.log10(step) + 1e-9)
+    assert any(abs(mantissa - k) < 1e-6 for k in (1, 2, 5, 10)), step
+    for v in inner:
+        assert abs(v / step - round(v / step)) < 1e-6, (v, step)
+    assert inner[0] - lo <= step * (1 + 1e-9) and hi - inner[-1] <= step * (1 + 1e-9)
+
+
+def test_the_region_map_s_rows_are_the_axis_s_frequency_range(tmp_path):
+    """The default grid comes from the axis's frequency range as idmd gives it (control's
+    min_freq_hz and max_freq_hz, narrowed by the device): idmd has no query for it, and its
+    refusal of a STEP outside every device's range names it. The probe moves nothing and leaves
+    no error anywhere but idm-web's own connection."""
+    rng = random.Random(2000)
+    ranges = [(10, 2000)]
+    for _ in range(3):
+        lo = round(rng.uniform(5, 300), 1)
+        ranges.append((lo, round(rng.uniform(lo + 60, 20000), 1)))
+    for lo, hi in ranges:
+        edits = [("min_freq_hz: 10", "min_freq_hz: %g" % lo),
+                 ("max_freq_hz: 2000", "max_freq_hz: %g" % hi)]
+        with fixtures.idmd_in_temp_dir("idm-web-range-", edits=edits) as d:
+            web = Web(str(tmp_path), ["--unix", d.unix], "range")
+            try:
+                before = mean_position(d)
+                m = web.json("/api/regions?axis=1")
+                assert m["error"] == "", m["error"]
+                check_rows(m, lo, hi)
+                for i in rng.sample(range(len(m["freqs_hz"])), 3):
+                    f, j = m["freqs_hz"][i], rng.randrange(len(m["duties"]))
+                    region, step = ask(d, "REG? %r,%r" % (f, m["duties"][j]))[0].split(",")
+                    assert m["cells"][i][j]["region"] == region, (f, m["duties"][j])
+                status = dict(w.split("=", 1) for w in ask(d, "STAT?")[0].split())
+                assert status["bursts"] == "0" and status["result"] == "NONE", status
+                assert status["daemon_error"] == "none" and status["state"] == "IDLE", status
+                assert abs(mean_position(d) - before) < 5 * float(ask(d, "RES?")[0])
+                # --region-freq still rules when given.
+                given = Web(str(tmp_path), ["--unix", d.unix, "--region-freq", "200:400:100"],
+                            "given")
+                try:
+                    g = given.json("/api/regions?axis=1")
+                    assert g["freqs_hz"] == [200, 300, 400] and g["freq_source"] == "--region-freq"
+                finally:
+                    assert given.stop() == 0
+            finally:
+                assert web.stop() == 0

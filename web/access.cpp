@@ -1,0 +1,182 @@
+#include "web/access.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <memory>
+
+#include "model/stage.h"
+
+namespace idm::web {
+
+namespace {
+
+std::string lower(std::string_view s) {
+  std::string out(s);
+  for (char& c : out)
+    if (c >= 'A' && c <= 'Z') c = static_cast<char>(c - 'A' + 'a');
+  return out;
+}
+
+bool digits(std::string_view s, std::size_t max) {
+  return !s.empty() && s.size() <= max &&
+         std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
+}
+
+}  // namespace
+
+bool loopback_name(std::string_view name) {
+  if (name == "localhost" || name == "[::1]") return true;
+  // 127.a.b.c, each part 0..255 in decimal
+  if (name.rfind("127.", 0) != 0) return false;
+  int parts = 0;
+  while (true) {
+    const std::size_t dot = name.find('.');
+    const std::string_view part = name.substr(0, dot);
+    if (!digits(part, 3) || std::stoi(std::string(part)) > 255) return false;
+    ++parts;
+    if (dot == std::string_view::npos) break;
+    name.remove_prefix(dot + 1);
+  }
+  return parts == 4;
+}
+
+bool host_name(std::string_view value, std::string& name) {
+  std::string_view host = value, port;
+  if (!value.empty() && value.front() == '[') {
+    const std::size_t close = value.find(']');
+    if (close == std::string_view::npos) return false;
+    host = value.substr(0, close + 1);
+    const std::string_view rest = value.substr(close + 1);
+    if (!rest.empty() && rest.front() != ':') return false;
+    if (!rest.empty()) port = rest.substr(1);
+    if (!rest.empty() && !digits(port, 5)) return false;
+  } else if (const std::size_t colon = value.find(':'); colon != std::string_view::npos) {
+    host = value.substr(0, colon);
+    if (!digits(value.substr(colon + 1), 5)) return false;
+  }
+  if (host.empty() || host.size() > 255) return false;
+  for (const char c : host) {
+    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                    c == '.' || c == '-' || c == '_' || c == '[' || c == ']' || c == ':';
+    if (!ok) return false;
+  }
+  name = lower(host);
+  if (name.size() > 1 && name.back() == '.') name.pop_back();
+  return true;
+}
+
+bool HostPolicy::allow(std::string_view name) {
+  if (name.empty()) return false;
+  std::string n;
+  // A bare IPv6 address ("fe80::1", "::") is bracketed as a Host header carries it.
+  const bool bare_v6 = std::count(name.begin(), name.end(), ':') > 1 && name.front() != '[';
+  if (!host_name(bare_v6 ? "[" + std::string(name) + "]" : std::string(name), n)) return false;
+  if (std::find(names_.begin(), names_.end(), n) == names_.end()) names_.push_back(n);
+  return true;
+}
+
+bool HostPolicy::allows(std::string_view host_header) const {
+  std::string name;
+  if (!host_name(host_header, name)) return false;
+  return loopback_name(name) || std::find(names_.begin(), names_.end(), name) != names_.end();
+}
+
+bool same_secret(std::string_view a, std::string_view b) {
+  // Every byte of the longer one is looked at whatever the content; the lengths count too.
+  const std::size_t n = std::max(a.size(), b.size());
+  unsigned diff = a.size() == b.size() ? 0U : 1U;
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto x = static_cast<unsigned char>(i < a.size() ? a[i] : 0);
+    const auto y = static_cast<unsigned char>(i < b.size() ? b[i] : 0);
+    diff |= static_cast<unsigned>(x ^ y);
+  }
+  return diff == 0;
+}
+
+FileRead read_file_nofollow(const std::string& path, std::size_t max_bytes) {
+  FileRead r;
+  // O_NONBLOCK: a FIFO put there does not hang the reader (it is refused below).
+  const int fd = open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
+  if (fd < 0) {
+    const int e = errno;
+    r.kind = e == ENOENT  ? FileRead::kMissing
+             : e == ELOOP ? FileRead::kSymlink
+                          : FileRead::kUnreadable;
+    r.why = e == ELOOP ? path + " is a symbolic link: not followed (give the file itself)"
+                       : path + ": " + std::strerror(e);
+    return r;
+  }
+  const std::unique_ptr<const int, void (*)(const int*)> closer(&fd,
+                                                                [](const int* f) { close(*f); });
+  if (fstat(fd, &r.st) != 0) {
+    r.why = path + ": fstat: " + std::strerror(errno);
+    return r;
+  }
+  if (!S_ISREG(r.st.st_mode)) {
+    r.kind = FileRead::kNotRegular;
+    r.why = path + " is not a regular file";
+    return r;
+  }
+  if (static_cast<std::size_t>(r.st.st_size) > max_bytes) {
+    r.kind = FileRead::kTooLarge;
+    r.why = path + " is " + std::to_string(r.st.st_size) + " bytes, at most " +
+            std::to_string(max_bytes) + " are read";
+    return r;
+  }
+  // Read to the end, never past max_bytes (the file may have grown since fstat).
+  r.text.resize(max_bytes + 1);
+  std::size_t got = 0;
+  while (got < r.text.size()) {
+    const ssize_t n = read(fd, r.text.data() + got, r.text.size() - got);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      r.why = path + ": read: " + std::strerror(errno);
+      return r;
+    }
+    if (n == 0) break;
+    got += static_cast<std::size_t>(n);
+  }
+  if (got > max_bytes) {
+    r.kind = FileRead::kTooLarge;
+    r.why = path + " is larger than " + std::to_string(max_bytes) + " bytes";
+    r.text.clear();
+    return r;
+  }
+  r.text.resize(got);
+  r.kind = FileRead::kOk;
+  return r;
+}
+
+std::string token_from_text(const std::string& text, const std::string& what) {
+  std::string t = text;
+  while (!t.empty() && (t.back() == '\n' || t.back() == '\r' || t.back() == ' ')) t.pop_back();
+  const bool visible = std::all_of(t.begin(), t.end(), [](char c) { return c > 0x20 && c < 0x7f; });
+  if (t.size() < 16 || t.size() > 1024 || !visible)
+    throw model::InputError(what +
+                            ": the token must be one line of 16 to 1024 visible ASCII characters "
+                            "(no blanks)");
+  return t;
+}
+
+std::string token_from_file(const std::string& path) {
+  const FileRead f = read_file_nofollow(path, 4096);
+  if (f.kind != FileRead::kOk) throw model::InputError("--token-file: " + f.why);
+  if (f.st.st_uid != geteuid())
+    throw model::InputError("--token-file: " + path + " belongs to uid " +
+                            std::to_string(f.st.st_uid) + ", not to idm-web's user (uid " +
+                            std::to_string(geteuid()) + ")");
+  if ((f.st.st_mode & 077) != 0) {
+    char mode[8];
+    std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(f.st.st_mode & 07777));
+    throw model::InputError("--token-file: " + path + " may be read by others (mode " + mode +
+                            "): chmod 600 " + path);
+  }
+  return token_from_text(f.text, "--token-file " + path);
+}
+
+}  // namespace idm::web
