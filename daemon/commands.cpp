@@ -412,6 +412,12 @@ CommandError Daemon::region(int axis, double freq_hz, double duty, double stroke
   return {};
 }
 
+Instrument::RegionRange Daemon::region_range(int axis) {
+  std::lock_guard<std::mutex> lock(control_mutex_);
+  const control::DeviceLimits& l = axes_.at(static_cast<std::size_t>(axis))->limits();
+  return {l.min_freq_hz, l.max_freq_hz, l.min_stroke_m, l.max_stroke_m};
+}
+
 LoopStats Daemon::loop_stats() {
   return loop_->stats();
 }

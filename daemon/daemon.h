@@ -111,6 +111,7 @@ class Daemon final : public Instrument {
   CommandError sweep(int axis, const std::string& dir, const std::vector<double>& freqs_hz,
                      const std::vector<double>& duties, int trials, int cycles) override;
   SweepStatus sweep_status() override;
+  RegionRange region_range(int axis) override;
   CommandError sim_push(int axis, double distance_m) override;
   CommandError sim_fault(int axis, const std::string& fault, double value) override;
   LoopStats loop_stats() override;

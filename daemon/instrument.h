@@ -198,6 +198,12 @@ class Instrument {
   // stroke_m NaN: the largest stroke.
   virtual CommandError region(int axis, double freq_hz, double duty, double stroke_m,
                               std::string& region, double& step_m) = 0;
+  // REGion:RANGe?: what the axis's map covers, the device's limits applied: the frequencies, and
+  // the strokes.
+  struct RegionRange {
+    double min_freq_hz = 0, max_freq_hz = 0, min_stroke_m = 0, max_stroke_m = 0;
+  };
+  virtual RegionRange region_range(int axis) = 0;
 
   // SWEEP dir,freqs,duties,trials[,cycles]: starts the characterization sweep of one axis in the
   // background (motion_done() is false until it ends); errors of the arguments are returned at

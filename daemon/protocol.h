@@ -263,6 +263,7 @@ class Session {
   CommandError move_done(const Args&, std::string& reply);
   CommandError step(const Args&, std::string& reply);
   CommandError region(const Args&, std::string& reply);
+  CommandError region_range(const Args&, std::string& reply);
   CommandError limit_lower(const Args&, std::string& reply);
   CommandError limit_upper(const Args&, std::string& reply);
   CommandError limit_lower_query(const Args&, std::string& reply);

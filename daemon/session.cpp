@@ -106,6 +106,7 @@ const std::vector<Session::Command>& Session::commands() {
       {{"STATus:OPERation[:CONDition]", true, 0, 0, "", S::Axis}, &Session::operation},
       {{"STEP", false, 1, 4, "<n>[,<duty>,<freq_hz>[,<stroke_m>]]", S::Axis}, &Session::step},
       {{"REGion", true, 2, 3, "<freq_hz>,<duty>[,<stroke_m>]", S::Axis}, &Session::region},
+      {{"REGion:RANGe", true, 0, 0, "", S::Axis}, &Session::region_range},
       {{"LIMit:LOWer", false, 1, 1, "<m>", S::Axis}, &Session::limit_lower},
       {{"LIMit:UPPer", false, 1, 1, "<m>", S::Axis}, &Session::limit_upper},
       {{"LIMit:LOWer", true, 0, 0, "", S::Axis}, &Session::limit_lower_query},

@@ -126,6 +126,13 @@ CommandError Session::region(const Args& args, std::string& reply) {
   return {};
 }
 
+CommandError Session::region_range(const Args&, std::string& reply) {
+  const Instrument::RegionRange r = instrument_.region_range(axis_);
+  reply = format_value(r.min_freq_hz) + "," + format_value(r.max_freq_hz) + "," +
+          format_value(r.min_stroke_m) + "," + format_value(r.max_stroke_m);
+  return {};
+}
+
 CommandError Session::limit_lower(const Args& args, std::string&) {
   double lower = 0;
   if (CommandError e = number_arg(args, 0, "LIMit:LOWer", lower); !e.ok()) return e;

@@ -13,7 +13,6 @@ namespace {
 constexpr int kMaxAxes = 64;
 constexpr double kRegionCacheS = 30;
 // A frequency no device plays: the configuration allows at most 1 MHz (daemon/config_tables.cpp).
-constexpr const char* kProbeStep = "STEP 1,0.25,1e9";
 
 std::string axis_prefix(int axis) {
   return "AXIS" + std::to_string(axis) + ":";
@@ -205,22 +204,6 @@ void Monitor::command(const std::string& line) {
   }
 }
 
-bool parse_frequency_range(const std::string& refusal, double& min_hz, double& max_hz) {
-  const std::size_t at = refusal.find("allowed [");
-  if (at == std::string::npos) return false;
-  const char* p = refusal.c_str() + at + 9;
-  char* end = nullptr;
-  const double lo = std::strtod(p, &end);
-  if (end == p || std::string_view(end).rfind(", ", 0) != 0) return false;
-  p = end + 2;
-  const double hi = std::strtod(p, &end);
-  if (end == p || std::string_view(end).rfind("] Hz", 0) != 0) return false;
-  if (!std::isfinite(lo) || !std::isfinite(hi) || !(lo > 0) || !(hi >= lo)) return false;
-  min_hz = lo;
-  max_hz = hi;
-  return true;
-}
-
 std::vector<double> frequency_rows(double min_hz, double max_hz) {
   std::vector<double> rows;
   if (!(min_hz > 0) || !std::isfinite(max_hz) || !(max_hz >= min_hz)) return rows;
@@ -240,10 +223,9 @@ std::vector<double> frequency_rows(double min_hz, double max_hz) {
   return rows;
 }
 
-// The rows of axis m.axis's map: --region-freq's, else over the axis's frequency range. idmd has
-// no query for that range; its refusal of a STEP at a frequency outside it names it (-222
-// "... allowed [10, 2000] Hz", daemon/README.md), and a STEP at 1 GHz is outside every device's.
-// Refused, it moves nothing and leaves no trace but this connection's error queue.
+// The rows of axis m.axis's map: --region-freq's, else over the axis's frequency range
+// (REGion:RANGe?, the map's range with the device's limits applied); an idmd without that query
+// gets the default rows and the page says why.
 void Monitor::region_rows(client::Client& c, RegionMap& m) {
   if (!options_.region_freqs_hz.empty()) {
     m.freqs_hz = options_.region_freqs_hz;
@@ -251,18 +233,20 @@ void Monitor::region_rows(client::Client& c, RegionMap& m) {
     return;
   }
   try {
-    c.command(axis_prefix(m.axis) + kProbeStep);
-    // Accepted: not an idmd that refuses what it cannot play. The axis is stopped at once.
-    c.command(axis_prefix(m.axis) + "STOP");
-    m.freq_range_error = std::string("idmd accepted ") + kProbeStep + ": its range is unknown";
-  } catch (const client::DaemonError& e) {
-    if (e.code == -114) throw;  // no such axis
-    if (parse_frequency_range(e.text, m.freq_min_hz, m.freq_max_hz)) {
+    const std::vector<double> range =
+        client::parse_number_list(c.query(axis_prefix(m.axis) + "REG:RANG?"));
+    if (range.size() == 4 && std::isfinite(range[0]) && std::isfinite(range[1]) && range[0] > 0 &&
+        range[1] >= range[0]) {
+      m.freq_min_hz = range[0];
+      m.freq_max_hz = range[1];
       m.freqs_hz = frequency_rows(m.freq_min_hz, m.freq_max_hz);
       m.freq_source = "idmd";
       return;
     }
-    m.freq_range_error = std::string("idmd did not name the axis's frequency range: ") + e.what();
+    m.freq_range_error = "idmd's REG:RANG? reply is not a frequency range";
+  } catch (const client::DaemonError& e) {
+    if (e.code == -114) throw;  // no such axis
+    m.freq_range_error = std::string("idmd did not say the axis's frequency range: ") + e.what();
   }
   for (double f = 100; f <= 1000 + 1e-9; f += 50) m.freqs_hz.push_back(f);
   m.freq_source = "default";

@@ -81,8 +81,6 @@ struct MonitorOptions {
 // The region map's default rows over [min_hz, max_hz]: min_hz, the multiples of a 1-2-5 step
 // (about 20 rows) above it, and max_hz.
 std::vector<double> frequency_rows(double min_hz, double max_hz);
-// "[10, 2000] Hz" in idmd's refusal of a STEP frequency (-222): the range, or false.
-bool parse_frequency_range(const std::string& refusal, double& min_hz, double& max_hz);
 
 double now_s();
 

@@ -172,6 +172,11 @@ class FakeInstrument : public Instrument {
     at(axis).soft_upper_m = upper_m;
     return {};
   }
+  RegionRange region_range(int axis) override {
+    std::lock_guard l(m_);
+    calls_.push_back(prefix(axis) + "region_range()");
+    return {10.0, 2000.0, 1e-7, 2e-5};
+  }
   CommandError region(int axis, double freq_hz, double duty, double stroke_m, std::string& region,
                       double& step_m) override {
     std::lock_guard l(m_);

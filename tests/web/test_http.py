@@ -422,10 +422,8 @@ def check_rows(m, lo, hi):
 
 
 def test_the_region_map_s_rows_are_the_axis_s_frequency_range(tmp_path):
-    """The default grid comes from the axis's frequency range as idmd gives it (control's
-    min_freq_hz and max_freq_hz, narrowed by the device): idmd has no query for it, and its
-    refusal of a STEP outside every device's range names it. The probe moves nothing and leaves
-    no error anywhere but idm-web's own connection."""
+    """The default grid comes from the axis's frequency range as idmd gives it (REG:RANG?:
+    control's min_freq_hz and max_freq_hz, narrowed by the device). Reading it moves nothing."""
     rng = random.Random(2000)
     ranges = [(10, 2000)]
     for _ in range(3):
