@@ -285,6 +285,7 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
       largest[d] = along;
       largest_cell_[d] = i;
       has_largest_cell_[d] = true;
+      largest_step_m_[d] = along;
     }
   }
   const double max_velocity = device_.max_velocity_m_s;
@@ -362,6 +363,9 @@ void Positioner::on_reading(const model::AxisEvent& e) {
     return;
   }
   const double position = e.position_m + offset_m_;
+  // A segment the positioner did not play (a sweep's trial) moves the slider: the mean at rest
+  // starts over with the readings after it.
+  if (e.in_segment && phase_ == Phase::Idle) rest_mean_.reset(config_.latch_words);
   if (e.mark && !mark_seen_ &&
       (mark_search_ == MarkSearch::Searching || mark_search_ == MarkSearch::Crawling)) {
     mark_seen_ = true;
@@ -390,10 +394,16 @@ void Positioner::on_reading(const model::AxisEvent& e) {
       hold_sum_m_ = 0;
       hold_n_ = 0;
       const double window = config_.hold_window_m > 0 ? config_.hold_window_m : tolerance_m();
-      status_.in_window = std::fabs(status_.target_m - mean) <= window;
-      if (!status_.in_window) hold_correction_due_ = true;
+      if (std::fabs(status_.target_m - mean) > window) hold_correction_due_ = true;
     }
   }
+  // In position follows the readings: at rest after a move that arrived, the mean of the latest
+  // latch_words readings within the move window of the target. A push, a drift or a sweep's
+  // trial that moved the slider clears it, so that MOVE:REL counts from the reading then, not
+  // from a target the slider has left.
+  if (arrived_ && phase_ == Phase::Idle && !e.in_segment &&
+      rest_mean_.count() >= config_.latch_words)
+    status_.in_window = std::fabs(status_.target_m - status_.position_m) <= tolerance_m();
 }
 
 void Positioner::want_fresh(double after_s) {
@@ -521,8 +531,8 @@ void Positioner::after_chunk(double now_s, double position) {
     finish(now_s, stop_result_);
     return;
   }
-  if (!referencing_ && (position < config_.soft_lower_m - tolerance_m() ||
-                        position > config_.soft_upper_m + tolerance_m())) {
+  if (!referencing_ && !reading_allowed(position, motion_start_m_, config_.soft_lower_m,
+                                        config_.soft_upper_m, tolerance_m())) {
     finish(now_s, MoveResult::Limit);  // outside the soft limits: nothing more is played
     return;
   }

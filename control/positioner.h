@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "control/calibration.h"
+#include "control/motion_gate.h"
 #include "control/planner.h"
 #include "control/region_map.h"
 #include "control/rest_mean.h"
@@ -200,6 +201,10 @@ class Positioner {
   static constexpr double kOmitted = std::numeric_limits<double>::quiet_NaN();
   Refusal step_open_loop(std::int64_t cycles, double duty = kOmitted, double freq_hz = kOmitted,
                          double stroke_m = kOmitted);
+  // The motion gate for a burst the positioner does not play itself (a sweep's trial) starting at
+  // from_m: None, OutsideSoftLimits (its worst-case excursion, control/motion_gate.h, could leave
+  // the soft limits), EndOfTravel (it could reach the end of travel met before), NoPosition.
+  Refusal check_burst(const model::Segment& segment, double from_m) const;
   // Ends motion at the next chunk end (see above). No effect when idle.
   void stop();
   // Leaves FAULT for IDLE (the output is already at zero); re-reads the position.
@@ -423,6 +428,7 @@ class Positioner {
   double ladder_gain_ = 1.0;
   CalibrationConfig rung_cfg_;  // the calibration's (or the default) RLS settings for the rungs
   std::size_t largest_cell_[2] = {0, 0};  // [0] negative, [1] positive: largest |step|
+  double largest_step_m_[2] = {0, 0};     // their |step|
   bool has_largest_cell_[2] = {false, false};
 
   std::uint8_t invalid_sample_status_ = 0;
@@ -470,9 +476,11 @@ class Positioner {
   static constexpr int kCrawlTries = 4;
   double crawl_start_m_ = 0;  // the point before the mark each crawl starts from
   double dwell_until_s_ = 0;
-  bool hold_armed_ = false;                 // holding: at rest, watching the readings
-  double hold_until_s_ = 0;                 // +inf: until the next command
-  bool hold_correcting_ = false;            // a correction of a hold is playing
+  bool hold_armed_ = false;       // holding: at rest, watching the readings
+  bool arrived_ = false;          // the last move arrived: in_window follows the readings at rest
+  double motion_start_m_ = 0;     // where the current motion started (the gate lets it come back)
+  double hold_until_s_ = 0;       // +inf: until the next command
+  bool hold_correcting_ = false;  // a correction of a hold is playing
   double chunk_lo_m_ = 0, chunk_hi_m_ = 0;  // the readings' extent during the chunk
   RestMean rest_mean_;                      // the position shown at rest
   double hold_sum_m_ = 0;

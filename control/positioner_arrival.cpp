@@ -24,6 +24,7 @@ void Positioner::finish(double now_s, MoveResult result) {
     if (result == MoveResult::Ok) {  // back in the window: holding on
       hold_armed_ = true;
       status_.in_window = true;
+      arrived_ = true;
       return;
     }
     status_.holding = false;
@@ -32,6 +33,7 @@ void Positioner::finish(double now_s, MoveResult result) {
   status_.result = result;
   status_.result_distance_m = status_.target_m - status_.position_m;
   status_.in_window = status_.kind == MotionKind::Move && result == MoveResult::Ok;
+  arrived_ = status_.in_window;
   // A mark search is done once the move back onto the mark arrived.
   if (mark_search_ == MarkSearch::Returning && result == MoveResult::Ok) ++status_.references;
   mark_search_ = MarkSearch::Off;

@@ -23,11 +23,13 @@ void Positioner::reset_progress() {
 }
 
 void Positioner::start_motion(MotionKind kind) {
+  motion_start_m_ = status_.position_m;
   status_.kind = kind;
   status_.result = MoveResult::None;
   status_.corrections = 0;
   status_.fault = MotionFault::None;
   status_.in_window = false;
+  arrived_ = false;
   status_.holding = false;
   hold_armed_ = false;
   hold_correcting_ = false;
@@ -55,7 +57,7 @@ Refusal Positioner::move_absolute(double target_m) {
   // A hold's correction in progress takes the new target at its chunk's end.
   const bool retarget = hold_correcting_ && phase_ != Phase::Idle;
   if (phase_ != Phase::Idle && !retarget) return Refusal::Busy;
-  if (target_m < config_.soft_lower_m || target_m > config_.soft_upper_m)
+  if (!target_allowed(target_m, config_.soft_lower_m, config_.soft_upper_m))
     return Refusal::OutsideSoftLimits;
   if (!status_.position_valid) return Refusal::NoPosition;
   if (toward_eot(target_m)) return Refusal::EndOfTravel;
@@ -83,6 +85,22 @@ Refusal Positioner::move_relative(double distance_m) {
 
 double Positioner::nominal_open_loop_step_m(double freq_hz, double duty, double stroke_m) const {
   return model::steady_step_corrected_m(map_.config().stage, freq_hz, duty, stroke_m);
+}
+
+Refusal Positioner::check_burst(const model::Segment& segment, double from_m) const {
+  if (!std::isfinite(from_m)) return Refusal::NoPosition;
+  const double step = nominal_open_loop_step_m(segment.freq_hz, segment.duty, segment.stroke_m);
+  if (!std::isfinite(step)) return Refusal::OutOfRange;
+  // A cycle may slip by as much as the map's largest step: a trial's cell may lie where the
+  // model's prediction is least sure (near a region boundary, or cut off).
+  const double slip = std::max({std::fabs(step), largest_step_m_[0], largest_step_m_[1]});
+  const Excursion e = burst_excursion(segment.cycles, step, config_.approach_uncertainty, slip);
+  if (status_.eot != 0 && (status_.eot > 0 ? from_m + e.hi_m : from_m + e.lo_m) * status_.eot >
+                              status_.eot_position_m * status_.eot - tolerance_m())
+    return Refusal::EndOfTravel;
+  if (!excursion_allowed(from_m, e, config_.soft_lower_m, config_.soft_upper_m))
+    return Refusal::OutsideSoftLimits;
+  return Refusal::None;
 }
 
 Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq_hz,
@@ -134,10 +152,11 @@ Refusal Positioner::step_open_loop(std::int64_t cycles, double duty, double freq
   const double end = status_.position_m + static_cast<double>(n) * step;
   requested_target_m_ = end;
   if (toward_eot(end)) return Refusal::EndOfTravel;
-  const double reach = static_cast<double>(n) * step * (1.0 + config_.approach_uncertainty);
-  const double far_end = status_.position_m + reach;
-  if (std::min(end, far_end) < config_.soft_lower_m ||
-      std::max(end, far_end) > config_.soft_upper_m)
+  // The motion gate: the burst, its step wrong by approach_uncertainty and a cycle's slip of a
+  // step either way, stays within the soft limits.
+  if (!excursion_allowed(status_.position_m,
+                         burst_excursion(n, step, config_.approach_uncertainty, step),
+                         config_.soft_lower_m, config_.soft_upper_m))
     return Refusal::OutsideSoftLimits;
   c.predicted_m = step;  // per cycle here; per chunk when a chunk is made
   c.cell = nullptr;
@@ -285,6 +304,8 @@ void Positioner::continue_from(const MotionStatus& previous) {
   status_.references = previous.references;
   status_.offset_m = previous.offset_m;
   offset_m_ = previous.offset_m;
+  // In position carries over (and keeps following the readings).
+  status_.in_window = arrived_ = previous.in_window && previous.state == MotionState::Idle;
 }
 
 // ---- faults ----
@@ -303,6 +324,7 @@ void Positioner::enter_fault(MotionFault fault) {
   hold_armed_ = hold_correcting_ = false;
   status_.holding = false;
   status_.in_window = false;
+  arrived_ = false;
   referencing_ = false;
   mark_search_ = MarkSearch::Off;
   if (moving || status_.result == MoveResult::None) {

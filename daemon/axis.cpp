@@ -55,6 +55,15 @@ const char* trial_failure_text(TrialFailure why) {
       return "stopped";
     case TrialFailure::Busy:
       return "motion in progress";
+    case TrialFailure::Limits:
+      return "it could leave the soft limits (the motion gate: its worst-case excursion from here "
+             "and from the sweep's start)";
+    case TrialFailure::LeftLimits:
+      return "a reading left the soft limits while it played: stopped at once";
+    case TrialFailure::EndOfTravel:
+      return "it could reach the end of travel the axis met before";
+    case TrialFailure::NoPosition:
+      return "no valid position to judge it from";
   }
   return "?";
 }
@@ -195,6 +204,13 @@ void Axis::observe(const model::AxisEvent& e, TrialNotices& notices) {
   switch (e.kind) {
     case Kind::Reading:
       if (counts_lost(e.status)) referenced_ = false;
+      // The motion gate's stop for a trial: a reading beyond the soft limits, farther out than
+      // where the trial started, stops it at once.
+      if (trial_phase_ == TrialPhase::Playing && e.valid() && e.in_segment &&
+          !control::reading_allowed(e.position_m + positioner_->status().offset_m, trial_start_m_,
+                                    positioner_->config().soft_lower_m,
+                                    positioner_->config().soft_upper_m, positioner_->tolerance_m()))
+        fail_trial(TrialFailure::LeftLimits, notices);
       return;
     case Kind::DeviceBack:
       if (!e.count_kept) referenced_ = false;
@@ -228,8 +244,26 @@ bool Axis::start_trial(const TrialRequest& t, TrialNotices& notices) {
   }
   trial_ = t;
   trial_seq_ = t.seq;
-  if (std::isfinite(t.return_to_m)) {
-    if (positioner_->move_absolute(t.return_to_m) != control::Refusal::None) {
+  // The motion gate, from where the trial will start; from the sweep's start when not from here.
+  const control::MotionStatus& s = positioner_->status();
+  const double here = s.position_valid ? s.position_m : std::numeric_limits<double>::quiet_NaN();
+  const double from = std::isfinite(t.return_to_m) ? t.return_to_m : here;
+  control::Refusal gate = positioner_->check_burst(t.segment, from);
+  if (gate != control::Refusal::None && !std::isfinite(t.return_to_m) && std::isfinite(t.home_m) &&
+      positioner_->check_burst(t.segment, t.home_m) == control::Refusal::None) {
+    trial_.return_to_m = t.home_m;
+    gate = control::Refusal::None;
+  }
+  if (gate != control::Refusal::None) {
+    trial_phase_ = TrialPhase::Starting;  // nothing asked of the positioner or the output yet
+    fail_trial(gate == control::Refusal::EndOfTravel  ? TrialFailure::EndOfTravel
+               : gate == control::Refusal::NoPosition ? TrialFailure::NoPosition
+                                                      : TrialFailure::Limits,
+               notices);
+    return false;
+  }
+  if (std::isfinite(trial_.return_to_m)) {
+    if (positioner_->move_absolute(trial_.return_to_m) != control::Refusal::None) {
       trial_phase_ = TrialPhase::Positioning;
       fail_trial(TrialFailure::Positioning, notices);
       return false;
@@ -258,6 +292,7 @@ void Axis::trial_tick(TrialNotices& notices) {
     r.segment = trial_.segment;
     if (pending_.due || !port_.requests.push(r)) return;  // next tick
     trial_phase_ = TrialPhase::Playing;
+    trial_start_m_ = positioner_->status().position_m;
     TrialNotice n;
     n.kind = TrialNotice::Kind::Started;
     n.index = trial_.index;

@@ -79,8 +79,22 @@ struct TrialRequest {
   std::int32_t axis = 0;
   model::Segment segment;
   double return_to_m = 0;  // NaN: play where the slider is
+  // The sweep's start: where a trial the motion gate refuses from here returns to first, if it
+  // may run from there (NaN: nowhere).
+  double home_m = 0;
 };
-enum class TrialFailure : std::uint8_t { None, Positioning, Driver, Overflow, Stopped, Busy };
+enum class TrialFailure : std::uint8_t {
+  None,
+  Positioning,
+  Driver,
+  Overflow,
+  Stopped,
+  Busy,
+  Limits,       // the motion gate: it could leave the soft limits from here and from home
+  LeftLimits,   // a reading left the soft limits while it played: stopped at once
+  EndOfTravel,  // it could reach the end of travel the axis met before
+  NoPosition,   // no valid position to judge it from
+};
 const char* trial_failure_text(TrialFailure why);
 // loop -> recorder: the trial's segment started (its samples follow on the capture queue), or it
 // failed before or while playing.
@@ -176,6 +190,7 @@ class Axis {
   TrialPhase trial_phase_ = TrialPhase::Idle;
   TrialRequest trial_{};
   std::uint32_t trial_seq_ = 0;
+  double trial_start_m_ = 0;  // the reading when its segment was handed to the link
 
   Seqlock<AxisPublished> published_;
   Seqlock<ErrorNote> fault_note_;

@@ -1,5 +1,7 @@
 // The Instrument commands of the daemon core (the server thread): argument checks that need the
 // axis's settings, the commands through the motion supervisor, and the status snapshots.
+#include <sys/statvfs.h>
+
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -549,6 +551,32 @@ CommandError Daemon::check_sweep(int axis, const std::vector<double>& freqs_hz,
   return {};
 }
 
+// The bytes a sweep's dataset takes, generously: a row of three numbers (up to 26 characters each)
+// per sample of every trial file, and sweep.csv (a row of about 200 bytes per trial) twice over,
+// since it is rewritten whole beside its predecessor after each trial.
+CommandError Daemon::check_sweep_space(Axis& a, const std::vector<double>& freqs_hz,
+                                       std::size_t duties, int trials, int cycles) {
+  const double stream_hz = a.link().interferometer_capabilities(a.channel()).stream_rate_hz;
+  double bytes = 1 << 20;  // plan.yaml, stage.yaml and what the file system keeps of them
+  for (const double f : freqs_hz) {
+    const double trial_s = config_.recording.sweep_rest_s +
+                           static_cast<double>(cycles + config_.recording.sweep_settle_cycles) / f;
+    bytes += static_cast<double>(duties) * trials * ((trial_s * stream_hz + 2) * 80.0 + 400.0);
+  }
+  struct statvfs st {};
+  if (::statvfs(config_.recording.data_dir.c_str(), &st) != 0)
+    return {
+        error_code::kMassStorageError,
+        "SWEEP: recording.data_dir " + config_.recording.data_dir + ": " + std::strerror(errno)};
+  const double free_bytes = static_cast<double>(st.f_bavail) * static_cast<double>(st.f_frsize);
+  if (free_bytes < bytes)
+    return {error_code::kMassStorageError,
+            "SWEEP: its dataset needs about " + num(std::ceil(bytes / 1e6)) + " MB, " +
+                num(std::floor(free_bytes / 1e6)) + " MB free in recording.data_dir " +
+                config_.recording.data_dir};
+  return {};
+}
+
 CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<double>& freqs_hz,
                            const std::vector<double>& duties, int trials, int cycles) {
   if (dir.empty()) return {error_code::kMissingParameter, "SWEEP needs a directory"};
@@ -559,6 +587,8 @@ CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<d
   std::string error;
   std::error_code mkdir_error;  // the configured data directory itself may be created
   std::filesystem::create_directories(config_.recording.data_dir, mkdir_error);
+  if (CommandError e = check_sweep_space(a, freqs_hz, duties.size(), trials, cycles); !e.ok())
+    return e;
   const std::string path = create_dataset_dir(config_.recording.data_dir, dir, error);
   if (path.empty()) return {error_code::kDataOutOfRange, "SWEEP: " + error};
   auto job = std::make_unique<SweepJob>();

@@ -130,6 +130,9 @@ class Daemon final : public Instrument {
   bool wait_at_rest(double timeout_s);
   CommandError check_sweep(int axis, const std::vector<double>& freqs_hz,
                            const std::vector<double>& duties, int trials, int cycles);
+  // -250 when recording.data_dir has too little room for the sweep's dataset.
+  CommandError check_sweep_space(Axis& a, const std::vector<double>& freqs_hz, std::size_t duties,
+                                 int trials, int cycles);
 
   DaemonConfig config_;
   std::vector<std::unique_ptr<drivers::DeviceLink>> links_;

@@ -205,6 +205,7 @@ int signal_fd() {
   const int sfd = signalfd(-1, &signals, SFD_CLOEXEC);
   if (sfd < 0) spdlog::error("signalfd: {}", std::strerror(errno));
   signal(SIGPIPE, SIG_IGN);
+  signal(SIGXFSZ, SIG_IGN);  // a file past RLIMIT_FSIZE is a failed write (EFBIG), not an exit
   return sfd;
 }
 

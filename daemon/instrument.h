@@ -35,6 +35,7 @@ inline constexpr int kCommandProtected = -203;    // a motion command on TCP bef
 inline constexpr int kSettingsConflict = -221;    // e.g. a move while in FAULT or busy
 inline constexpr int kDataOutOfRange = -222;      // e.g. a target past the soft limits
 inline constexpr int kDataCorruptOrStale = -230;  // a position that cannot be trusted
+inline constexpr int kMassStorageError = -250;    // a SWEEP's data_dir too full for its dataset
 inline constexpr int kHardwareError = -240;
 inline constexpr int kHardwareMissing = -241;  // e.g. a simulation command on a real backend
 inline constexpr int kQueueOverflow = -350;
@@ -140,6 +141,7 @@ struct SweepStatus {
   int axis = -1;               // 0-based; -1 before the first sweep
   std::uint64_t planned = 0, written = 0, failed = 0;
   std::string directory;
+  std::string error;  // FAILED: the error that ended it ("" otherwise)
 };
 
 // The real-time loop's timing, for the loop-statistics queries.

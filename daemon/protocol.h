@@ -336,7 +336,8 @@ class Session {
   int axis_ = 0;             // the axis of the line being executed (0-based)
   bool axis_given_ = false;  // it came with an AXIS<n>: prefix
   std::uint64_t started_axes_ =
-      0;  // axes (bits) whose motion this session started, not yet seen end
+      0;                        // axes (bits) whose motion this session started, not yet seen end
+  bool started_sweep_ = false;  // a SWEEP this session started, not yet seen end
   bool stop_only_ = false;
   const ClientTable* client_table_ = nullptr;
   const std::string* token_ = nullptr;

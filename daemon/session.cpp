@@ -230,8 +230,19 @@ void Session::started_motion(const CommandError& result) {
   if (result.ok() && axis_ < 64) started_axes_ |= std::uint64_t{1} << axis_;
 }
 
-// A motion this session started has ended: a fault it ended in goes to this session's queue.
+// A motion this session started has ended: a fault it ended in goes to this session's queue; so
+// does the error that ended a sweep it started.
 void Session::notice_motion_end() {
+  if (started_sweep_) {
+    const SweepStatus s = instrument_.sweep_status();
+    if (s.state != "RUNNING") {
+      started_sweep_ = false;
+      if (s.state == "FAILED")
+        push(make_error(ec::kExecutionError,
+                        "SWEEP " + s.directory + " failed: " +
+                            (s.error.empty() ? std::string("no trial was written") : s.error)));
+    }
+  }
   for (int a = 0; started_axes_ != 0 && a < 64; ++a) {
     const std::uint64_t bit = std::uint64_t{1} << a;
     if (!(started_axes_ & bit) || !instrument_.motion_done(a)) continue;
@@ -358,6 +369,7 @@ CommandError Session::idn(const Args&, std::string& reply) {
 CommandError Session::rst(const Args&, std::string&) {
   errors_.clear();
   started_axes_ = 0;
+  started_sweep_ = false;
   return instrument_error(instrument_.reset());
 }
 

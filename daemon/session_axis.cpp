@@ -213,7 +213,7 @@ CommandError Session::sweep(const Args& args, std::string&) {
       return e;
   CommandError e = instrument_error(instrument_.sweep(
       axis_, dir, freqs, duties, static_cast<int>(trials), static_cast<int>(cycles)));
-  started_motion(e);
+  started_sweep_ = started_sweep_ || e.ok();
   return e;
 }
 

@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "drivers/clock.h"
+#include "model/stage.h"
 #include "model/waveform.h"
 
 namespace idm::daemon {
@@ -110,62 +111,80 @@ void SweepRunner::main() {
 
 void SweepRunner::run(SweepJob& job) {
   std::string first_error;
-  double sweep_start_m = kNaN, last_m = kNaN;
+  const control::MotionStatus at_start =
+      axes_[static_cast<std::size_t>(job.axis)]->published().motion;
+  // The sweep's start: trials that stray farther than span_m from it, or that the motion gate
+  // refuses where the slider is, return there first.
+  const double home_m = at_start.position_valid ? at_start.position_m : kNaN;
+  double last_m = kNaN;
   std::uint32_t index = 0;
-  bool stopped = false;
-  for (double f : job.freqs_hz) {
-    for (double d : job.duties) {
-      for (int t = 0; t < job.trials && !stopped; ++t, ++index) {
+  TrialOutcome end = TrialOutcome::Written;  // Interrupted or EndSweep once it ends early
+  for (std::size_t fi = 0; fi < job.freqs_hz.size() && !ends_sweep(end); ++fi) {
+    for (std::size_t di = 0; di < job.duties.size() && !ends_sweep(end); ++di) {
+      CellRun cell;
+      for (int t = 0; t < job.trials && !ends_sweep(end); ++t, ++index) {
         if (abort_.load(std::memory_order_acquire)) {
-          stopped = true;
+          end = TrialOutcome::Interrupted;
           break;
         }
         TrialRequest req;
         req.index = index;
         req.seq = 0x80000000u | (++next_seq_ & 0x7FFFFFFFu);  // apart from the positioners' chunks
         req.axis = job.axis;
-        req.segment = trial_segment(job, f, d);
+        req.segment = trial_segment(job, job.freqs_hz[fi], job.duties[di]);
+        req.home_m = home_m;
         req.return_to_m = kNaN;
-        if (std::isfinite(sweep_start_m) && std::isfinite(last_m) &&
-            std::fabs(last_m - sweep_start_m) > job.span_m)
-          req.return_to_m = sweep_start_m;
-        const std::uint64_t written_before = status().written;
-        if (!run_trial(job, req, first_error)) stopped = true;
-        const recording::Dataset& ds = job.writer->dataset();
-        if (status().written > written_before && !ds.trials.empty()) {
-          if (!std::isfinite(sweep_start_m)) sweep_start_m = ds.trials.back().guide_pos_m;
+        if (std::isfinite(home_m) && std::isfinite(last_m) &&
+            std::fabs(last_m - home_m) > job.span_m)
+          req.return_to_m = home_m;
+        const TrialOutcome outcome = run_trial(job, req, cell, first_error);
+        if (outcome == TrialOutcome::Written)
           last_m = axes_[static_cast<std::size_t>(job.axis)]->published().motion.position_m;
-        }
+        else if (ends_sweep(outcome))
+          end = outcome;
       }
     }
   }
+  finish(job, end, first_error);
+}
+
+void SweepRunner::finish(SweepJob& job, TrialOutcome end, std::string first_error) {
   // The dataset's mark: complete when the whole plan was played (failed trials are missing from
-  // it), stopped with why otherwise.
+  // it), stopped (a client, the daemon) or failed (an error that ended it) with why otherwise.
+  const bool stopped = end == TrialOutcome::Interrupted;
+  const bool failed = end == TrialOutcome::EndSweep;
   std::string why;
   if (stopped)
     why = abort_.load(std::memory_order_acquire) ? "stopped by a client (STOP or *RST)"
-          : supervisor_.stopping()               ? "the daemon stopped"
-          : first_error.empty()                  ? "stopped"
-                                                 : first_error;
+          : supervisor_.stopping()               ? "the daemon stopped (SIGTERM)"
+                                                 : "stopped";
+  if (failed) why = first_error;
   try {
-    job.writer->finish(stopped ? recording::SweepStatus::Stopped : recording::SweepStatus::Complete,
+    job.writer->finish(failed    ? recording::SweepStatus::Failed
+                       : stopped ? recording::SweepStatus::Stopped
+                                 : recording::SweepStatus::Complete,
                        why);
   } catch (const std::exception& e) {
     if (first_error.empty()) first_error = std::string("marking the dataset: ") + e.what();
   }
   std::ostringstream line;
   std::lock_guard<std::mutex> lock(mutex_);
-  status_.state =
-      stopped ? "STOPPED" : (status_.failed > 0 && status_.written == 0 ? "FAILED" : "DONE");
+  status_.state = failed || (status_.failed > 0 && status_.written == 0) ? "FAILED"
+                  : stopped                                              ? "STOPPED"
+                                                                         : "DONE";
+  status_.error = failed ? first_error : "";
   line << "sweep " << job.dir << " (axis "
        << axes_[static_cast<std::size_t>(job.axis)]->config().name << "): " << status_.written
-       << " trials written, " << status_.failed << " failed" << (stopped ? ", stopped" : "")
+       << " trials written, " << status_.failed << " failed"
+       << (failed    ? ", ended by an error"
+           : stopped ? ", stopped: " + why
+                     : "")
        << (first_error.empty() ? "" : " (first: " + first_error + ")");
   report_ = line.str();
 }
 
 SweepRunner::TrialStart SweepRunner::await_start(const TrialRequest& req, std::uint32_t& seq,
-                                                 std::string& why) {
+                                                 TrialFailure& failure, std::string& why) {
   while (!supervisor_.send_trial(req)) {
     if (supervisor_.stopping()) return TrialStart::Interrupted;
     nap();
@@ -181,6 +200,7 @@ SweepRunner::TrialStart SweepRunner::await_start(const TrialRequest& req, std::u
         return TrialStart::Started;
       }
       if (notice.why == TrialFailure::Stopped) return TrialStart::Interrupted;
+      failure = notice.why;
       why = trial_failure_text(notice.why);
       return TrialStart::Refused;
     }
@@ -194,6 +214,7 @@ SweepRunner::TrialStart SweepRunner::await_start(const TrialRequest& req, std::u
 
 bool SweepRunner::capture_trial(SweepJob& job, const TrialRequest& req, std::uint32_t seq,
                                 CapturedTrial& out, std::string& why) {
+  out.failure = TrialFailure::None;
   Axis& axis = *axes_[static_cast<std::size_t>(job.axis)];
   const model::TriangleWave wave = req.segment.wave();
   const double t0 = req.segment.start_offset_s();
@@ -211,8 +232,8 @@ bool SweepRunner::capture_trial(SweepJob& job, const TrialRequest& req, std::uin
   TrialNotice notice;
   for (;;) {
     if (!axis.port().capture.pop(rec)) {
-      while (supervisor_.next_notice(notice)) {  // a failure while it played (the end mark follows)
-      }
+      while (supervisor_.next_notice(notice))  // a failure while it played (the end mark follows)
+        if (notice.seq == seq && notice.kind == TrialNotice::Kind::Failed) out.failure = notice.why;
       if (drivers::monotonic_s() > deadline_s) {
         why = "no end of the trial's samples within " +
               std::to_string(static_cast<int>(duration_s + 30)) + " s";
@@ -236,46 +257,85 @@ bool SweepRunner::capture_trial(SweepJob& job, const TrialRequest& req, std::uin
   }
 }
 
-bool SweepRunner::run_trial(SweepJob& job, const TrialRequest& req, std::string& first_error) {
+SweepRunner::TrialOutcome SweepRunner::run_trial(SweepJob& job, const TrialRequest& req,
+                                                 CellRun& cell, std::string& first_error) {
   auto failed = [&](const std::string& why) {
     std::lock_guard<std::mutex> lock(mutex_);
     ++status_.failed;
-    if (first_error.empty()) first_error = "trial " + std::to_string(req.index) + ": " + why;
+    if (first_error.empty())
+      first_error = "trial " + std::to_string(req.index) + " (" +
+                    model::format_number(req.segment.freq_hz) + " Hz, duty " +
+                    model::format_number(req.segment.duty) + "): " + why;
+  };
+  const auto interrupted = [&] {
+    return abort_.load(std::memory_order_acquire) || supervisor_.stopping();
   };
   std::uint32_t seq = 0;
+  TrialFailure failure = TrialFailure::None;
   std::string why;
-  switch (await_start(req, seq, why)) {
+  switch (await_start(req, seq, failure, why)) {
     case TrialStart::Started:
       break;
     case TrialStart::Interrupted:
-      return false;  // interrupted, not failed
+      return TrialOutcome::Interrupted;
     case TrialStart::Refused:
       failed(why);
-      return true;
+      return ends_sweep(failure) ? TrialOutcome::EndSweep : TrialOutcome::Failed;
     case TrialStart::TimedOut:
       failed(why);
-      return false;
+      return TrialOutcome::EndSweep;
   }
   CapturedTrial trial;
   if (!capture_trial(job, req, seq, trial, why)) {
     failed(why);
-    return false;
+    return TrialOutcome::EndSweep;
   }
   if (!trial.complete || !trial.valid || trial.series.size() < 2 ||
       std::isnan(trial.info.guide_pos_m)) {
-    const bool stopped = abort_.load(std::memory_order_acquire) || supervisor_.stopping();
-    if (stopped) return false;  // interrupted, not failed
+    if (trial.failure == TrialFailure::LeftLimits) {
+      failed(trial_failure_text(trial.failure));
+      return TrialOutcome::EndSweep;
+    }
+    if (interrupted()) return TrialOutcome::Interrupted;
     failed(!trial.valid ? "invalid interferometer samples" : "the trial did not play in full");
-    return true;
+    return TrialOutcome::Failed;
+  }
+  if (const std::string eot = end_of_travel(job, trial, cell); !eot.empty()) {
+    failed(eot);
+    return TrialOutcome::EndSweep;
   }
   try {
     job.writer->add_trial(trial.info, trial.series);
-    std::lock_guard<std::mutex> lock(mutex_);
-    ++status_.written;
   } catch (const std::exception& e) {
-    failed(e.what());
+    failed(std::string("cannot write it: ") + e.what());  // a full disk: nothing more is played
+    return TrialOutcome::EndSweep;
   }
-  return true;
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++status_.written;
+  return TrialOutcome::Written;
+}
+
+std::string SweepRunner::end_of_travel(const SweepJob& job, const CapturedTrial& trial,
+                                       CellRun& cell) const {
+  const Axis& axis = *axes_[static_cast<std::size_t>(job.axis)];
+  const double moved_m = trial.series.x_m.back() - trial.series.x_m.front();
+  if (std::isnan(cell.first_moved_m)) {
+    cell.first_moved_m = moved_m;
+    return {};
+  }
+  // The same cell played again: it moved clearly the first time, so a collapse now is the slider
+  // against a stop, not the cell (a cell that does not move never moved).
+  const double eot_step_m = axis.published().settings.eot_step_m;
+  const double cycles = static_cast<double>(job.cycles);
+  const double first = std::fabs(cell.first_moved_m);
+  if (eot_step_m <= 0 || first < std::max(20.0 * axis.count_m(), 4.0 * eot_step_m * cycles))
+    return {};
+  const double along = cell.first_moved_m > 0 ? moved_m : -moved_m;
+  if (along >= std::max(0.1 * first, eot_step_m * cycles)) return {};
+  return "the end of travel: the slider moved " + model::format_number(moved_m) + " m at " +
+         model::format_number(trial.series.x_m.back()) + " m where this cell's first trial moved " +
+         model::format_number(cell.first_moved_m) +
+         " m (a stop, or stage.travel_m is wider than the stage)";
 }
 
 }  // namespace idm::daemon

@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <condition_variable>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -62,20 +63,41 @@ class SweepRunner {
   void quit();
 
  private:
+  // What one trial did to the sweep: written; failed (the sweep goes on); interrupted (a STOP,
+  // *RST or the daemon stopping); or an error that ends the sweep (the motion gate refused it or
+  // stopped it, the end of travel, a write failed, the loop did not answer).
+  enum class TrialOutcome : std::uint8_t { Written, Failed, Interrupted, EndSweep };
+  static bool ends_sweep(TrialOutcome o) {
+    return o == TrialOutcome::Interrupted || o == TrialOutcome::EndSweep;
+  }
+  static bool ends_sweep(TrialFailure why) {
+    return why == TrialFailure::Limits || why == TrialFailure::LeftLimits ||
+           why == TrialFailure::EndOfTravel || why == TrialFailure::NoPosition;
+  }
+  // The trials of one cell so far: how far its first trial moved (NaN: none yet).
+  struct CellRun {
+    double first_moved_m = std::numeric_limits<double>::quiet_NaN();
+  };
   void main();
   void run(SweepJob& job);
-  // One trial: false when the sweep must end (stopped).
-  bool run_trial(SweepJob& job, const TrialRequest& request, std::string& first_error);
+  void finish(SweepJob& job, TrialOutcome end, std::string first_error);
+  TrialOutcome run_trial(SweepJob& job, const TrialRequest& request, CellRun& cell,
+                         std::string& first_error);
   // run_trial's steps: the loop starts the trial (or refuses it, or the sweep is stopped), then
   // its samples are taken from the capture queue until the end mark (false: none came in time).
   enum class TrialStart : std::uint8_t { Started, Refused, Interrupted, TimedOut };
-  TrialStart await_start(const TrialRequest& request, std::uint32_t& seq, std::string& why);
+  TrialStart await_start(const TrialRequest& request, std::uint32_t& seq, TrialFailure& failure,
+                         std::string& why);
   struct CapturedTrial {
     recording::TrialSeries series;
     recording::TrialInfo info;
-    bool valid = true;      // every sample's status was clean
-    bool complete = false;  // the burst played in full
+    bool valid = true;                          // every sample's status was clean
+    bool complete = false;                      // the burst played in full
+    TrialFailure failure = TrialFailure::None;  // why the loop ended it early
   };
+  // "" or why the trial shows the slider against a stop: a cell whose first trial moved clearly
+  // moved almost nothing this time.
+  std::string end_of_travel(const SweepJob& job, const CapturedTrial& trial, CellRun& cell) const;
   bool capture_trial(SweepJob& job, const TrialRequest& request, std::uint32_t seq,
                      CapturedTrial& out, std::string& why);
 

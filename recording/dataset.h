@@ -113,8 +113,9 @@ class DatasetWriter {
   // Returns the row as written to sweep.csv (valid until the next add_trial).
   const TrialInfo& add_trial(TrialInfo info, const TrialSeries& series);
 
-  // Ends the recording: plan.yaml gets `status` (Complete or Stopped; `note`, one line, says why
-  // a sweep stopped). Once finished, add_trial throws std::logic_error. Without a plan, only that.
+  // Ends the recording: plan.yaml gets `status` (Complete, Stopped or Failed; `note`, one line,
+  // says why a sweep stopped or failed). Once finished, add_trial throws std::logic_error. Without
+  // a plan, only that.
   void finish(SweepStatus status = SweepStatus::Complete, const std::string& note = "");
   bool finished() const { return finished_; }
 

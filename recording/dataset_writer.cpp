@@ -110,8 +110,10 @@ void DatasetWriter::write_plan(SweepStatus status, const std::string& note) cons
 }
 
 void DatasetWriter::finish(SweepStatus status, const std::string& note) {
-  if (status != SweepStatus::Complete && status != SweepStatus::Stopped)
-    throw std::invalid_argument("DatasetWriter::finish: the status must be Complete or Stopped");
+  if (status != SweepStatus::Complete && status != SweepStatus::Stopped &&
+      status != SweepStatus::Failed)
+    throw std::invalid_argument(
+        "DatasetWriter::finish: the status must be Complete, Stopped or Failed");
   if (finished_) throw std::logic_error("DatasetWriter::finish: " + dataset_.path + " is finished");
   if (!planned_.empty()) write_plan(status, note);
   finished_ = true;

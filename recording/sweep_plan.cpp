@@ -12,7 +12,7 @@ namespace idm::recording {
 namespace {
 
 constexpr SweepStatus kWrittenStatuses[] = {SweepStatus::InProgress, SweepStatus::Complete,
-                                            SweepStatus::Stopped};
+                                            SweepStatus::Stopped, SweepStatus::Failed};
 
 void append_exact(std::string& out, double value) {
   char buf[32];
@@ -54,6 +54,8 @@ const char* status_name(SweepStatus status) {
       return "complete";
     case SweepStatus::Stopped:
       return "stopped";
+    case SweepStatus::Failed:
+      return "failed";
   }
   return "?";
 }

@@ -20,9 +20,12 @@ enum class SweepStatus {
   Unmarked,    // no plan.yaml: nothing is known about what was planned
   InProgress,  // the recorder started and did not finish (killed, crashed, still running)
   Complete,    // the recorder went through the whole plan (trials that failed may be missing)
-  Stopped,     // the recorder ended early on purpose (STOP, an error); `note` says why
+  Stopped,     // the recorder ended early on purpose (STOP, the daemon stopping); `note` says why
+  Failed,      // the recorder ended early on an error (a write failed, the motion gate refused a
+               // trial, the end of travel); `note` says which
 };
-const char* status_name(SweepStatus status);  // "unmarked", "in_progress", "complete", "stopped"
+// "unmarked", "in_progress", "complete", "stopped", "failed"
+const char* status_name(SweepStatus status);
 
 // One cell of the grid as planned: the values its trials carry in sweep.csv, and how many.
 struct PlannedCell {
@@ -53,7 +56,8 @@ struct SweepProgress {
   std::string note;
   std::string axis;  // "" when the mark names no axis
   bool interrupted() const {
-    return status == SweepStatus::InProgress || status == SweepStatus::Stopped;
+    return status == SweepStatus::InProgress || status == SweepStatus::Stopped ||
+           status == SweepStatus::Failed;
   }
   bool marked() const { return status != SweepStatus::Unmarked; }
 };

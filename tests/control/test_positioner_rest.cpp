@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 
 #include "positioner_rig.h"
 
@@ -158,3 +159,40 @@ TEST(Positioner, CreepingTheWrongWayIsNotAnEndOfTravel) {
 }
 
 }  // namespace
+
+// In position follows the readings at rest: after a move arrived, a push (or a drift, or a sweep's
+// trial) that takes the mean of the latest readings out of the window clears it, and MOVE:REL
+// then counts from the reading, not from the target the slider left (a MOVE:REL 1e-6 after a
+// 100 um push moved the stage back by all of it). Pushes of generated sizes, inside and outside
+// the window.
+TEST(Positioner, InPositionIsRecomputedFromEveryReadingAtRest) {
+  AxisDeviceInfo device;
+  device.count_m = 9.8906e-9;
+  device.max_velocity_m_s = 1.0;
+  PositionerConfig cfg;
+  cfg.latch_words = 4;
+  cfg.tolerance_m = 50e-9;
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> push_m(-200e-9, 200e-9);
+  for (int k = 0; k < 60; ++k) {
+    Positioner p(ideal_map(), PlannerConfig{}, cfg, device);
+    ScriptedStage stage{p};
+    for (int i = 0; i < 4; ++i) stage.reading();
+    const double target = stage.x_m + 20e-6;
+    ASSERT_EQ(p.move_absolute(target), Refusal::None);
+    stage.run([&](const model::Segment&) { return target - stage.x_m; });  // lands exactly
+    ASSERT_EQ(p.status().result, MoveResult::Ok);
+    ASSERT_TRUE(p.status().in_window);
+    const double push = k == 0 ? 100e-6 : push_m(rng);
+    stage.x_m += push;
+    for (int i = 0; i < 4; ++i) {
+      stage.t_s += 1e-3;
+      stage.reading();
+    }
+    const bool inside = std::fabs(push) <= cfg.tolerance_m;
+    EXPECT_EQ(p.status().in_window, inside) << push;
+    ASSERT_EQ(p.move_relative(1e-6), Refusal::None);
+    const double base = inside ? target : stage.x_m;
+    EXPECT_NEAR(p.requested_target_m(), base + 1e-6, 1e-12) << push;
+  }
+}

@@ -240,7 +240,167 @@ def case_syscalls():
     check(not outside, "every one is in the filter (outside: %s)" % outside)
 
 
+def rest_position(c):
+    return c.mean_position()
+
+
+def sweep_until_done(c, timeout=180):
+    """SWEEP? until it is no longer RUNNING; its reply split."""
+    end = time.time() + timeout
+    while time.time() < end:
+        r = c.ask("SWEEP?")
+        if not r.startswith("RUNNING"):
+            return r.split(",")
+        time.sleep(0.05)
+    fail("the sweep did not end within %g s" % timeout)
+
+
+def plan_status(path):
+    text = open(os.path.join(path, "plan.yaml")).read()
+    return re.search(r"^status: (\w+)", text, re.M).group(1), text
+
+
+def case_in_position_after_push():
+    """A move arrives (in position); a 100 um push takes the slider away: in position is cleared
+    at once and MOVE:REL 1e-6 goes from the reading, not back to the old target (it moved the
+    stage back by all of the push, result OK)."""
+    with Daemon(config()) as d:
+        c = Client(d)
+        c.send("MOVE:REL 20e-6\n")
+        check(c.wait_done(), "the move ends")
+        check(int(c.ask("STAT:OPER?")) & 2, "in position after it")
+        target = float(c.ask("MOVE?"))
+        c.send("SIM:PUSH 1e-4\n")
+        time.sleep(0.2)
+        pushed = rest_position(c)
+        check(abs(pushed - target - 1e-4) < 1e-6, "pushed to %.9g" % pushed)
+        check(not int(c.ask("STAT:OPER?")) & 2, "no longer in position")
+        check(c.status()["in_position"] == "0", "STAT? in_position=0")
+        c.send("MOVE:REL 1e-6\n")
+        check(c.wait_done(), "the relative move ends")
+        after = rest_position(c)
+        check(abs(after - (pushed + 1e-6)) < 50e-9,
+              "MOVE:REL counted from the reading: %.9g, expected %.9g" % (after, pushed + 1e-6))
+        c.no_error()
+
+
+def case_sweep_limits():
+    """SWEEP within soft limits of +-10 um: trials whose worst-case excursion could leave them are
+    refused before they play; the sweep ends FAILED, its dataset says failed and why, the client
+    that started it gets an error, and no reading left the limits (a sweep drove 575 um past them)."""
+    with Daemon(config()) as d:
+        c = Client(d)
+        c.send("LIM -10e-6,10e-6\n")
+        c.no_error()
+        lo = hi = rest_position(c)
+        c.send("SWEEP lim,100:800:100,0.05;0.1;0.9;0.95,5,40\n")
+        end = time.time() + 120
+        while time.time() < end and c.ask("SWEEP?").startswith("RUNNING"):
+            p = float(c.ask("POS?"))
+            lo, hi = min(lo, p), max(hi, p)
+        state = sweep_until_done(c)
+        check(state[0] == "FAILED", "the sweep failed: %s" % state)
+        err = c.error()
+        check(err.startswith("-200,") and "soft limits" in err, "the error says why: %s" % err)
+        check(lo > -10e-6 - 3e-6 and hi < 10e-6 + 3e-6,
+              "no reading far past the limits: [%.3g, %.3g]" % (lo, hi))
+        status, text = plan_status(os.path.join(harness.TMP, "data", "lim"))
+        check(status == "failed" and "soft limits" in text, "plan.yaml: failed, and why")
+
+
+def case_sweep_near_the_end():
+    """A sweep started 20 um from the end of the travel driving toward it: the trials that could
+    reach it are refused (the travel bounds the soft limits); none hammers the end stop."""
+    cfg = config(edits=[("travel_m: [-5e-3, 5e-3]", "travel_m: [-5e-3, 0.5e-3]")], out="end.yaml")
+    with Daemon(cfg) as d:
+        c = Client(d)
+        c.send("MOVE:ABS 0.48e-3\n")
+        check(c.wait_done(60), "near the end")
+        c.no_error()
+        hi = rest_position(c)
+        reg = c.ask("REG? 300,0.9")
+        check(float(reg.split(",")[1]) > 0, "duty 0.9 drives toward the end: %s" % reg)
+        c.send("SWEEP end,200:400:100,0.9;0.95,10,40\n")
+        end = time.time() + 120
+        while time.time() < end and c.ask("SWEEP?").startswith("RUNNING"):
+            hi = max(hi, float(c.ask("POS?")))
+        state = sweep_until_done(c)
+        check(state[0] == "FAILED", "the sweep failed: %s" % state)
+        check(hi < 0.5e-3, "never at the end stop: highest %.6g" % hi)
+        check(c.error().startswith("-200,"), "an error for the client")
+
+
+def case_sweep_end_stop_unknown():
+    """The end stop nearer than stage.travel_m says (a config that is wrong): a cell whose first
+    trial moved clearly moves almost nothing on a later trial: the sweep stops there, FAILED,
+    saying the end of travel, and that trial is not written (14 of 20 trials hammered the stop,
+    each recorded as valid, SWEEP? DONE)."""
+    cfg = config(edits=[("  noise_m: 1e-9", "  noise_m: 1e-9\n  end_stops_m: [-5e-3, 0.3e-3]")],
+                 out="stop.yaml")
+    with Daemon(cfg) as d:
+        c = Client(d)
+        c.send("MOVE:ABS 0.2e-3\n")
+        check(c.wait_done(60), "100 um before the stop")
+        c.no_error()
+        c.send("SWEEP stop,300,0.9,10,12\n")
+        state = sweep_until_done(c)
+        check(state[0] == "FAILED", "the sweep failed: %s" % state)
+        written = int(state[2])
+        check(2 <= written < 10, "it stopped after the trials that moved: %s" % state)
+        err = c.error()
+        check(err.startswith("-200,") and "end of travel" in err, "the client is told: %s" % err)
+        status, text = plan_status(os.path.join(harness.TMP, "data", "stop"))
+        check(status == "failed" and "end of travel" in text, "plan.yaml says so")
+        rows = open(os.path.join(harness.TMP, "data", "stop", "sweep.csv")).read().splitlines()
+        check(len(rows) == written + 1, "only the trials that moved are in sweep.csv")
+
+
+def case_sweep_full_disk():
+    """recording.data_dir on an 8 MiB file system: a sweep too large for it is refused before it
+    starts (-250, naming the room it needs); one that fills it as it runs stops at the first
+    failed write, FAILED, with an error for its client (the daemon played every trial into a full
+    disk and marked the dataset complete)."""
+    if os.geteuid() != 0:
+        fail("needs root to mount a small tmpfs for recording.data_dir")
+    data = os.path.join(harness.TMP, "small")
+    os.makedirs(data)
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", data], check=True)
+    try:
+        cfg = config(edits=[("data_dir: %s/data" % harness.TMP, "data_dir: %s" % data)],
+                     out="small.yaml")
+        with Daemon(cfg) as d:
+            c = Client(d)
+            c.send("SWEEP big,100:800:100,0.05:0.45:0.05,20,12\n")
+            err = c.error()
+            check(err.startswith("-250,") and "MB" in err, "too large: refused: %s" % err)
+            check(not os.path.exists(os.path.join(data, "big")), "and nothing created")
+            c.send("SWEEP fills,800,0.1;0.9,20,12\n")
+            c.no_error()
+            time.sleep(0.5)
+            filler = os.path.join(data, "filler")
+            with open(filler, "wb") as f:  # the disk fills while it runs
+                try:
+                    while True:
+                        f.write(b"\0" * 65536)
+                except OSError:
+                    pass
+            state = sweep_until_done(c)
+            check(state[0] == "FAILED", "the sweep failed: %s" % state)
+            written, failed, planned = int(state[2]), int(state[3]), int(state[4])
+            check(failed == 1 and written < planned, "stopped at the first failed write: %s" % state)
+            err = c.error()
+            check(err.startswith("-200,") and "write" in err, "its client is told: %s" % err)
+            os.unlink(filler)
+    finally:
+        subprocess.run(["umount", data])
+
+
 cases = {
+    "in_position_after_push": case_in_position_after_push,
+    "sweep_limits": case_sweep_limits,
+    "sweep_near_the_end": case_sweep_near_the_end,
+    "sweep_full_disk": case_sweep_full_disk,
+    "sweep_end_stop_unknown": case_sweep_end_stop_unknown,
     "http_post": case_http_post,
     "token": case_token,
     "token_file_checked": case_token_file_checked,
