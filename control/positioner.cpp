@@ -221,6 +221,8 @@ const char* refusal_name(Refusal r) {
       return "not_referenced";
     case Refusal::EndOfTravel:
       return "end_of_travel";
+    case Refusal::Reloading:
+      return "reloading";
   }
   return "?";
 }

@@ -125,6 +125,7 @@ enum class Refusal : std::uint8_t {
   NoPosition,         // the position is not known (no valid word yet)
   NotReferenced,      // an absolute move on an axis that must be referenced first (the daemon's)
   EndOfTravel,        // a motion further into the end of travel the axis stopped at
+  Reloading,          // a reload waits for the motions in progress to end (the daemon's)
 };
 
 // Why the last motion ended (MOVE:RESult?).
@@ -230,6 +231,10 @@ class Positioner {
   Refusal reference_mark(int direction, double position_at_mark_m);
   // Ends a hold (any motion command does).
   void end_hold();
+  // After a rebuild at rest: keep holding the target until `until_s` (the previous positioner's
+  // hold_until_s(); +inf: until the next motion command), as the hold before the rebuild did.
+  void resume_hold(double until_s);
+  double hold_until_s() const { return hold_until_s_; }
   // After a rebuild at rest (new settings): carry on from the previous positioner's status (the
   // target, the position read at rest, the counters), so that a reset does not show target 0.
   void continue_from(const MotionStatus& previous);

@@ -249,6 +249,17 @@ Refusal Positioner::set_hold(double hold_s, double window_m) {
   return Refusal::None;
 }
 
+void Positioner::resume_hold(double until_s) {
+  if (phase_ != Phase::Idle) return;
+  hold_armed_ = true;
+  status_.holding = true;
+  hold_until_s_ = until_s;
+  hold_sum_m_ = 0;
+  hold_n_ = 0;
+  hold_correction_due_ = false;
+  arrived_ = true;
+}
+
 void Positioner::end_hold() {
   hold_armed_ = false;
   status_.holding = false;

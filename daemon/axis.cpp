@@ -107,7 +107,11 @@ void Axis::build(const ControlConfig& control) {
   // Built before anything is swapped: a bad setting leaves the axis as it was.
   auto positioner = std::make_unique<control::Positioner>(
       use, control.planner, pc, axis_device_info(oc, ic), calibration_.get());
-  if (had_positioner) positioner->continue_from(previous);
+  if (had_positioner) {
+    positioner->continue_from(previous);
+    // A hold in force goes on (a reload must not let the stage drift off the target).
+    if (previous.holding) positioner->resume_hold(positioner_->hold_until_s());
+  }
   positioner_ = std::move(positioner);
   if (map) {
     map_ = std::move(map);

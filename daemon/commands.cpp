@@ -98,6 +98,10 @@ CommandError Daemon::refusal_error(int axis, control::Refusal r, double target,
       return {
           error_code::kSettingsConflict,
           "the axis is not referenced (require_reference): REFerence it first, or MOVE:RELative"};
+    case control::Refusal::Reloading:
+      return {error_code::kSettingsConflict,
+              "a reload of the settings (SIGHUP, or a *RST after a sweep) waits for the motions "
+              "in progress to end; try again once MOVE:DONE? is 1 on every axis"};
   }
   return {error_code::kExecutionError, control::refusal_name(r)};
 }
@@ -305,13 +309,16 @@ CommandError Daemon::reference(int axis, ReferenceMethod method) {
 
 CommandError Daemon::reset() {
   if (CommandError e = stop(); !e.ok()) return e;
-  errors_cleared_s_ = drivers::monotonic_s();     // after the stop: what it stopped is cleared too
-  if (housekeeping_->reset_pending()) return {};  // already on its way
+  errors_cleared_s_ = drivers::monotonic_s();  // after the stop: what it stopped is cleared too
+  if (housekeeping_->reload_pending())
+    return {};  // one is on its way: the stop above ends
+                // what it waits for
   if (sweeps_->active()) {
     // The sweep winds down on the recorder thread; rather than hold the server thread (and every
-    // other client) meanwhile, housekeeping reloads the settings once it has ended.
-    // motion_done() is false until then, so "*RST;*OPC?" waits for the reset to be complete.
-    housekeeping_->defer_reset();
+    // other client) meanwhile, housekeeping reloads the settings once it has ended, without
+    // stopping a move another client started since (it waits for it). motion_done() is false
+    // until then, so "*RST;*OPC?" waits for the reset to be complete.
+    housekeeping_->request_reload(false, "*RST after the sweep");
     return {};
   }
   // No sweep: the loop parks at the playing chunks' ends (at most control.max_chunk_s).
@@ -324,12 +331,12 @@ CommandError Daemon::reset() {
 // ---- queries ----
 
 bool Daemon::motion_done() {
-  if (sweeps_->active() || housekeeping_->reset_pending()) return false;
+  if (sweeps_->active() || housekeeping_->reload_pending()) return false;
   return supervisor_->at_rest();
 }
 
 bool Daemon::motion_done(int axis) {
-  if (housekeeping_->reset_pending()) return false;
+  if (housekeeping_->reload_pending()) return false;
   if (sweeps_->active() && sweeps_->status().axis == axis) return false;
   const AxisPublished p = axes_.at(static_cast<std::size_t>(axis))->published();
   return (p.motion.state == control::MotionState::Idle ||

@@ -188,10 +188,7 @@ std::string Daemon::start() {
   }
   sweeps_ = std::make_unique<SweepRunner>(*supervisor_, axes);
   housekeeping_ =
-      std::make_unique<Housekeeping>(axes, links, *supervisor_, *sweeps_, control_mutex_, [this] {
-        std::string error;
-        return reload_control(error, SoftLimits::Keep) ? std::string() : error;
-      });
+      std::make_unique<Housekeeping>(axes, links, *supervisor_, *sweeps_, control_mutex_, *this);
   housekeeping_->start();
   return warning;
 }
@@ -227,45 +224,37 @@ void Daemon::shutdown() {
 
 // ---- reload ----
 
-bool Daemon::reload_control(std::string& error, SoftLimits limits) {
+std::string Daemon::prepare_reload(bool limits_from_file) {
   std::vector<ControlConfig> fresh;
   try {
     fresh = reload_control_configs(model::load_yaml_file(config_.file), config_.file, config_);
   } catch (const std::exception& e) {
-    error = e.what();
-    return false;
+    return e.what();
   }
   std::lock_guard<std::mutex> lock(control_mutex_);
   // Build what allocates most (a changed map) before parking.
   try {
     for (std::size_t i = 0; i < axes_.size(); ++i) axes_[i]->prepare(fresh[i]);
   } catch (const std::exception& e) {
-    error = e.what();
-    return false;
+    return e.what();
   }
-  double longest_chunk = 0;
-  for (std::size_t i = 0; i < axes_.size(); ++i)
-    longest_chunk = std::max({longest_chunk, fresh[i].positioner.max_chunk_s,
-                              axes_[i]->control().positioner.max_chunk_s});
-  supervisor_->request_park(true);
-  const double deadline = drivers::monotonic_s() + std::max(2.0, 4 * longest_chunk);
-  while (!supervisor_->parked()) {
-    if (drivers::monotonic_s() > deadline || !loop_->running()) {
-      supervisor_->request_park(false);
-      error = "the real-time loop did not come to rest within the timeout (motion in progress?)";
-      return false;
-    }
-    sleep_s(1e-4);
-  }
+  reload_plan_ = std::move(fresh);
+  reload_limits_from_file_ = limits_from_file;
+  return {};
+}
+
+std::string Daemon::apply_reload() {
+  std::lock_guard<std::mutex> lock(control_mutex_);
   // Parked: the loop touches no axis until unparked.
   std::string build_error;
-  for (std::size_t i = 0; i < axes_.size(); ++i) {
+  for (std::size_t i = 0; i < axes_.size() && i < reload_plan_.size(); ++i) {
     Axis& a = *axes_[i];
     const ControlConfig old = a.control();
-    if (limits == SoftLimits::FromFile)
-      a.set_soft_limits_now(fresh[i].positioner.soft_lower_m, fresh[i].positioner.soft_upper_m);
+    if (reload_limits_from_file_)
+      a.set_soft_limits_now(reload_plan_[i].positioner.soft_lower_m,
+                            reload_plan_[i].positioner.soft_upper_m);
     try {
-      a.build(fresh[i]);
+      a.build(reload_plan_[i]);
     } catch (const std::exception& e) {
       if (build_error.empty()) build_error = "axis " + a.config().name + ": " + e.what();
       a.set_soft_limits_now(a.published().soft_lower_m, a.published().soft_upper_m);
@@ -273,13 +262,41 @@ bool Daemon::reload_control(std::string& error, SoftLimits limits) {
       a.build(old);
     }
   }
-  supervisor_->request_park(false);
+  reload_plan_.clear();
+  supervisor_->request_park(MotionSupervisor::Park::None);
   while (supervisor_->parked() && loop_->running()) sleep_s(1e-5);
-  if (!build_error.empty()) {
-    error = build_error;
-    return false;
+  return build_error;
+}
+
+bool Daemon::reload_control(std::string& error, SoftLimits limits) {
+  if (error = prepare_reload(limits == SoftLimits::FromFile); !error.empty()) return false;
+  double longest_chunk = 0;
+  for (const auto& a : axes_)
+    longest_chunk = std::max(longest_chunk, a->control().positioner.max_chunk_s);
+  for (const ControlConfig& c : reload_plan_)
+    longest_chunk = std::max(longest_chunk, c.positioner.max_chunk_s);
+  // The motions stop at their chunks' ends (a *RST stops motion by definition).
+  supervisor_->request_park(MotionSupervisor::Park::Stop);
+  const double deadline = drivers::monotonic_s() + std::max(2.0, 4 * longest_chunk);
+  while (!supervisor_->parked()) {
+    if (drivers::monotonic_s() > deadline || !loop_->running()) {
+      supervisor_->request_park(MotionSupervisor::Park::None);
+      reload_plan_.clear();
+      error = "the real-time loop did not come to rest within the timeout (motion in progress?)";
+      return false;
+    }
+    sleep_s(1e-4);
   }
-  return true;
+  error = apply_reload();
+  return error.empty();
+}
+
+void Daemon::request_reload(const std::string& why) {
+  if (housekeeping_) housekeeping_->request_reload(true, why);
+}
+
+bool Daemon::reload_pending() const {
+  return housekeeping_ && housekeeping_->reload_pending();
 }
 
 // ---- tests and tools ----

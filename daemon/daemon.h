@@ -47,7 +47,7 @@ class StartError : public std::runtime_error {
   int code_;
 };
 
-class Daemon final : public Instrument {
+class Daemon final : public Instrument, public Reloader {
  public:
   // Parses nothing and opens nothing: the config is already checked.
   explicit Daemon(DaemonConfig config);
@@ -65,11 +65,20 @@ class Daemon final : public Instrument {
   // Stops motion and any sweep, waits for rest (bounded), ends the threads, brings every output
   // to zero, shuts the devices down, saves the calibrations. Idempotent.
   void shutdown();
-  // SIGHUP and *RST: re-read every axis's control: section and rebuild (while the loop is parked
-  // at rest). The soft limits come from the file (SIGHUP) or stay (*RST: limits a client set are
-  // never wiped by another's reset). false + error when the file is bad (the old settings stay).
+  // *RST (no sweep running): re-read every axis's control: section and rebuild now, the motions
+  // stopped at their chunks' ends and the loop parked at rest. The soft limits come from the file
+  // (FromFile) or stay (Keep: limits a client set are never wiped by another's reset). false +
+  // error when the file is bad (the old settings stay).
   enum class SoftLimits : std::uint8_t { FromFile, Keep };
   bool reload_control(std::string& error, SoftLimits limits = SoftLimits::FromFile);
+  // SIGHUP: the same with the file's limits, carried out by housekeeping once no sweep runs and
+  // every motion in progress has ended (never cut short; new ones are refused meanwhile with
+  // -221). `why` names it in the log. reload_pending() until it is done (the log says how).
+  void request_reload(const std::string& why);
+  bool reload_pending() const;
+  // ---- Reloader (housekeeping) ----
+  std::string prepare_reload(bool limits_from_file) override;
+  std::string apply_reload() override;
 
   const DaemonConfig& config() const { return config_; }
   std::uint64_t loop_ticks() const { return loop_ ? loop_->ticks() : 0; }
@@ -147,6 +156,8 @@ class Daemon final : public Instrument {
   bool started_ = false;
   bool shut_down_ = false;
   std::vector<Housekeeping::Note> start_notes_;
+  std::vector<ControlConfig> reload_plan_;  // prepared, not yet applied (control_mutex_)
+  bool reload_limits_from_file_ = false;
 };
 
 }  // namespace idm::daemon

@@ -9,13 +9,13 @@ namespace idm::daemon {
 
 Housekeeping::Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceLink*> links,
                            MotionSupervisor& supervisor, SweepRunner& sweeps,
-                           std::mutex& control_mutex, std::function<std::string()> reload)
+                           std::mutex& control_mutex, Reloader& reloader)
     : axes_(std::move(axes)),
       links_(std::move(links)),
       supervisor_(supervisor),
       sweeps_(sweeps),
       control_mutex_(control_mutex),
-      reload_(std::move(reload)),
+      reloader_(reloader),
       saved_updates_(axes_.size(), 0),
       save_errors_(axes_.size()),
       saved_references_(axes_.size()),
@@ -87,16 +87,51 @@ void Housekeeping::cycle() {
       add_note(false, r);
     }
   }
-  if (reset_pending_.load(std::memory_order_acquire) && !sweeps_.active()) {
-    if (const std::string e = reload_(); !e.empty()) {
-      for (std::size_t i = 0; i < axes_.size(); ++i) set_error(i, "*RST: " + e);
-      add_note(true, "*RST after the sweep: " + e);
-    }
-    reset_pending_.store(false, std::memory_order_release);
-  }
+  reload_cycle();
   if (supervisor_.at_rest())
     for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, false);
   for (std::size_t i = 0; i < axes_.size(); ++i) save_reference(i);
+}
+
+void Housekeeping::request_reload(bool limits_from_file, std::string why) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (reload_pending_.load(std::memory_order_acquire)) return;  // joins the one on its way
+  reload_from_file_ = limits_from_file;
+  reload_why_ = std::move(why);
+  reload_pending_.store(true, std::memory_order_release);
+}
+
+void Housekeeping::reload_cycle() {
+  if (!reload_pending_.load(std::memory_order_acquire)) return;
+  std::string why;
+  bool from_file = false;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    why = reload_why_;
+    from_file = reload_from_file_;
+  }
+  const auto done = [&](const std::string& error) {
+    if (error.empty()) {
+      add_note(false, why + ": control settings reloaded");
+    } else {
+      for (std::size_t i = 0; i < axes_.size(); ++i) set_error(i, why + ": " + error);
+      add_note(true, why + ": reload failed, the old settings stay: " + error);
+    }
+    reload_phase_ = ReloadPhase::Idle;
+    reload_pending_.store(false, std::memory_order_release);
+  };
+  if (reload_phase_ == ReloadPhase::Idle) reload_phase_ = ReloadPhase::Requested;
+  if (reload_phase_ == ReloadPhase::Requested) {
+    if (sweeps_.active()) return;  // the sweep winds down first
+    if (const std::string e = reloader_.prepare_reload(from_file); !e.empty()) return done(e);
+    if (!supervisor_.at_rest())
+      add_note(false, why +
+                          ": the reload waits for the motions in progress to end (new ones "
+                          "are refused until then)");
+    supervisor_.request_park(MotionSupervisor::Park::Wait);
+    reload_phase_ = ReloadPhase::Parking;
+  }
+  if (reload_phase_ == ReloadPhase::Parking && supervisor_.parked()) done(reloader_.apply_reload());
 }
 
 void Housekeeping::save_calibration(std::size_t i, bool force) {

@@ -3,8 +3,11 @@
 // once per distinct failure and kept as the axis's daemon error), saves each axis's reference to
 // its reference_file when it changed (daemon/reference_file.h), watches the device links'
 // health (a device lost or back becomes a log line naming the device, and the axes' error), hands
-// the sweep runner's report to the log, and finishes a *RST that had to wait for a sweep to wind
-// down. It touches no device and never blocks the loop; idmd's main thread takes its notes.
+// the sweep runner's report to the log, and carries out the reloads that wait (SIGHUP, and a *RST
+// that came during a sweep): once no sweep runs, it parks the loop without stopping anything (new
+// motions are refused meanwhile) and swaps the settings once every motion in progress has ended,
+// so that a reload never cuts another client's move short. It touches no device and never blocks
+// the loop; idmd's main thread takes its notes.
 #pragma once
 
 #include <atomic>
@@ -24,13 +27,22 @@
 
 namespace idm::daemon {
 
+// What carries out a reload (the daemon core): prepare_reload() reads the file and builds what
+// allocates, apply_reload() swaps the settings with the loop parked and lets it go; each returns
+// "" or why it failed (the old settings then stay).
+class Reloader {
+ public:
+  virtual ~Reloader() = default;
+  virtual std::string prepare_reload(bool limits_from_file) = 0;
+  virtual std::string apply_reload() = 0;
+};
+
 class Housekeeping {
  public:
-  // `reload`: re-reads the control settings (the deferred *RST); returns "" or why it failed.
   // `control_mutex`: held by whoever rebuilds an axis's settings (reads of them take it too).
   Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceLink*> links,
                MotionSupervisor& supervisor, SweepRunner& sweeps, std::mutex& control_mutex,
-               std::function<std::string()> reload);
+               Reloader& reloader);
   ~Housekeeping();  // quit()
   Housekeeping(const Housekeeping&) = delete;
   Housekeeping& operator=(const Housekeeping&) = delete;
@@ -38,9 +50,12 @@ class Housekeeping {
   void start();
   // Ends the thread; then saves every calibration one last time (the caller's thread).
   void quit();
-  // A *RST that waits for the running sweep to end; pending until it is done.
-  void defer_reset() { reset_pending_.store(true, std::memory_order_release); }
-  bool reset_pending() const { return reset_pending_.load(std::memory_order_acquire); }
+  // A reload that waits for the running sweep, then for every motion in progress, to end (SIGHUP:
+  // the soft limits from the file; a *RST during a sweep: kept); pending until it is done. `why`
+  // names it in the log ("SIGHUP", "*RST after the sweep"). A second request while one is
+  // pending joins it.
+  void request_reload(bool limits_from_file, std::string why);
+  bool reload_pending() const { return reload_pending_.load(std::memory_order_acquire); }
   // Lines to log (warnings and news) since the last call.
   struct Note {
     bool warning = true;
@@ -67,7 +82,13 @@ class Housekeeping {
   MotionSupervisor& supervisor_;
   SweepRunner& sweeps_;
   std::mutex& control_mutex_;
-  std::function<std::string()> reload_;
+  Reloader& reloader_;
+  // The pending reload: requested, then parking (the loop waits for the motions to end).
+  enum class ReloadPhase : std::uint8_t { Idle, Requested, Parking };
+  void reload_cycle();
+  ReloadPhase reload_phase_ = ReloadPhase::Idle;  // housekeeping's thread
+  bool reload_from_file_ = false;                 // mutex_
+  std::string reload_why_;                        // mutex_
   std::vector<std::uint64_t> saved_updates_;
   std::vector<std::string> save_errors_;
   std::vector<std::optional<SavedReference>> saved_references_;  // nullopt: not written yet
@@ -75,7 +96,7 @@ class Housekeeping {
   std::vector<std::uint32_t> reference_reconnects_;  // the link's reconnects at the last look
   std::vector<drivers::LinkHealth> seen_health_;
   std::string seen_report_;
-  std::atomic<bool> reset_pending_{false};
+  std::atomic<bool> reload_pending_{false};
   mutable std::mutex mutex_;
   std::condition_variable cv_;
   bool quit_ = false;

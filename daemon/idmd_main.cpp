@@ -213,6 +213,7 @@ int signal_fd() {
 // the exit code.
 int serve_until_signal(int sfd, Daemon& daemon, Notifier& notifier, const std::string& config_path,
                        const std::string& where) {
+  bool reloading = false;  // a SIGHUP's reload on its way (housekeeping logs how it ended)
   for (;;) {
     pollfd pfd{sfd, POLLIN, 0};
     const int r = poll(&pfd, 1, 100);
@@ -221,6 +222,10 @@ int serve_until_signal(int sfd, Daemon& daemon, Notifier& notifier, const std::s
       return exit_code::kRuntimeError;
     }
     log_notes(daemon);
+    if (reloading && !daemon.reload_pending()) {
+      reloading = false;
+      notifier.ready("Ready: control settings reloaded, listening on " + where);
+    }
     if (!daemon.loop_running()) {
       spdlog::error("the real-time loop has ended");
       return exit_code::kRuntimeError;
@@ -233,14 +238,13 @@ int serve_until_signal(int sfd, Daemon& daemon, Notifier& notifier, const std::s
                    si.ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT");
       return exit_code::kOk;
     }
-    spdlog::info("SIGHUP: reloading the control settings from {}", config_path);
+    spdlog::info(
+        "SIGHUP: reloading the control settings from {} (no motion in progress is "
+        "stopped: the reload waits for it)",
+        config_path);
     notifier.send_reloading();
-    std::string error;
-    if (daemon.reload_control(error))
-      spdlog::info("control settings reloaded");
-    else
-      spdlog::error("reload failed, the old settings stay: {}", error);
-    notifier.ready("Ready: control settings reloaded, listening on " + where);
+    daemon.request_reload("SIGHUP");
+    reloading = true;
   }
 }
 

@@ -53,6 +53,8 @@ inline constexpr int kFaultDeviceLost = 107;
 inline constexpr int kMoveLimit = 111;
 inline constexpr int kMoveEndOfTravel = 112;
 inline constexpr int kMoveTimeout = 113;
+// A motion this client started was stopped by another client's STOP or *RST (or a reload).
+inline constexpr int kMoveStoppedByOther = 114;
 }  // namespace error_code
 
 // MOVE:RESult?'s words other than OK/NONE/FAULT/STOPPED, and the error a move that ended so

@@ -88,6 +88,8 @@ const char* standard_error_text(int code) {
       return "Data out of range";
     case ec::kDataCorruptOrStale:
       return "Data corrupt or stale";
+    case ec::kMoveStoppedByOther:
+      return "Motion stopped by another client";
     case ec::kMassStorageError:
       return "Mass storage error";
     case ec::kHardwareError:

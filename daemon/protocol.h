@@ -338,6 +338,7 @@ class Session {
   std::uint64_t started_axes_ =
       0;                        // axes (bits) whose motion this session started, not yet seen end
   bool started_sweep_ = false;  // a SWEEP this session started, not yet seen end
+  std::uint64_t stopped_axes_ = 0;  // axes (bits) this session sent STOP to since its motion began
   bool stop_only_ = false;
   const ClientTable* client_table_ = nullptr;
   const std::string* token_ = nullptr;

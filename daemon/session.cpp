@@ -227,7 +227,9 @@ void Session::push(CommandError error) {
 }
 
 void Session::started_motion(const CommandError& result) {
-  if (result.ok() && axis_ < 64) started_axes_ |= std::uint64_t{1} << axis_;
+  if (!result.ok() || axis_ >= 64) return;
+  started_axes_ |= std::uint64_t{1} << axis_;
+  stopped_axes_ &= ~(std::uint64_t{1} << axis_);
 }
 
 // A motion this session started has ended: a fault it ended in goes to this session's queue; so
@@ -250,6 +252,14 @@ void Session::notice_motion_end() {
     const InstrumentStatus s = instrument_.status(a);
     if (s.fault != "none" && !s.fault.empty()) {
       push(fault_error(s.fault));
+      continue;
+    }
+    // Stopped, and not by this client: another client's STOP or *RST ended it.
+    if (s.result == "STOPPED" && !(stopped_axes_ & bit)) {
+      push(make_error(ec::kMoveStoppedByOther, "axis " + s.name + ": " + s.motion +
+                                                   " stopped by another client's STOP or *RST, " +
+                                                   format_value(s.result_distance_m) +
+                                                   " m from its target"));
       continue;
     }
     // Not in its window: never reported as success. A STEP has no window: only where it was cut
@@ -624,6 +634,10 @@ CommandError Session::auth_query(const Args&, std::string& reply) {
 }
 
 CommandError Session::stop(const Args&, std::string&) {
+  if (!axis_given_)
+    stopped_axes_ = ~std::uint64_t{0};
+  else if (axis_ < 64)
+    stopped_axes_ |= std::uint64_t{1} << axis_;
   return instrument_error(axis_given_ ? instrument_.stop(axis_) : instrument_.stop());
 }
 

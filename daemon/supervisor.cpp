@@ -45,7 +45,8 @@ bool MotionSupervisor::at_rest() const {
 
 void MotionSupervisor::tick(double now_s) {
   const bool stopping = stop_all_.load(std::memory_order_acquire);
-  const bool park = park_request_.load(std::memory_order_acquire);
+  const auto park_mode = static_cast<Park>(park_request_.load(std::memory_order_acquire));
+  const bool park = park_mode != Park::None;
   if (!park && parked_.load(std::memory_order_relaxed))
     parked_.store(false, std::memory_order_release);
   // Parked: the main thread is swapping the axes' positioners. The loop touches no axis (commands
@@ -61,15 +62,17 @@ void MotionSupervisor::tick(double now_s) {
                         cmd.kind == AxisCommand::Kind::Step ||
                         cmd.kind == AxisCommand::Kind::Reference;
     if ((stopping || park) && motion) {
-      acked_refusal_.store(static_cast<std::uint8_t>(control::Refusal::Busy),
-                           std::memory_order_relaxed);
+      acked_refusal_.store(
+          static_cast<std::uint8_t>(park_mode == Park::Wait ? control::Refusal::Reloading
+                                                            : control::Refusal::Busy),
+          std::memory_order_relaxed);
       acked_target_m_.store(std::numeric_limits<double>::quiet_NaN(), std::memory_order_relaxed);
     } else {
       apply(cmd);
     }
     ack = cmd.seq;
   }
-  if (stopping || park)
+  if (stopping || park_mode == Park::Stop)
     for (Axis* a : axes_) a->stop(notices_);
   // A sweep's next trial (the recorder sends it when it has the last one's samples; the loop may
   // not have seen that segment's end yet: then it waits here).
@@ -77,7 +80,7 @@ void MotionSupervisor::tick(double now_s) {
   if (trial_held_) {
     const bool axis_ok =
         held_trial_.axis >= 0 && static_cast<std::size_t>(held_trial_.axis) < axes_.size();
-    if (stopping || park || !axis_ok) {
+    if (stopping || park_mode == Park::Stop || !axis_ok) {
       TrialNotice n;
       n.kind = TrialNotice::Kind::Failed;
       n.index = held_trial_.index;

@@ -40,8 +40,14 @@ class MotionSupervisor final : public LoopBody {
   // ---- any thread ----
   void request_stop_all() { stop_all_.store(true, std::memory_order_release); }
   bool stopping() const { return stop_all_.load(std::memory_order_acquire); }
-  // Ask the loop to bring every axis to rest and hold (parked() once it is), then let it go.
-  void request_park(bool park) { park_request_.store(park, std::memory_order_release); }
+  // Ask the loop to hold every axis at rest (parked() once it is), then let it go (None). Stop:
+  // every motion is stopped at its chunk's end (a *RST, which stops motion by definition). Wait:
+  // nothing is stopped; the loop parks once every motion in progress has ended, and refuses new
+  // ones meanwhile (Refusal::Reloading), so that a reload never cuts another client's move short.
+  enum class Park : std::uint8_t { None, Stop, Wait };
+  void request_park(Park park) {
+    park_request_.store(static_cast<std::uint8_t>(park), std::memory_order_release);
+  }
   bool parked() const { return parked_.load(std::memory_order_acquire); }
   // Every axis at rest and no trial pending (the loop's last publication).
   bool at_rest() const;
@@ -65,7 +71,7 @@ class MotionSupervisor final : public LoopBody {
   TrialRequest held_trial_{};
   TrialNotices notices_;
   std::atomic<bool> stop_all_{false};
-  std::atomic<bool> park_request_{false};
+  std::atomic<std::uint8_t> park_request_{0};  // Park
   std::atomic<bool> parked_{false};
 };
 

@@ -395,7 +395,89 @@ def case_sweep_full_disk():
         subprocess.run(["umount", data])
 
 
+def slow_config(out="slow.yaml"):
+    """config/idmd.yaml with the frequencies capped at 200 Hz: a 2 mm move takes seconds."""
+    return config(edits=[("max_freq_hz: 2000", "max_freq_hz: 200")], out=out)
+
+
+def case_sighup_waits_for_a_move():
+    """SIGHUP while another client's move runs: the move is not cut short (it ends OK at its
+    target); new motions are refused meanwhile (-221 naming the reload); once it ends the
+    settings are reloaded (the log says so) and motion is accepted again."""
+    with Daemon(slow_config()) as d:
+        a, b = Client(d), Client(d)
+        start = rest_position(a)
+        a.send("MOVE:REL 2e-3\n")
+        time.sleep(0.3)
+        check(a.ask("MOVE:DONE?") == "0", "the move runs")
+        d.proc.send_signal(signal.SIGHUP)
+        time.sleep(0.3)
+        b.send("AXIS1:MOVE:REL 1e-6\n")
+        err = b.error()
+        check(err.startswith("-221,") and "reload" in err, "a new move waits for the reload: %s" % err)
+        check(a.wait_done(120), "the first move ends")
+        check(a.ask("MOVE:RES?").startswith("OK"), "OK: %s" % a.ask("MOVE:RES?"))
+        check(abs(rest_position(a) - start - 2e-3) < 50e-9, "at its target")
+        a.no_error()
+        end = time.time() + 10
+        while time.time() < end and "control settings reloaded" not in d.log():
+            time.sleep(0.1)
+        check("SIGHUP: control settings reloaded" in d.log(), "the reload happened after it")
+        b.send("MOVE:REL 1e-6\n")
+        check(b.wait_done(30), "motion accepted again")
+        b.no_error()
+
+
+def case_rst_during_a_sweep():
+    """*RST during a sweep stops the sweep now; a move another client starts just after is not
+    stopped by the reload that follows (it stopped such a move ~90 um short with no error)."""
+    with Daemon(slow_config()) as d:
+        a, b, c = Client(d), Client(d), Client(d, unix=True)
+        a.send("SWEEP rst,100:200:50,0.1;0.9,3,20\n")
+        time.sleep(0.5)
+        check(a.ask("SWEEP?").startswith("RUNNING"), "the sweep runs")
+        b.send("*RST\n")
+        state = sweep_until_done(c)
+        check(state[0] == "STOPPED", "the sweep stopped: %s" % state)
+        # The axis at rest again: a move right away (the reload may still be pending).
+        end = time.time() + 10
+        while time.time() < end:
+            start = rest_position(c)
+            c.send("MOVE:REL 1e-3\n")
+            err = c.error()
+            if err.startswith("0,"):
+                break
+            check(err.startswith("-221,"), "refused only while the reload waits: %s" % err)
+            time.sleep(0.05)
+        check(c.wait_done(120), "the move ends")
+        check(c.ask("MOVE:RES?").startswith("OK"), "OK: %s" % c.ask("MOVE:RES?"))
+        check(abs(rest_position(c) - start - 1e-3) < 50e-9, "at its target")
+        c.no_error()
+
+
+def case_stopped_by_another_client():
+    """A move stopped by another client's STOP tells the client that started it (114); one it
+    stopped itself does not."""
+    with Daemon(slow_config()) as d:
+        a, b = Client(d), Client(d)
+        a.send("MOVE:REL 2e-3\n")
+        time.sleep(0.3)
+        b.send("STOP\n")
+        check(a.wait_done(30), "stopped")
+        err = a.error()
+        check(err.startswith("114,") and "another client" in err, "the mover is told: %s" % err)
+        b.no_error()
+        a.send("MOVE:REL -1e-3\n")
+        time.sleep(0.3)
+        a.send("STOP\n")
+        check(a.wait_done(30), "stopped by itself")
+        a.no_error()
+
+
 cases = {
+    "sighup_waits_for_a_move": case_sighup_waits_for_a_move,
+    "rst_during_a_sweep": case_rst_during_a_sweep,
+    "stopped_by_another_client": case_stopped_by_another_client,
     "in_position_after_push": case_in_position_after_push,
     "sweep_limits": case_sweep_limits,
     "sweep_near_the_end": case_sweep_near_the_end,
