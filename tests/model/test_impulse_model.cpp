@@ -21,7 +21,7 @@ struct ReferenceRow {
 };
 
 std::vector<ReferenceRow> load_reference() {
-  const std::string path = std::string(IDM_SHARED_DIR) + "/reference/impulse-model-vectors.csv";
+  const std::string path = std::string(IDM_TEST_DATA_DIR) + "/impulse-model-vectors.csv";
   std::ifstream in(path);
   EXPECT_TRUE(in.good()) << "cannot open " << path;
   std::vector<ReferenceRow> rows;
