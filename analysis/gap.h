@@ -8,7 +8,7 @@
 // least-squares fit; fit_model uses that only to propose a mu, which it simulates and keeps when
 // the training gap falls.
 //
-// Residual of a cell (specs/gap-report.md): the mean steady step against the model's, in units of
+// Residual of a cell (docs/gap-report.md): the mean steady step against the model's, in units of
 // its uncertainty (the cell's trial-to-trial spread, never less than the noise on a step,
 // sqrt(2) * reading_sd, over sqrt(trials), and the model's own error, kModelErrorM and
 // kModelErrorRel); a spread different from the one expected (noise and

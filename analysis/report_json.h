@@ -1,4 +1,4 @@
-// The JSON of specs/gap-report.md (with its extension: unexplained, ambiguous, not_identifiable,
+// The JSON of docs/gap-report.md (with its extension: unexplained, ambiguous, not_identifiable,
 // intervals, effect_gap, spread_excess) and of `idm-gap validate`, and writing files whole (every
 // file goes to a temporary name in its directory, is flushed to disk and renamed over the final
 // name, so a reader never sees half a report).

@@ -18,7 +18,7 @@
 namespace idm::analysis {
 
 struct ParameterInterval {
-  std::string param;  // the effect's parameter, as reported (specs/gap-report.md)
+  std::string param;  // the effect's parameter, as reported (docs/gap-report.md)
   double value = 0, lo = 0, hi = 0;
   bool limited_by_range = false;  // an end is the plausible range's, not the data's
 };

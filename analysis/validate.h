@@ -128,7 +128,7 @@ ValidateRun validate_one(const Scenario& scenario, int threads, Diagnosis* diagn
 ValidateResult run_validate(const ValidateOptions& options,
                             void (*progress)(const ValidateRun&) = nullptr);
 
-// The JSON of specs/gap-report.md's validate section (with "by_class" and per run "class",
+// The JSON of docs/gap-report.md's validate section (with "by_class" and per run "class",
 // "expected", "unexplained", "where_rank", "setup").
 std::string validate_json(const ValidateResult& result);
 // The table of accuracy by class printed after a validate.

@@ -1,6 +1,6 @@
 // Where the gap lies, in the effect's own terms.
 //
-// Per cell (specs/gap-report.md, extension):
+// Per cell (docs/gap-report.md, extension):
 // * effect_gap: how far the named effects move the cell's prediction: the fitted model with them
 //   against the same model without them (same alpha and mu), normalized like the residual (the
 //   mean in units of the cell's held-out uncertainty, the spread as a log variance ratio, 3 for a

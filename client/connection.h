@@ -1,4 +1,4 @@
-// A client's connection to idmd (../shared/specs/command-protocol.md): TCP or the Unix socket,
+// A client's connection to idmd (docs/command-protocol.md): TCP or the Unix socket,
 // one line out, one reply line in, every wait bounded by a timeout.
 #pragma once
 

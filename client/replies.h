@@ -93,7 +93,7 @@ struct RegionReply {
 };
 RegionReply parse_region(std::string_view reply);
 
-// STATus:OPERation?'s bits (command-protocol.md): bit k's name, nullptr past the last.
+// STATus:OPERation?'s bits (docs/command-protocol.md): bit k's name, nullptr past the last.
 const char* operation_bit_name(int bit);
 inline constexpr int kOperationBits = 10;
 // The names of the bits set, e.g. {"in position", "position valid"}.

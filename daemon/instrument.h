@@ -1,5 +1,5 @@
 // What the command server asks of the daemon: one typed call per protocol command
-// (../shared/specs/command-protocol.md). The protocol layer (protocol.h: parsing, short forms,
+// (docs/command-protocol.md). The protocol layer (protocol.h: parsing, short forms,
 // error queue, reply formatting) and the socket server (server.h) call it; the daemon core
 // (daemon.h) implements it on top of the real-time loop.
 //

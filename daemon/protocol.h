@@ -1,4 +1,4 @@
-// The idmd command protocol (../shared/specs/command-protocol.md): SCPI-style lines in, one reply
+// The idmd command protocol (docs/command-protocol.md): SCPI-style lines in, one reply
 // line per query out, errors in a per-session queue. No sockets here: the pure functions below
 // (line splitting, keyword matching, numbers, lists, reply formatting) and Session (one client's
 // line framing, error queue and command table over an Instrument) are tested on their own; the

@@ -1,7 +1,7 @@
 // Friction between the slider and the guide, and gravity along a tilted guide.
 //
 // Coulomb friction mu_k N while sliding; sticking holds while the force needed to hold the slider
-// is at most mu_s N (mu_s = static_over_kinetic * mu_k). Optional effects (specs/gap-report.md):
+// is at most mu_s N (mu_s = static_over_kinetic * mu_k). Optional effects (docs/gap-report.md):
 // stribeck (mu falls from mu_s at rest to mu_k over stribeck_velocity_m_s), friction_spread
 // (mu_k varies smoothly along the guide, relative_sd, seeded), tilt (gravity along the axis).
 #pragma once

@@ -31,7 +31,7 @@ struct RegionBoundaries {
 };
 RegionBoundaries region_boundaries(double duty);
 
-// Region of (beta, duty) for 0 < duty < 0.5 by the paper's closed form, as MODEL.md writes it.
+// Region of (beta, duty) for 0 < duty < 0.5 by the paper's closed form, as docs/model.md writes it.
 Region region_closed_form(double beta, double duty);
 
 // Region for any 0 < duty < 1: the closed form below 0.5, the exact event simulation from 0.5 on

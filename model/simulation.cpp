@@ -157,7 +157,7 @@ const ParamTable<SimConfig>& sim_params() {
           "rigid: the two-mass plant; impulse: the ideal model, no effects; mck: the actuator's K "
           "and C",
           [](auto& c) -> auto& { return c.plant; }),
-      custom<C>("effects", "map", "NAME: {PARAM: value}, specs/gap-report.md", "none",
+      custom<C>("effects", "map", "NAME: {PARAM: value}, docs/gap-report.md", "none",
                 "unmodelled effects the simulated stage adds",
                 [](C& c, const YAML::Node& v, const std::string& file, const std::string& key) {
                   if (!v.IsMap())

@@ -1,7 +1,7 @@
 // The simulated stage: command -> actuator effects -> plant -> interferometer, as one object.
 //
 // This is what idm-model simulate/sweep, the `sim` driver and the gap diagnosis run. The plant is
-// named (impulse | rigid | mck) and the effects are the library of specs/gap-report.md, each off
+// named (impulse | rigid | mck) and the effects are the library of docs/gap-report.md, each off
 // unless configured, with the names and parameters used everywhere in the project.
 #pragma once
 
@@ -70,7 +70,7 @@ const ParamTable<SimConfig>& sim_params();
 // start_position_m, end_stops_m [low, high], reference_mark_m. Unknown keys: errors.
 SimConfig parse_sim_yaml(const YAML::Node& node, const std::string& file);
 
-// One trial's time series, as in specs/sweep-dataset.md.
+// One trial's time series, as in docs/sweep-dataset.md.
 struct TrialSamples {
   std::vector<double> t_s, xi_cmd_m, x_m;
 };

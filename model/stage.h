@@ -60,12 +60,12 @@ struct StageFile {
 void validate(const StageParams& stage, const std::string& where = "stage");
 void validate(const InterferometerParams& ifm, const std::string& where = "interferometer");
 
-// Reads the `stage:` and `interferometer:` sections (keys of specs/sweep-dataset.md).
+// Reads the `stage:` and `interferometer:` sections (keys of docs/sweep-dataset.md).
 // Missing optional keys keep their defaults; `required` lists stage keys that must be present.
 // When `strict`, unknown keys in those sections are errors; otherwise they are ignored.
 struct StageYamlOptions {
   bool strict = false;
-  bool require_dataset_keys = false;  // the six keys sweep-dataset.md requires
+  bool require_dataset_keys = false;  // the six keys docs/sweep-dataset.md requires
 };
 StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file_name,
                            const StageYamlOptions& options = {});

@@ -1,4 +1,4 @@
-// The sweep dataset of specs/sweep-dataset.md: reading it (from the daemon, the simulated stage or
+// The sweep dataset of docs/sweep-dataset.md: reading it (from the daemon, the simulated stage or
 // anywhere else) and writing it crash-safe, one trial at a time.
 //
 //   DATASET/sweep.csv      one row per trial (TrialInfo)

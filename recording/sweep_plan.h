@@ -1,4 +1,4 @@
-// The recorder's mark on a dataset (an extension of specs/sweep-dataset.md, recording/README.md):
+// The recorder's mark on a dataset (an extension of docs/sweep-dataset.md, recording/README.md):
 // DATASET/plan.yaml holds the grid as planned and how the recording ended. The writer puts it
 // there with `status: in_progress` before the first trial and rewrites it with `complete` or
 // `stopped` when the sweep ends, each time whole (temporary name, fsync, rename), so a sweep cut

@@ -4,7 +4,7 @@
 //   idm-gap validate [--seeds N] [--first-seed S] [--json FILE] [--cases LIST] [--quick 1]
 //   [--threads N]
 //
-// diagnose prints a short summary; --json writes specs/gap-report.md; --report writes plots (SVG)
+// diagnose prints a short summary; --json writes docs/gap-report.md; --report writes plots (SVG)
 // and report.html. Every file is written whole (temporary name, then rename). Bad input: one line
 // on stderr, exit status 2.
 #include <cmath>
@@ -31,7 +31,7 @@ const char* kUsage =
     "usage: idm-gap diagnose DATASET [--json FILE] [--report DIR] [--threads N] [--effects LIST]\n"
     "       idm-gap validate [--seeds N] [--first-seed S] [--json FILE] [--cases LIST] [--quick 1] "
     "[--threads N]\n"
-    "DATASET is a sweep in the format of specs/sweep-dataset.md; LIST is comma-separated effect "
+    "DATASET is a sweep in the format of docs/sweep-dataset.md; LIST is comma-separated effect "
     "names\n"
     "(amplifier, actuator_compliance, hysteresis, creep, stribeck, friction_spread, tilt, "
     "quantization);\n"

@@ -1,4 +1,4 @@
-// idmctl: the command-line client of idmd (../shared/specs/command-protocol.md).
+// idmctl: the command-line client of idmd (docs/command-protocol.md).
 //
 //   idmctl [--host H] [--port N] [--unix PATH] [--axis NAME|N] [--unit U] [--timeout S]
 //          [--no-wait] [COMMAND [ARG...]]

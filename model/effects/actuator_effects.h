@@ -1,5 +1,5 @@
 // Builds an actuator-chain effect by its name in the gap report's effect table
-// (shared/specs/gap-report.md): "amplifier", "hysteresis", "creep", "quantization".
+// (docs/gap-report.md): "amplifier", "hysteresis", "creep", "quantization".
 #pragma once
 
 #include <map>

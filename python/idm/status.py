@@ -1,7 +1,7 @@
 """Parsed replies: STATus?, the IEEE 488.2 / SCPI status registers, MOVE:RESult?, SWEEP?,
 SYSTem:LOOP?.
 
-The bit names are the protocol's (shared/specs/command-protocol.md, "Status").
+The bit names are the protocol's (docs/command-protocol.md, "Status").
 """
 
 from __future__ import annotations

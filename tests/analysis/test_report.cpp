@@ -1,4 +1,4 @@
-// The report's JSON (specs/gap-report.md with its extension), the plots, whole-file writes, bad
+// The report's JSON (docs/gap-report.md with its extension), the plots, whole-file writes, bad
 // input, and validate's scenarios.
 #include <gtest/gtest.h>
 #include <unistd.h>

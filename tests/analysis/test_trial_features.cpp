@@ -89,11 +89,10 @@ TEST(TrialFeatures, MajorityVote) {
   EXPECT_EQ(majority_region({Region::Cutoff, Region::MultiStep}), Region::MultiStep);
 }
 
-// The sample sweep from another simulator (amplifier at 3.5 kHz): at 100 Hz the stage follows the
-// impulse model; the features read it whatever its time grid.
+// The sample sweep (tests/data/README.md: an amplifier at 3.5 kHz): at 100 Hz the stage follows
+// the impulse model.
 TEST(TrialFeatures, SampleSweepAtLowFrequencyFollowsTheModel) {
-  const Dataset ds =
-      recording::read_dataset(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier");
+  const Dataset ds = recording::read_dataset(IDM_SAMPLE_SWEEP_DIR);
   const model::StageParams& s = ds.stage.stage;
   int checked = 0;
   for (std::size_t i = 0; i < ds.trials.size(); ++i) {

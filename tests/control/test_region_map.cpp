@@ -15,7 +15,7 @@ using namespace idm::control;
 namespace {
 
 // The one-step set of the ideal model is one interval (lower, upper] of beta for every duty.
-// duty < 0.5, from the closed form (MODEL.md): one-step iff beta > (1-d) d^2 and, if beta > d^2,
+// duty < 0.5 (closed form, docs/model.md): one-step iff beta > (1-d) d^2 and, if beta > d^2,
 // beta <= (1-d)(1-2d), else beta <= (1-d)^2 d. For d <= (3 - sqrt 5)/2 both (1-d)(1-2d) and
 // (1-d)^2 d are >= d^2, so the set is ((1-d) d^2, (1-d)(1-2d)]; above it both are <= d^2 and the
 // set is ((1-d) d^2, (1-d)^2 d].

@@ -21,7 +21,7 @@ struct ReferenceRow {
 };
 
 std::vector<ReferenceRow> load_reference() {
-  const std::string path = std::string(IDM_SHARED_DIR) + "/reference/impulse-model-vectors.csv";
+  const std::string path = std::string(IDM_TEST_DATA_DIR) + "/impulse-model-vectors.csv";
   std::ifstream in(path);
   EXPECT_TRUE(in.good()) << "cannot open " << path;
   std::vector<ReferenceRow> rows;
@@ -113,8 +113,8 @@ TEST(ImpulseModel, ImpulseRatioIsEq18) {
   EXPECT_DOUBLE_EQ(impulse_ratio(s, f, S), 0.1 * S * f * f / (0.4 * 0.2 * 9.81));
 }
 
-// The closed form (eqs 19, 23, 26-29) agrees with an exact event simulation on the grid of MODEL.md
-// (50-1000 Hz by 10 Hz, duty 0.005-0.495 by 0.005): an independent derivation of the decision.
+// The closed form (eqs 19, 23, 26-29) agrees with an exact event simulation on the grid of
+// docs/model.md (50-1000 Hz by 10 Hz, duty 0.005-0.495 by 0.005): an independent derivation.
 TEST(ImpulseModel, ClosedFormRegionsAgreeWithEventSimulation) {
   const StageParams s;
   int points = 0, disagree = 0;
@@ -136,7 +136,7 @@ TEST(ImpulseModel, ClosedFormRegionsAgreeWithEventSimulation) {
   EXPECT_EQ(disagree, 0);
 }
 
-// Mirroring the duty < 0.5 boundaries for duty > 0.5 is wrong for bursts from rest (MODEL.md):
+// Mirroring the duty < 0.5 boundaries for duty > 0.5 is wrong for bursts from rest (docs/model.md):
 // the event simulation must disagree with the mirrored closed form at many grid points.
 TEST(ImpulseModel, MirroredBoundariesAreNotTheReverseRegions) {
   const StageParams s;

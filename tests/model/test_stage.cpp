@@ -20,12 +20,36 @@ TEST(Stage, DefaultsAreTable1) {
   EXPECT_NO_THROW(validate(s));
 }
 
+// The sample sweep's stage.yaml (tests/data/README.md: idm-model sweep on the Table 1 stage,
+// --noise 2e-9).
 TEST(Stage, ReadsTheSampleDatasetStageFile) {
-  const StageFile f =
-      load_stage_file(std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier/stage.yaml",
-                      {.strict = false, .require_dataset_keys = true});
+  const StageFile f = load_stage_file(std::string(IDM_SAMPLE_SWEEP_DIR) + "/stage.yaml",
+                                      {.strict = false, .require_dataset_keys = true});
   EXPECT_DOUBLE_EQ(f.stage.slider_mass_kg, 0.16557);
   EXPECT_DOUBLE_EQ(f.interferometer.resolution_m, 9.8906e-09);
+  EXPECT_DOUBLE_EQ(f.interferometer.noise_m, 2e-9);
+}
+
+// A dataset's stage.yaml from elsewhere may hold only the keys the format requires
+// (docs/sweep-dataset.md): the optional ones keep their defaults.
+TEST(Stage, ADatasetStageFileNeedsOnlyTheRequiredKeys) {
+  const StageFile f =
+      parse_stage_yaml(YAML::Load("stage:\n"
+                                  "  slider_mass_kg: 0.2\n"
+                                  "  counter_mass_kg: 0.07\n"
+                                  "  friction_coefficient: 0.45\n"
+                                  "  gravity_m_s2: 9.81\n"
+                                  "  stroke_m: 15e-6\n"
+                                  "  step_correction: 0.5\n"
+                                  "interferometer:\n"
+                                  "  resolution_m: 5e-9\n"),
+                       "stage.yaml", {.strict = false, .require_dataset_keys = true});
+  EXPECT_EQ(f.stage.friction_coefficient, 0.45);
+  EXPECT_EQ(f.stage.step_correction, 0.5);
+  EXPECT_EQ(f.interferometer.resolution_m, 5e-9);
+  EXPECT_EQ(f.stage.stiffness_n_m, StageParams{}.stiffness_n_m);
+  EXPECT_EQ(f.stage.damping_n_s_m, StageParams{}.damping_n_s_m);
+  EXPECT_EQ(f.interferometer.noise_m, 0.0);
 }
 
 TEST(Stage, RoundTripsThroughYaml) {

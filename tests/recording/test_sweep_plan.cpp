@@ -17,7 +17,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-const std::string kSample = std::string(IDM_SHARED_DIR) + "/data/sample-sweep-amplifier";
+const std::string kSample = IDM_SAMPLE_SWEEP_DIR;  // tests/data/README.md
 
 struct TempDir {
   fs::path path;

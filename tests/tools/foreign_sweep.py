@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """A sweep dataset as another lab's software would write it, for testing idm-gap on files it did
-not write itself. Python's standard library only; the physics from ../shared/MODEL.md, written
+not write itself. Python's standard library only; the physics from docs/model.md, written
 again here without the project's code (checked against the paper's reference vectors: --selftest).
 
 The stage is the rigid impulse model: slider mass M, counter mass m, r = m / (M + m).
@@ -16,7 +16,7 @@ The stage is the rigid impulse model: slider mass M, counter mass m, r = m / (M 
 Reading: x_m = round((guide_pos + x_offset + X + N(0, noise)) / res) * res; xi_cmd_m is the
 commanded triangle (0 -> S in duty T, S -> 0 in (1 - duty) T), 0 at rest.
 
-The layout quirks a spec-following reader must take (specs/sweep-dataset.md): another column order
+The layout quirks a spec-following reader must take (docs/sweep-dataset.md): another column order
 with extra columns, text trial ids, nested and ./-prefixed paths, shuffled rows, quoted fields with
 commas, CRLF line ends, no final newline, a BOM, upper-case exponents, cycles written 12.0, a
 minimal stage.yaml with unknown keys, rows without rest, a sampling grid off t = 0, mixed rates,
@@ -260,7 +260,7 @@ def main():
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out", nargs="?")
     ap.add_argument("--selftest", metavar="VECTORS_CSV",
-                    help="check the model against shared/reference/impulse-model-vectors.csv")
+                    help="check the model against tests/data/impulse-model-vectors.csv")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--amp-fc", type=float, default=0.0)
     ap.add_argument("--trials", type=int, default=3)

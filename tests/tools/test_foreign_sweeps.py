@@ -1,6 +1,6 @@
 """idm-gap diagnose on sweeps it did not write: datasets from foreign_sweep.py (another lab's
 writer and simulator, Python's standard library only, checked against the paper's reference
-vectors), in the layouts specs/sweep-dataset.md allows. The same physics written two ways reads
+vectors), in the layouts docs/sweep-dataset.md allows. The same physics written two ways reads
 the same; the reading noise is found without rows at rest and far from the interferometer's zero;
 an amplifier the writer integrates is named with its cutoff; cells with too few trials are left
 out and listed."""
@@ -15,7 +15,9 @@ import pytest
 import foreign_sweep
 
 IDM_GAP = os.environ.get("IDM_GAP", "")
-SHARED = os.environ.get("IDM_SHARED_DIR", "")
+# The paper's reference vectors, in the tree (tests/data/README.md).
+VECTORS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data",
+                       "impulse-model-vectors.csv")
 
 
 def diagnose(dataset, tmp_path):
@@ -40,8 +42,7 @@ def expected_noise_m(noise_m, resolution_m):
 
 
 def test_the_writer_reproduces_the_papers_reference_vectors():
-    worst, integrated = foreign_sweep.selftest(
-        os.path.join(SHARED, "reference", "impulse-model-vectors.csv"))
+    worst, integrated = foreign_sweep.selftest(VECTORS)
     assert worst < 1e-12
     assert integrated < 4e-9  # the integrator with a 1 GHz amplifier against the exact model
 
