@@ -196,7 +196,9 @@ TEST(Dataset, ReadsTheSampleSweep) {
   EXPECT_THROW(read_trial(d, 480), std::out_of_range);
 }
 
-TEST(Dataset, ReadsEveryTrialOfTheSampleQuickly) {
+// Reads every trial whole. How fast is a benchmark's question (bench/), not a test's: the time is
+// printed only.
+TEST(Dataset, ReadsEveryTrialOfTheSample) {
   const auto start = std::chrono::steady_clock::now();
   const Dataset d = read_dataset(kSample);
   std::size_t samples = 0;
@@ -211,8 +213,6 @@ TEST(Dataset, ReadsEveryTrialOfTheSampleQuickly) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::cout << "read " << d.trials.size() << " trials, " << samples << " samples in " << seconds
             << " s\n";
-  // Well under a second in an optimized build; the bound leaves room for loaded CI machines.
-  EXPECT_LT(seconds, 5.0);
 }
 
 // ---------------------------------------------------------------- round trip
