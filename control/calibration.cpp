@@ -524,43 +524,4 @@ bool Calibration::load(const std::string& path, std::string& error) {
   return true;
 }
 
-void Calibration::save(const std::string& path) const {
-  const std::string text = serialize(state_);
-  const std::string tmp = path + ".tmp";
-  auto fail = [&](const std::string& what) {
-    throw std::system_error(errno, std::generic_category(), "calibration: " + what);
-  };
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) fail("cannot create " + tmp);
-  std::size_t done = 0;
-  while (done < text.size()) {
-    const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      const int err = errno;
-      ::close(fd);
-      errno = err;
-      fail("cannot write " + tmp);
-    }
-    done += static_cast<std::size_t>(n);
-  }
-  if (::fsync(fd) != 0) {
-    const int err = errno;
-    ::close(fd);
-    errno = err;
-    fail("cannot fsync " + tmp);
-  }
-  if (::close(fd) != 0) fail("cannot close " + tmp);
-  if (::rename(tmp.c_str(), path.c_str()) != 0) fail("cannot rename " + tmp + " to " + path);
-  // The directory entry: fsync the folder so the rename survives a crash.
-  const std::size_t slash = path.find_last_of('/');
-  const std::string dir =
-      slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
-  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
-}
-
 }  // namespace idm::control

@@ -1,7 +1,9 @@
 // Online calibration of the step model: each measured steady step updates, for its region and
 // direction, a recursive least-squares estimate (with forgetting) of the correction factor alpha
 // and the friction coefficient mu, so that later moves of a session need fewer corrections.
-// Saved to a file and loaded at start; a corrupt or mismatched file is reported and ignored.
+// Saved to a file (serialize(); the daemon writes it crash-safe with recording::write_file_durably)
+// and loaded at start; a corrupt or mismatched file is reported (the daemon refuses to start on it
+// rather than overwrite a file it cannot read).
 //
 // CONTRACT (shared with daemon/): the daemon constructs one Calibration, hands a pointer to the
 // Positioner, copies state() out of the real-time loop to save it, and loads it at start.
@@ -107,8 +109,6 @@ class Calibration {
   // key) when the file is missing, corrupt, or for another stage; the calibration is then left
   // as it was (nominal). Never throws on bad content.
   bool load(const std::string& path, std::string& error);
-  // Writes crash-safe (temporary name, fsync, rename). Throws std::system_error naming the file.
-  void save(const std::string& path) const;
   // Back to the nominal stage.
   void reset();
 

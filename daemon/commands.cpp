@@ -571,7 +571,7 @@ CommandError Daemon::check_sweep_space(Axis& a, const std::vector<double>& freqs
     bytes += static_cast<double>(duties) * trials * ((trial_s * stream_hz + 2) * 80.0 + 400.0);
   }
   struct statvfs st {};
-  if (::statvfs(config_.recording.data_dir.c_str(), &st) != 0)
+  if (::fstatvfs(data_dir_.get(), &st) != 0)
     return {
         error_code::kMassStorageError,
         "SWEEP: recording.data_dir " + config_.recording.data_dir + ": " + std::strerror(errno)};
@@ -592,12 +592,16 @@ CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<d
   // Confined to the data directory, a new directory every time (never a symlink followed, never
   // a file overwritten).
   std::string error;
-  std::error_code mkdir_error;  // the configured data directory itself may be created
-  std::filesystem::create_directories(config_.recording.data_dir, mkdir_error);
+  if (!data_dir_.valid()) open_data_dir();  // created since the start, perhaps
+  if (!data_dir_.valid())
+    return {error_code::kMassStorageError,
+            "SWEEP: recording.data_dir " + config_.recording.data_dir + ": " + data_dir_error_};
   if (CommandError e = check_sweep_space(a, freqs_hz, duties.size(), trials, cycles); !e.ok())
     return e;
-  const std::string path = create_dataset_dir(config_.recording.data_dir, dir, error);
-  if (path.empty()) return {error_code::kDataOutOfRange, "SWEEP: " + error};
+  std::string path;
+  recording::DirFd dataset =
+      create_dataset_dir(data_dir_, config_.recording.data_dir, dir, path, error);
+  if (!dataset.valid()) return {error_code::kDataOutOfRange, "SWEEP: " + error};
   auto job = std::make_unique<SweepJob>();
   const drivers::OutputCapabilities& caps = a.link().output_capabilities(a.channel());
   job->axis = axis;
@@ -614,7 +618,8 @@ CommandError Daemon::sweep(int axis, const std::string& dir, const std::vector<d
   job->span_m = config_.recording.sweep_span_m;
   job->stream_rate_hz = a.link().interferometer_capabilities(a.channel()).stream_rate_hz;
   try {
-    job->writer.emplace(path, a.config().stage, planned_cells(*job), a.config().name);
+    job->writer.emplace(std::move(dataset), path, a.config().stage, planned_cells(*job),
+                        a.config().name);
   } catch (const std::exception& e) {
     return {error_code::kExecutionError, std::string("cannot create the dataset: ") + e.what()};
   }

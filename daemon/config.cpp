@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <limits>
 #include <set>
 #include <utility>
@@ -280,6 +281,33 @@ void parse_globals(const Node& root, DaemonConfig& c) {
         located(f, child(root, "recording"), "recording.data_dir", "must not be empty"));
 }
 
+// Every file an axis writes is its own: two axes that shared a calibration_file (or a
+// reference_file, or one axis's calibration another's reference) would overwrite each other's,
+// and all but one would lose it. Paths are compared made absolute and normal (no I/O).
+void require_own_files(const DaemonConfig& c) {
+  struct Owner {
+    std::string key;
+    std::filesystem::path path;
+  };
+  std::vector<Owner> seen;
+  const auto claim = [&](const std::string& key, const std::string& file) {
+    if (file.empty()) return;
+    const std::filesystem::path p = std::filesystem::absolute(file).lexically_normal();
+    for (const Owner& o : seen)
+      if (o.path == p)
+        throw InputError(c.file + ": " + key + ": " + file + " is also " + o.key +
+                         ": each axis needs files of its own (the daemon writes them; a shared "
+                         "one would be overwritten and all but one axis would lose theirs)");
+    seen.push_back({key, p});
+  };
+  claim("the configuration file", c.file);
+  for (const AxisConfig& a : c.axes) {
+    const std::string prefix = c.axes.size() > 1 ? "axes." + a.name + "." : "";
+    claim(prefix + "control.calibration_file", a.control.calibration_file);
+    claim(prefix + "reference_file", a.reference_file);
+  }
+}
+
 // The single-axis form: one device `daq`, one axis `x`.
 void parse_single_axis(const Node& root, DaemonConfig& c) {
   c.devices.push_back(parse_device(child(root, "daq"), c.file, "daq", "daq"));
@@ -392,6 +420,7 @@ DaemonConfig parse_daemon_config(const YAML::Node& root, const std::string& f) {
     parse_axes(root, c);
   else
     parse_single_axis(root, c);
+  require_own_files(c);
   return c;
 }
 

@@ -108,8 +108,12 @@ void Daemon::build_axes() {
     const std::string& file = axis->config().control.calibration_file;
     if (axis->calibration() && !file.empty() && std::filesystem::exists(file)) {
       std::string error;
+      // A file idmd cannot read is never overwritten: it does not start on it.
       if (!axis->calibration()->load(file, error))
-        start_notes_.push_back({true, "axis " + name + ": calibration not loaded: " + error});
+        throw StartError(exit_code::kBadConfig,
+                         "axis " + name + ": control.calibration_file: " + error +
+                             "; idmd does not overwrite a file it cannot read: fix it or move "
+                             "it away");
       else
         axis->build(axis->config().control);  // the snapshot from the loaded state
     }
@@ -134,7 +138,10 @@ void Daemon::restore_reference(Axis& axis) {
                                        "; the device kept its count, epoch " +
                                        std::to_string(now.epoch) + ")"});
   } catch (const model::InputError& e) {
-    start_notes_.push_back({true, name + "not referenced: " + e.what()});
+    throw StartError(exit_code::kBadConfig,
+                     name + "reference_file: " + e.what() +
+                         "; idmd does not overwrite a file it cannot read: fix it or move it "
+                         "away");
   }
 }
 
@@ -160,8 +167,22 @@ void Daemon::wait_until_ready() {
                        model::format_number(config_.server.ready_timeout_s) + " s): " + which);
 }
 
+void Daemon::open_data_dir() {
+  std::error_code ec;  // the configured data directory itself may be created
+  std::filesystem::create_directories(config_.recording.data_dir, ec);
+  try {
+    data_dir_ = recording::DirFd::open(config_.recording.data_dir);
+    data_dir_error_.clear();
+  } catch (const std::exception& e) {
+    data_dir_error_ = e.what();
+  }
+}
+
 std::string Daemon::start() {
   if (started_) return {};
+  open_data_dir();
+  if (!data_dir_.valid())
+    start_notes_.push_back({true, "recording.data_dir: " + data_dir_error_ + " (SWEEP will fail)"});
   build_devices();
   open_devices();
   try {

@@ -157,6 +157,11 @@ class Daemon final : public Instrument, public Reloader {
   bool shut_down_ = false;
   std::vector<Housekeeping::Note> start_notes_;
   std::vector<ControlConfig> reload_plan_;  // prepared, not yet applied (control_mutex_)
+  // recording.data_dir, held open from the start (created when missing): datasets are made below
+  // this descriptor, never by walking the path again. Invalid: why in data_dir_error_.
+  void open_data_dir();
+  recording::DirFd data_dir_;
+  std::string data_dir_error_;
   bool reload_limits_from_file_ = false;
 };
 

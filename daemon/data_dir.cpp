@@ -58,21 +58,21 @@ bool split_relative(const std::string& relative, std::vector<std::string>& parts
 
 }  // namespace
 
-std::string create_dataset_dir(const std::string& data_dir, const std::string& relative,
-                               std::string& error) {
-  const std::string shown = "'" + relative + "'";
+recording::DirFd create_dataset_dir(const recording::DirFd& data_dir, const std::string& shown,
+                                    const std::string& relative, std::string& path,
+                                    std::string& error) {
   std::vector<std::string> parts;
   std::string why;
   if (!split_relative(relative, parts, why)) {
-    error = "dataset directory " + shown + " " + why;
+    error = "dataset directory '" + relative + "' " + why;
     return {};
   }
-  Fd dir(::open(data_dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
-  if (dir.fd < 0) {
-    error = "recording.data_dir " + data_dir + ": " + std::strerror(errno);
+  if (!data_dir.valid()) {
+    error = "recording.data_dir " + shown + " could not be opened";
     return {};
   }
-  std::string walked = data_dir;
+  Fd dir(::dup(data_dir.get()));
+  std::string walked = shown;
   for (std::size_t i = 0; i + 1 < parts.size(); ++i) {
     const char* name = parts[i].c_str();
     walked += "/" + parts[i];
@@ -102,9 +102,16 @@ std::string create_dataset_dir(const std::string& data_dir, const std::string& r
                                   : ": " + std::string(std::strerror(e)));
     return {};
   }
+  const int made =
+      ::openat(dir.fd, parts.back().c_str(), O_RDONLY | O_DIRECTORY | O_NOFOLLOW | O_CLOEXEC);
+  if (made < 0) {
+    error = walked + ": swapped for a link or removed as it was made: refused";
+    return {};
+  }
   // Sync the parent so the new directory survives a crash with the first trial.
   ::fsync(dir.fd);
-  return walked;
+  path = walked;
+  return recording::DirFd(made);
 }
 
 }  // namespace idm::daemon

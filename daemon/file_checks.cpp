@@ -7,7 +7,9 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 
+#include "daemon/reference_file.h"
 #include "model/yaml_util.h"
 
 namespace idm::daemon {
@@ -60,6 +62,112 @@ std::string read_token_file(const std::string& path) {
     if (!token_char(c))
       throw InputError(what + "the token may hold letters, digits and -._~+/= only");
   return token;
+}
+
+namespace {
+
+// The permissions of `path` (a file or a directory) as `what` in a finding.
+void check_permissions(const std::string& what, const std::string& path, FileFindings& out) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) return;
+  const bool dir = S_ISDIR(st.st_mode);
+  const bool sticky = (st.st_mode & S_ISVTX) != 0;
+  const std::string mode = octal_mode(st.st_mode);
+  if ((st.st_mode & S_IWOTH) && !(dir && sticky)) {
+    out.errors.push_back(what + " " + path + " is writable by every user (mode " + mode +
+                         "): another user could change what idmd reads or redirect what it "
+                         "writes; chmod o-w");
+    return;
+  }
+  if (st.st_mode & S_IWOTH)
+    out.warnings.push_back(what + " " + path + " is a shared directory (mode " + mode +
+                           "): another user may place files there; prefer idmd's own "
+                           "(/var/lib/idmd)");
+  else if ((st.st_mode & S_IWGRP) && st.st_gid != ::getegid())
+    out.warnings.push_back(what + " " + path + " is writable by group " +
+                           std::to_string(st.st_gid) + " (mode " + mode + ")");
+  if (st.st_uid != 0 && st.st_uid != ::geteuid())
+    out.warnings.push_back(what + " " + path + " belongs to user " + std::to_string(st.st_uid) +
+                           ", not to root or to idmd's user: they can change its mode");
+}
+
+std::string parent_of(const std::string& file) {
+  const std::string dir = std::filesystem::path(file).parent_path().string();
+  return dir.empty() ? "." : dir;
+}
+
+// A file an axis writes: its directory there and writable; the file, if there, a regular file
+// that reads (`reads` throws or returns "" / why not).
+template <typename Reads>
+void check_axis_file(const std::string& key, const std::string& file, Reads&& reads,
+                     FileFindings& out) {
+  if (file.empty()) return;
+  const std::string dir = parent_of(file);
+  check_permissions(key + "'s directory", dir, out);
+  if (::access(dir.c_str(), W_OK | X_OK) != 0) {
+    out.errors.push_back(key + ": the directory " + dir + " " +
+                         (errno == ENOENT ? "does not exist" : "is not writable by this user") +
+                         ": what the axis learns could not be saved");
+    return;
+  }
+  struct stat st {};
+  if (::lstat(file.c_str(), &st) != 0) return;  // not there yet: idmd writes it
+  if (!S_ISREG(st.st_mode)) {
+    out.errors.push_back(key + ": " + file +
+                         " is not a regular file (a link, a FIFO, a directory): refused");
+    return;
+  }
+  check_permissions(key, file, out);
+  if (std::string why = reads(file); !why.empty())
+    out.errors.push_back(key + ": " + why +
+                         "; idmd does not overwrite a file it cannot read: fix it or move it "
+                         "away");
+}
+
+}  // namespace
+
+FileFindings check_config_files(const DaemonConfig& c) {
+  FileFindings out;
+  check_permissions("the configuration file", c.file, out);
+  check_permissions("the configuration's directory", parent_of(c.file), out);
+  const std::string& data = c.recording.data_dir;
+  check_permissions("recording.data_dir", data, out);
+  std::filesystem::path existing = std::filesystem::absolute(data);
+  std::error_code ec;
+  while (!existing.empty() && !std::filesystem::exists(existing, ec))
+    existing = existing.parent_path();
+  if (::access(existing.c_str(), W_OK | X_OK) != 0)
+    out.warnings.push_back("recording.data_dir " + data + ": " + existing.string() +
+                           " is not writable by this user: SWEEP will fail");
+  for (const AxisConfig& a : c.axes) {
+    const std::string prefix = c.axes.size() > 1 ? "axes." + a.name + "." : "";
+    check_axis_file(
+        prefix + "control.calibration_file", a.control.calibration_file,
+        [](const std::string& f) -> std::string {
+          try {
+            control::CalibrationState state;
+            std::string error;
+            if (!control::Calibration::parse(model::read_regular_file(f, 1 << 20), f, state, error))
+              return error;
+          } catch (const std::exception& e) {
+            return e.what();
+          }
+          return {};
+        },
+        out);
+    check_axis_file(
+        prefix + "reference_file", a.reference_file,
+        [](const std::string& f) -> std::string {
+          try {
+            (void)load_reference(f);
+          } catch (const std::exception& e) {
+            return e.what();
+          }
+          return {};
+        },
+        out);
+  }
+  return out;
 }
 
 }  // namespace idm::daemon

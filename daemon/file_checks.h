@@ -19,4 +19,20 @@ std::string read_token_file(const std::string& path);
 // "0640": a file mode's permission bits as chmod takes them.
 std::string octal_mode(unsigned mode);
 
+// What the files and directories of `config` say, for --check-config and the start (errors: idmd
+// refuses to start, exit 2; warnings: it starts and logs them):
+//  * the configuration file, recording.data_dir and the directories of every calibration_file and
+//    reference_file: writable by every user (a directory without its sticky bit) is an error,
+//    writable by a group or owned by another user (not root, not idmd's) a warning;
+//  * the directory of a calibration_file or reference_file must exist and be writable by this
+//    user (else the axis would lose what it learns); recording.data_dir missing and not creatable
+//    is a warning (SWEEP would fail);
+//  * a calibration_file or reference_file that is there must be a regular file that reads as one
+//    (idmd never overwrites a file it did not write: one that does not parse is an error naming
+//    it, line and key).
+struct FileFindings {
+  std::vector<std::string> errors, warnings;
+};
+FileFindings check_config_files(const DaemonConfig& config);
+
 }  // namespace idm::daemon

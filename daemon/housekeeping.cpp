@@ -4,6 +4,7 @@
 #include <utility>
 
 #include "drivers/clock.h"
+#include "recording/durable_file.h"
 
 namespace idm::daemon {
 
@@ -150,10 +151,11 @@ void Housekeeping::save_calibration(std::size_t i, bool force) {
   if (path.empty() || axis.calibration() == nullptr) return;
   std::string error;
   try {
-    // A copy of the loop's calibration, so that the loop's own object is never read here.
+    // A copy of the loop's calibration, so that the loop's own object is never read here (its
+    // set_state checks the snapshot belongs to this stage).
     control::Calibration copy(axis.config().stage.stage, cal_config);
     copy.set_state(state);
-    copy.save(path);
+    recording::write_file_durably(path, control::Calibration::serialize(copy.state()));
   } catch (const std::exception& e) {
     error = e.what();
   }

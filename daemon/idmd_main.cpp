@@ -18,6 +18,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "daemon/config.h"
 #include "daemon/daemon.h"
@@ -183,8 +184,14 @@ int check_config(const std::string& path) {
   try {
     const DaemonConfig c = load_daemon_config(path);
     if (!c.server.auth_token_file.empty()) (void)read_token_file(c.server.auth_token_file);
-    for (const std::string& w : config_warnings(c))
+    const FileFindings files = check_config_files(c);
+    std::vector<std::string> warnings = config_warnings(c);
+    warnings.insert(warnings.end(), files.warnings.begin(), files.warnings.end());
+    for (const std::string& w : warnings)
       std::fprintf(stderr, "idmd: %s: warning: %s\n", path.c_str(), w.c_str());
+    for (const std::string& e : files.errors)
+      std::fprintf(stderr, "idmd: %s: %s\n", path.c_str(), e.c_str());
+    if (!files.errors.empty()) return exit_code::kBadConfig;
     std::printf("%s: ok (%s)\n", path.c_str(), describe(c).c_str());
     return exit_code::kOk;
   } catch (const std::exception& e) {
@@ -346,10 +353,17 @@ int main(int argc, char** argv) {
   if (!o.check_path.empty()) return check_config(o.check_path);
   DaemonConfig config;
   std::string token;
+  FileFindings file_findings;
   try {
     config = load_daemon_config(o.config_path);
     if (!config.server.auth_token_file.empty())
       token = read_token_file(config.server.auth_token_file);
+    file_findings = check_config_files(config);
+    if (!file_findings.errors.empty()) {
+      for (const std::string& e : file_findings.errors)
+        std::fprintf(stderr, "idmd: %s: %s\n", o.config_path.c_str(), e.c_str());
+      return exit_code::kBadConfig;
+    }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "idmd: %s\n", e.what());
     return exit_code::kBadConfig;
@@ -359,6 +373,7 @@ int main(int argc, char** argv) {
   setup_logging(config.logging);
   const int sfd = signal_fd();
   if (sfd < 0) return exit_code::kRuntimeError;
+  for (const std::string& w : file_findings.warnings) spdlog::warn("{}", w);
   const int exit_status = run(config, o.config_path, token, sfd);
   close(sfd);
   return exit_status;

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "model/stage.h"
+#include "recording/durable_file.h"
 #include "recording/sweep_plan.h"
 
 namespace idm::recording {
@@ -101,6 +102,11 @@ class DatasetWriter {
   // `axis`, when not empty, is the name of the axis that plays the sweep (plan.yaml's `axis`).
   DatasetWriter(std::string dir, const model::StageFile& stage, std::vector<PlannedCell> planned,
                 std::string axis = "");
+  // The same into a directory already held open (the daemon's: created below its data_dir with
+  // openat, so that nothing another user swaps into the path afterwards is followed); `shown` is
+  // its path for messages and Dataset::path. Every file is written relative to it.
+  DatasetWriter(DirFd dir, std::string shown, const model::StageFile& stage,
+                std::vector<PlannedCell> planned, std::string axis = "");
 
   DatasetWriter(const DatasetWriter&) = delete;
   DatasetWriter& operator=(const DatasetWriter&) = delete;
@@ -123,9 +129,12 @@ class DatasetWriter {
   const Dataset& dataset() const { return dataset_; }
 
  private:
+  static DirFd open_root(const std::string& dir, const model::StageFile& stage,
+                         const std::vector<PlannedCell>& planned);
   void write_sweep_csv() const;
   void write_plan(SweepStatus status, const std::string& note) const;
 
+  DirFd dir_;
   Dataset dataset_;
   std::unordered_set<std::string> ids_;    // ids in dataset_.trials
   std::unordered_set<std::string> files_;  // their files, lexically normalized

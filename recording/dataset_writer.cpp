@@ -1,4 +1,7 @@
 // DatasetWriter: a dataset written crash-safe, trial by trial (dataset.h).
+#include <fcntl.h>
+#include <sys/stat.h>
+
 #include <algorithm>
 #include <charconv>
 #include <cmath>
@@ -82,31 +85,46 @@ DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage)
     : DatasetWriter(std::move(dir), stage, {}) {}
 
 DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage,
-                             std::vector<PlannedCell> planned, std::string axis) {
-  const fs::path root(dir);
-  if (fs::exists(root / kSweepFile))
-    throw InputError(dir +
+                             std::vector<PlannedCell> planned, std::string axis)
+    // `planned` copied, not moved: the order in which arguments are evaluated is unspecified, and
+    // open_root must see it.
+    : DatasetWriter(open_root(dir, stage, planned), dir, stage, planned, std::move(axis)) {}
+
+// Checked before the directory is made: a bad stage or plan leaves nothing behind.
+DirFd DatasetWriter::open_root(const std::string& dir, const model::StageFile& stage,
+                               const std::vector<PlannedCell>& planned) {
+  model::validate(stage.stage, "stage");
+  model::validate(stage.interferometer, "interferometer");
+  validate_plan(planned, dir);
+  create_directory_durably(dir);
+  return DirFd::open(dir);
+}
+
+DatasetWriter::DatasetWriter(DirFd dir, std::string shown, const model::StageFile& stage,
+                             std::vector<PlannedCell> planned, std::string axis)
+    : dir_(std::move(dir)) {
+  struct stat st {};
+  if (::fstatat(dir_.get(), kSweepFile, &st, AT_SYMLINK_NOFOLLOW) == 0)
+    throw InputError(shown +
                      ": already holds a sweep (sweep.csv); write a new sweep to a new "
                      "directory");
   model::validate(stage.stage, "stage");
   model::validate(stage.interferometer, "interferometer");
-  validate_plan(planned, dir);
+  validate_plan(planned, shown);
   planned_ = std::move(planned);
   axis_ = std::move(axis);
-  dataset_.path = std::move(dir);
+  dataset_.path = std::move(shown);
   dataset_.stage = stage;
-  create_directory_durably(root);
-  create_directory_durably(root / kTrialsDir);
+  open_directory_at(dir_, kTrialsDir, dataset_.path);
   // stage.yaml first: once sweep.csv exists the dataset is complete.
-  write_file_durably(root / kStageFile, model::to_yaml(stage));
+  write_file_durably_at(dir_, kStageFile, model::to_yaml(stage), dataset_.path);
   // The mark before sweep.csv: a dataset that has trials is never unmarked by accident.
   if (!planned_.empty()) write_plan(SweepStatus::InProgress, "");
   write_sweep_csv();
 }
 
 void DatasetWriter::write_plan(SweepStatus status, const std::string& note) const {
-  write_file_durably(fs::path(dataset_.path) / kPlanFile,
-                     plan_yaml({status, planned_, note, axis_}));
+  write_file_durably_at(dir_, kPlanFile, plan_yaml({status, planned_, note, axis_}), dataset_.path);
 }
 
 void DatasetWriter::finish(SweepStatus status, const std::string& note) {
@@ -138,7 +156,7 @@ void DatasetWriter::write_sweep_csv() const {
     append_text_field(text, t.file);
     text.push_back('\n');
   }
-  write_file_durably(fs::path(dataset_.path) / kSweepFile, text);
+  write_file_durably_at(dir_, kSweepFile, text, dataset_.path);
 }
 
 const TrialInfo& DatasetWriter::add_trial(TrialInfo info, const TrialSeries& series) {
@@ -175,9 +193,7 @@ const TrialInfo& DatasetWriter::add_trial(TrialInfo info, const TrialSeries& ser
 
   if (auto p = series_problem(series)) reject(*p);
   const std::string text = trial_csv(series);
-  const fs::path trial_path = fs::path(dataset_.path) / info.file;
-  create_directory_durably(trial_path.parent_path());
-  write_file_durably(trial_path, text);
+  write_file_durably_at(dir_, normal_file, text, dataset_.path);
 
   dataset_.trials.push_back(std::move(info));
   try {
@@ -186,8 +202,7 @@ const TrialInfo& DatasetWriter::add_trial(TrialInfo info, const TrialSeries& ser
     // sweep.csv still lists the trials before this one; the new trial file is not part of the
     // dataset, so it goes.
     dataset_.trials.pop_back();
-    std::error_code ignored;
-    fs::remove(trial_path, ignored);
+    remove_file_at(dir_, normal_file);
     throw;
   }
   ids_.insert(dataset_.trials.back().id);

@@ -474,7 +474,105 @@ def case_stopped_by_another_client():
         a.no_error()
 
 
+def start_exit(cfg):
+    """idmd --config cfg run to its exit (it must not start): (code, stderr)."""
+    r = subprocess.run([harness.IDMD, "--config", cfg, "--port", "0", "--unix", ""],
+                       capture_output=True, text=True, timeout=60)
+    return r.returncode, r.stderr
+
+
+def case_shared_calibration_file():
+    """Two axes naming one calibration_file (or one's reference_file another's calibration): both
+    refused by --check-config naming the keys (all but one axis lost its calibration)."""
+    cfg = config("idmd-xyz.yaml", [("calibration-z.txt", "calibration-y.txt")], out="shared.yaml")
+    code, _, err, _ = check_config(cfg)
+    check(code == 2 and "axes.z.control.calibration_file" in err and
+          "axes.y.control.calibration_file" in err, "shared calibration refused: %s" % err.strip())
+    cfg = config(edits=[("  calibration_file: %s/calibration.txt" % harness.TMP,
+                         "  calibration_file: %s/calibration.txt\nreference_file: %s/calibration.txt"
+                         % (harness.TMP, harness.TMP))], out="same.yaml")
+    code, _, err, _ = check_config(cfg)
+    check(code == 2 and "reference_file" in err, "calibration = reference refused: %s" % err.strip())
+
+
+def case_unreadable_files_kept():
+    """A calibration_file or reference_file that does not parse (a file idmd did not write, or a
+    damaged one) is never overwritten: --check-config and the start refuse it naming the file;
+    the file is as it was (it was logged as bad and then overwritten)."""
+    cal = os.path.join(harness.TMP, "calibration.txt")
+    for name, text, key in (("calibration.txt", "not: [a calibration\n", "calibration_file"),
+                            ("reference.yaml", "referenced: maybe\n", "reference_file")):
+        path = temp_file(name, text)
+        edits = [("  calibration_file: %s" % cal, "  calibration_file: %s" % cal)]
+        if key == "reference_file":
+            edits = [("  calibration_file: %s" % cal,
+                      "  calibration_file: %s\nreference_file: %s" % (cal, path))]
+            if os.path.exists(cal):
+                os.unlink(cal)
+        cfg = config(edits=edits, out="bad-%s.yaml" % key)
+        code, _, err, _ = check_config(cfg)
+        check(code == 2 and path in err and "does not overwrite" in err,
+              "--check-config refuses the %s: %s" % (key, err.strip()))
+        code, err = start_exit(cfg)
+        check(code == 2 and path in err, "idmd refuses to start on it: %s" % err.strip()[-300:])
+        check(open(path).read() == text, "and the file is as it was")
+        os.unlink(path)
+
+
+def case_writable_by_others():
+    """recording.data_dir writable by every user (no sticky bit) is refused; a sticky shared one
+    and a group-writable one are warned about; a calibration directory that does not exist is
+    refused (the axis would lose what it learns)."""
+    data = os.path.join(harness.TMP, "data")
+    os.makedirs(data, exist_ok=True)
+    cfg = config()
+    for mode, expect in ((0o777, "error"), (0o1777, "warning"), (0o775, "warning"),
+                         (0o755, None)):
+        os.chmod(data, mode)
+        # Group-writable matters when the group is another's (gid 1, not this process's).
+        os.chown(data, -1, 1 if mode == 0o775 else os.getegid())
+        code, out, err, _ = check_config(cfg)
+        if expect == "error":
+            check(code == 2 and "writable by every user" in err, "0%o refused: %s" % (mode, err))
+        elif expect == "warning":
+            check(code == 0 and "warning" in err and data in err, "0%o warned: %s" % (mode, err))
+        else:
+            check(code == 0 and data not in err, "0%o quiet: %s" % (mode, err))
+    cfg = config(edits=[("calibration_file: %s/calibration.txt" % harness.TMP,
+                         "calibration_file: %s/nowhere/calibration.txt" % harness.TMP)],
+                 out="nowhere.yaml")
+    code, _, err, _ = check_config(cfg)
+    check(code == 2 and "does not exist" in err, "a missing calibration directory: %s" % err)
+
+
+def case_dataset_swapped_for_a_link():
+    """Another user who can write in data_dir swaps a running sweep's dataset directory for a
+    symlink to a directory of theirs (or any file's): the recorder writes on into the directory it
+    made (held open), never through the link."""
+    victim = os.path.join(harness.TMP, "victim")
+    os.makedirs(victim)
+    with Daemon(slow_config()) as d:
+        c = Client(d)
+        c.send("SWEEP swap,100:200:50,0.1;0.9,4,12\n")
+        time.sleep(0.4)
+        check(c.ask("SWEEP?").startswith("RUNNING"), "the sweep runs")
+        ds = os.path.join(harness.TMP, "data", "swap")
+        moved = os.path.join(harness.TMP, "data", "moved")
+        os.rename(ds, moved)
+        os.symlink(victim, ds)
+        state = sweep_until_done(c)
+        check(os.listdir(victim) == [], "nothing written through the link: %s" % os.listdir(victim))
+        written = int(state[2])
+        rows = open(os.path.join(moved, "sweep.csv")).read().splitlines()
+        check(written > 0 and len(rows) == written + 1,
+              "every trial in the directory it made: %s" % state)
+
+
 cases = {
+    "shared_calibration_file": case_shared_calibration_file,
+    "unreadable_files_kept": case_unreadable_files_kept,
+    "writable_by_others": case_writable_by_others,
+    "dataset_swapped_for_a_link": case_dataset_swapped_for_a_link,
     "sighup_waits_for_a_move": case_sighup_waits_for_a_move,
     "rst_during_a_sweep": case_rst_during_a_sweep,
     "stopped_by_another_client": case_stopped_by_another_client,
