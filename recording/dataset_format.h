@@ -4,10 +4,12 @@
 #pragma once
 
 #include <array>
+#include <cstddef>
 #include <optional>
 #include <string>
 #include <string_view>
 
+#include "model/range.h"
 #include "model/text_list.h"
 #include "recording/dataset.h"
 
@@ -33,6 +35,11 @@ inline constexpr std::array<const char*, kSweepColumnCount> kSweepColumns = {
     "trial", "freq_hz", "duty", "stroke_m", "cycles", "sample_rate_hz", "guide_pos_m", "file"};
 inline constexpr std::array<const char*, 3> kTrialColumns = {"t_s", "xi_cmd_m", "x_m"};
 
+// The whole text of an input file that must be a regular file of at most max_bytes: opened without
+// blocking (a FIFO or a device is refused at once, before anything is read from it) and checked
+// with fstat before a byte is allocated. InputError naming the file (and the limit).
+std::string read_input_file(const std::string& path, std::size_t max_bytes);
+
 // Shortest text that reads back to the same double; append_number: the same, appended to out.
 std::string format_number(double value);
 void append_number(std::string& out, double value);
@@ -51,7 +58,10 @@ struct Problem {
 
 // Why `file` is not a path inside the dataset, or nothing.
 std::optional<std::string> file_problem(const std::string& file);
-// The first value of a row that the format does not allow, or nothing.
+// A value outside `range` (recording/dataset_limits.h, the stage table), or nothing.
+std::optional<Problem> range_problem(const char* column, double value, const model::Range& range);
+// The first value of a row that the format does not allow, or nothing: the ranges of
+// dataset_limits.h, the stage's stroke range.
 std::optional<Problem> trial_problem(const TrialInfo& t);
 
 // CSV field as the reader will read it back: quoted when it has a comma, a quote or blanks at
