@@ -57,8 +57,13 @@ std::string read_input_file(const std::string& path, std::size_t max_bytes) {
   if (fd < 0) throw InputError(path + ": cannot open file (" + std::strerror(errno) + ")");
   struct FdCloser {
     int fd;
+    explicit FdCloser(int f) : fd(f) {}
+    FdCloser(const FdCloser&) = delete;
+    FdCloser& operator=(const FdCloser&) = delete;
+    FdCloser(FdCloser&&) = delete;
+    FdCloser& operator=(FdCloser&&) = delete;
     ~FdCloser() { ::close(fd); }
-  } closer{fd};
+  } closer(fd);
   struct stat info {};
   if (::fstat(fd, &info) != 0)
     throw InputError(path + ": cannot read file (" + std::strerror(errno) + ")");
