@@ -203,6 +203,22 @@ std::vector<CandidateSpec> candidate_library(const SweepCells& sweep) {
           tilt_candidate(st),      quantization_candidate(sc)};
 }
 
+std::string search_range_problem(const SweepCells& sweep, const std::vector<std::string>& effects) {
+  const SweepScales sc = scales_of(sweep);
+  for (const CandidateSpec& spec : candidate_library(sweep))
+    for (const FitAxis& a : spec.axes)
+      if ((effects.empty() ||
+           std::find(effects.begin(), effects.end(), spec.effect) != effects.end()) &&
+          !(std::isfinite(a.lo) && std::isfinite(a.hi) && a.lo < a.hi &&
+            (!a.log_scale || a.lo > 0)))
+        return spec.effect + "'s " + a.name + ": [" + model::format_number(a.lo) + ", " +
+               model::format_number(a.hi) + "] is empty (from the sweep's highest frequency " +
+               model::format_number(sc.f_max_hz) + " Hz, its fastest phase's rate " +
+               model::format_number(sc.fast_hz) + " Hz and the slider's speed " +
+               model::format_number(sc.speed_m_s) + " m/s)";
+  return "";
+}
+
 const CandidateSpec& spec_of(const std::vector<CandidateSpec>& library, const std::string& effect) {
   for (const CandidateSpec& s : library)
     if (s.effect == effect) return s;

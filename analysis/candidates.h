@@ -67,6 +67,15 @@ struct CandidateSpec {
 // The candidates for every effect of model::effect_library(), in library order, with ranges
 // scaled to this sweep and stage.
 std::vector<CandidateSpec> candidate_library(const SweepCells& sweep);
+
+// Where the sweep lies outside what the diagnosis searches: the first candidate coordinate whose
+// range (from this sweep's frequencies, duties and strokes and this stage) is empty, as "EFFECT's
+// AXIS: [LO, HI] is empty" with what bounds it; "" when every range holds values. A diagnosis of
+// such a sweep is refused before anything is simulated (an actuator's resonance is searched from
+// half the highest frequency up to 2e5 Hz: a sweep above 4e5 Hz has no range to search).
+// `effects`: only these candidates (empty: all).
+std::string search_range_problem(const SweepCells& sweep,
+                                 const std::vector<std::string>& effects = {});
 const CandidateSpec& spec_of(const std::vector<CandidateSpec>& library, const std::string& effect);
 
 // What the effect's signature needs that the sweep lacks ("a second stroke", "both directions"),

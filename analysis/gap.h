@@ -69,6 +69,9 @@ struct GapParts {
 GapParts gap_parts(const GapEvaluation& evaluation);
 
 constexpr double kSignificantResidual = 3.0;
+// The unit every gap and residual is printed with: the standard uncertainty of what it compares (a
+// cell's mean step, its spread), so 1 is "within the noise" and 3 significant.
+inline constexpr const char* kGapUnit = "σ";
 // How far a prediction is trusted: 1 nm and 0.1 % of the step, added to the uncertainty of a
 // cell's mean step. A smoothed command integrated at the scoring rate is within ~2 nm of a
 // converged integration, and two simulators of the same physics differ by as much; the noise of a

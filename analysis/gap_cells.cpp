@@ -2,21 +2,16 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
 #include <optional>
 #include <sstream>
 #include <stdexcept>
 
-namespace idm::analysis {
+#include "recording/dataset_limits.h"
 
-SweepCells collect_cells(const Dataset& ds, int min_trials) {
-  std::vector<TrialSeries> series(ds.trials.size());
-  for (std::size_t i = 0; i < ds.trials.size(); ++i) series[i] = read_trial(ds, i);
-  // a cell short of trials is left out and listed, whether the recorder marked the sweep as cut
-  // off or a lab's writer dropped a trial (the format sets no number of trials a cell)
-  SweepCells out = collect_cells(ds.stage, ds.trials, series, ds.path, min_trials, true);
-  out.progress = ds.progress;
-  return out;
-}
+namespace idm::analysis {
 
 namespace {
 
@@ -38,22 +33,14 @@ std::optional<double> rest_sd_m(const TrialSeries& s, double from_s, double to_s
   return std::sqrt(ss / n);
 }
 
-// The median spread of the readings while the slider rests before each burst, and after it once
-// the slider has settled (a period after the last cycle, the command at rest); none when no
-// trial has enough samples at rest.
-std::optional<double> median_rest_sd_m(const std::vector<TrialInfo>& infos,
-                                       const std::vector<TrialSeries>& series) {
-  std::vector<double> rest_sd;
-  auto add_rest = [&](const TrialSeries& s, double from_s, double to_s) {
-    if (const std::optional<double> sd = rest_sd_m(s, from_s, to_s)) rest_sd.push_back(*sd);
-  };
-  for (std::size_t i = 0; i < infos.size(); ++i) {
-    if (series[i].size() == 0) continue;
-    add_rest(series[i], -1e300, 0.0);
-    add_rest(series[i], (infos[i].cycles + 1) / infos[i].freq_hz, 1e300);
-  }
-  if (rest_sd.empty()) return std::nullopt;
-  return median(rest_sd);
+// The spread of the readings while the slider rests before the burst, and after it once the
+// slider has settled (a period after the last cycle, the command at rest): one value for each
+// stretch with enough samples at rest. The sweep's is their median.
+void add_rest_sd_m(const TrialInfo& info, const TrialSeries& s, std::vector<double>& rest_sd) {
+  if (s.size() == 0) return;
+  if (const std::optional<double> sd = rest_sd_m(s, -1e300, 0.0)) rest_sd.push_back(*sd);
+  if (const std::optional<double> sd = rest_sd_m(s, (info.cycles + 1) / info.freq_hz, 1e300))
+    rest_sd.push_back(*sd);
 }
 
 // Without a reading at rest (the format allows a trial without rows before 0 or after its burst):
@@ -65,35 +52,34 @@ std::optional<double> median_rest_sd_m(const std::vector<TrialInfo>& infos,
 // estimate (a median of quantized readings moves in whole counts: 3.03 nm for 2.45 nm at 5 nm
 // counts). Over the trials, the lower quartile (those that slide least). None when no trial has
 // 8 samples to go on.
-std::optional<double> burst_noise_sd_m(const std::vector<TrialInfo>& infos,
-                                       const std::vector<TrialSeries>& series) {
+std::optional<double> trial_burst_noise_sd_m(const TrialInfo& info, const TrialSeries& s) {
   constexpr double kMadOfSecondDifference = 0.6745 * 2.449489742783178;  // 0.6745 sqrt(6)
-  std::vector<double> per_trial;
-  for (std::size_t i = 0; i < infos.size(); ++i) {
-    // the burst's samples [a, b) (t increases): first differences d1[j] = x[a+j+1] - x[a+j], second
-    // d2[j] about sample a+j+1, between d1[j] and d1[j+1]
-    const TrialSeries& s = series[i];
-    const double end_s = infos[i].cycles / infos[i].freq_hz;
-    std::size_t a = 0;
-    while (a < s.size() && s.t_s[a] < 0) ++a;
-    std::size_t b = a;
-    while (b < s.size() && s.t_s[b] <= end_s) ++b;
-    if (b < a + 10) continue;  // 8 second differences
-    std::vector<double> d1, d2;
-    for (std::size_t k = a; k + 1 < b; ++k) d1.push_back(std::fabs(s.x_m[k + 1] - s.x_m[k]));
-    for (std::size_t k = a + 1; k + 1 < b; ++k)
-      d2.push_back(std::fabs(s.x_m[k + 1] - 2 * s.x_m[k] + s.x_m[k - 1]));
-    const double first = median(d2) / kMadOfSecondDifference;
-    const double still = 3 * std::sqrt(2.0) * first, still2 = 3 * std::sqrt(6.0) * first;
-    double ss = 0;
-    std::size_t n = 0;
-    for (std::size_t j = 0; j < d2.size(); ++j)
-      if (d1[j] <= still && d1[j + 1] <= still && d2[j] <= still2) {
-        ss += d2[j] * d2[j];
-        ++n;
-      }
-    per_trial.push_back(n >= 8 ? std::sqrt(ss / static_cast<double>(n) / 6.0) : first);
-  }
+  // the burst's samples [a, b) (t increases): first differences d1[j] = x[a+j+1] - x[a+j], second
+  // d2[j] about sample a+j+1, between d1[j] and d1[j+1]
+  const double end_s = info.cycles / info.freq_hz;
+  std::size_t a = 0;
+  while (a < s.size() && s.t_s[a] < 0) ++a;
+  std::size_t b = a;
+  while (b < s.size() && s.t_s[b] <= end_s) ++b;
+  if (b < a + 10) return std::nullopt;  // 8 second differences
+  std::vector<double> d1, d2;
+  for (std::size_t k = a; k + 1 < b; ++k) d1.push_back(std::fabs(s.x_m[k + 1] - s.x_m[k]));
+  for (std::size_t k = a + 1; k + 1 < b; ++k)
+    d2.push_back(std::fabs(s.x_m[k + 1] - 2 * s.x_m[k] + s.x_m[k - 1]));
+  const double first = median(d2) / kMadOfSecondDifference;
+  const double still = 3 * std::sqrt(2.0) * first, still2 = 3 * std::sqrt(6.0) * first;
+  double ss = 0;
+  std::size_t n = 0;
+  for (std::size_t j = 0; j < d2.size(); ++j)
+    if (d1[j] <= still && d1[j + 1] <= still && d2[j] <= still2) {
+      ss += d2[j] * d2[j];
+      ++n;
+    }
+  return n >= 8 ? std::sqrt(ss / static_cast<double>(n) / 6.0) : first;
+}
+
+// Over the trials, the lower quartile of their burst estimates (those that slide least).
+std::optional<double> lower_quartile(std::vector<double> per_trial) {
   if (per_trial.empty()) return std::nullopt;
   const auto q = per_trial.begin() + static_cast<std::ptrdiff_t>(per_trial.size() / 4);
   std::nth_element(per_trial.begin(), q, per_trial.end());
@@ -123,11 +109,14 @@ std::vector<std::vector<std::size_t>> group_into_cells(const std::vector<TrialIn
   return members;
 }
 
-// Moves the cells with fewer than min_trials trials to out.skipped; InputError when none is left.
+// Moves the cells with fewer than min_trials trials to out.skipped; InputError when none is left
+// (naming the trials left out as damaged, if any: they may be why).
 void skip_small_cells(SweepCells& out, std::vector<std::vector<std::size_t>>& members,
-                      int min_trials, std::size_t trial_count) {
+                      std::vector<std::vector<double>>& read_t, int min_trials,
+                      std::size_t trial_count) {
   std::vector<Cell> kept;
   std::vector<std::vector<std::size_t>> kept_members;
+  std::vector<std::vector<double>> kept_read_t;
   for (std::size_t c = 0; c < out.cells.size(); ++c) {
     if (static_cast<int>(members[c].size()) < min_trials) {
       out.skipped.push_back(out.cells[c].key);
@@ -136,59 +125,127 @@ void skip_small_cells(SweepCells& out, std::vector<std::vector<std::size_t>>& me
     }
     kept.push_back(out.cells[c]);
     kept_members.push_back(members[c]);
+    kept_read_t.push_back(std::move(read_t[c]));
   }
-  if (kept.empty())
+  if (kept.empty()) {
+    std::string damaged;
+    if (!out.damaged.empty())
+      damaged = "; " + std::to_string(out.damaged.size()) +
+                " trial(s) left out as damaged, the first: " + out.damaged.front().why;
     throw InputError(out.name + ": the sweep is too small to diagnose: no cell has " +
                      std::to_string(min_trials) + " trials, some to fit and some held out (" +
-                     std::to_string(trial_count) + " trials in all)");
+                     std::to_string(trial_count) + " trials in all" + damaged + ")");
+  }
   out.cells = std::move(kept);
   members = std::move(kept_members);
+  read_t = std::move(kept_read_t);
 }
 
-// A cell's trial features, split alternately into train and test, and its majority regions.
+// A cell's trial features (in file order), split alternately into train and test, and its
+// majority regions.
 void fill_cell(Cell& cell, const std::vector<std::size_t>& members,
-               const std::vector<TrialInfo>& infos, const std::vector<TrialSeries>& series,
-               double resolution_m, double noise_m) {
+               std::vector<std::optional<TrialFeatures>>& features, std::vector<double> read_t) {
   std::vector<model::Region> votes, train_votes, test_votes;
   for (std::size_t j = 0; j < members.size(); ++j) {
-    const std::size_t i = members[j];
-    TrialFeatures f = trial_features(infos[i], series[i], resolution_m, noise_m);
+    TrialFeatures f = std::move(*features[members[j]]);
     votes.push_back(f.region);
     (j % 2 == 0 ? train_votes : test_votes).push_back(f.region);
     (j % 2 == 0 ? cell.train : cell.test).push_back(std::move(f));
   }
-  cell.read_t_s = read_instants(infos[members.front()], series[members.front()]);
+  cell.read_t_s = std::move(read_t);
   cell.measured_region = majority_region(votes);
   cell.train_region = majority_region(train_votes);
   cell.test_region = majority_region(test_votes);
 }
 
-}  // namespace
+// Calls `use` with trial i's time series (read from its file, or held in memory). A trial that
+// cannot be read throws InputError naming its file.
+using TrialSource =
+    std::function<void(std::size_t, const std::function<void(const TrialSeries&)>&)>;
 
-SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
-                         const std::vector<TrialSeries>& series, const std::string& name,
-                         int min_trials, bool skip_small) {
-  if (infos.size() != series.size())
-    throw std::invalid_argument("collect_cells: infos and trials differ in size");
+// The readings' spread and noise (SweepCells::reading_sd_m, noise_m) from every trial, one at a
+// time: at rest, or (no reading at rest anywhere) inside the bursts; at least the quantization's.
+// A trial that cannot be read is marked in `why` (left out) or, without leave_out, rethrown.
+void read_noise(SweepCells& out, const std::vector<TrialInfo>& infos, const TrialSource& source,
+                bool leave_out, std::vector<std::string>& why) {
+  std::vector<double> rest_sd, burst_sd;
+  for (std::size_t i = 0; i < infos.size(); ++i) {
+    try {
+      source(i, [&](const TrialSeries& s) {
+        add_rest_sd_m(infos[i], s, rest_sd);
+        if (const std::optional<double> b = trial_burst_noise_sd_m(infos[i], s))
+          burst_sd.push_back(*b);
+      });
+    } catch (const InputError& e) {
+      if (!leave_out) throw;
+      why[i] = e.what();
+    }
+  }
+  const double quant_sd = out.resolution_m / std::sqrt(12.0);
+  std::optional<double> sd;
+  if (!rest_sd.empty()) sd = median(rest_sd);
+  if (!sd) sd = lower_quartile(std::move(burst_sd));
+  out.reading_sd_m = std::max(quant_sd, sd.value_or(quant_sd));
+  out.noise_m = std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
+}
+
+// The features of every trial not yet left out, one at a time, and the read instants of each
+// cell's first trial that has them; a trial whose features cannot be read is left out like one
+// that cannot be read at all.
+std::vector<std::optional<TrialFeatures>> read_features(const SweepCells& out,
+                                                        const std::vector<TrialInfo>& infos,
+                                                        const std::vector<std::size_t>& cell_of,
+                                                        const TrialSource& source, bool leave_out,
+                                                        std::vector<std::string>& why,
+                                                        std::vector<std::vector<double>>& read_t) {
+  std::vector<std::optional<TrialFeatures>> features(infos.size());
+  for (std::size_t i = 0; i < infos.size(); ++i) {
+    if (!why[i].empty()) continue;
+    try {
+      source(i, [&](const TrialSeries& s) {
+        features[i] = trial_features(infos[i], s, out.resolution_m, out.noise_m);
+        if (read_t[cell_of[i]].empty()) read_t[cell_of[i]] = read_instants(infos[i], s);
+      });
+    } catch (const InputError& e) {
+      if (!leave_out) throw;
+      why[i] = e.what();
+    }
+  }
+  return features;
+}
+
+// Both overloads of collect_cells: the trials streamed from `source` twice (noise, then
+// features), never held all at once.
+SweepCells collect(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
+                   const TrialSource& source, const std::string& name, int min_trials,
+                   bool skip_small, const std::function<std::string(std::size_t)>& file_of) {
   if (infos.empty())
     throw InputError(name + ": the sweep is too small to diagnose: it holds no trials");
+  const bool leave_out = static_cast<bool>(file_of);
   SweepCells out;
   out.stage = stage;
   out.resolution_m = stage.interferometer.resolution_m;
-  // noise: the readings' spread at rest (or, with no reading at rest, inside the bursts), at least
-  // the quantization's
-  const double quant_sd = out.resolution_m / std::sqrt(12.0);
-  std::optional<double> sd = median_rest_sd_m(infos, series);
-  if (!sd) sd = burst_noise_sd_m(infos, series);
-  out.reading_sd_m = std::max(quant_sd, sd.value_or(quant_sd));
-  const double noise_m =
-      std::sqrt(std::max(0.0, out.reading_sd_m * out.reading_sd_m - quant_sd * quant_sd));
-  out.noise_m = noise_m;
   out.name = name;
   out.min_trials = min_trials;
+  std::vector<std::string> why(infos.size());
+  read_noise(out, infos, source, leave_out, why);
 
   std::vector<std::vector<std::size_t>> members = group_into_cells(infos, out);
-  if (skip_small) skip_small_cells(out, members, min_trials, infos.size());
+  std::vector<std::size_t> cell_of(infos.size());
+  for (std::size_t c = 0; c < members.size(); ++c)
+    for (std::size_t i : members[c]) cell_of[i] = c;
+  std::vector<std::vector<double>> read_t(members.size());
+  std::vector<std::optional<TrialFeatures>> features =
+      read_features(out, infos, cell_of, source, leave_out, why, read_t);
+  for (std::size_t i = 0; i < infos.size(); ++i) {
+    if (why[i].empty()) continue;
+    const std::string file = file_of(i);  // the message names the file, or gets it in front
+    out.damaged.push_back({file, why[i].rfind(file, 0) == 0 ? why[i] : file + ": " + why[i]});
+  }
+  for (std::vector<std::size_t>& m : members)
+    std::erase_if(m, [&](std::size_t i) { return !why[i].empty(); });
+
+  if (skip_small) skip_small_cells(out, members, read_t, min_trials, infos.size());
   for (std::size_t c = 0; c < out.cells.size(); ++c) {
     Cell& cell = out.cells[c];
     if (static_cast<int>(members[c].size()) < min_trials) {
@@ -199,9 +256,70 @@ SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialI
         << " needed (some to fit, some held out)";
       throw InputError(m.str());
     }
-    fill_cell(cell, members[c], infos, series, out.resolution_m, noise_m);
+    fill_cell(cell, members[c], features, std::move(read_t[c]));
   }
   return out;
+}
+
+std::string bytes_text(std::uintmax_t bytes) {
+  return std::to_string(bytes) + " bytes (" + std::to_string(bytes >> 20) + " MiB)";
+}
+
+// What a diagnosis holds and reads, from sweep.csv alone, before a trial file is read: its cells,
+// the rest readings its trials' features hold, the bytes of its trial files.
+void check_budget(const Dataset& ds) {
+  const std::string sweep_csv = (std::filesystem::path(ds.path) / "sweep.csv").string();
+  SweepCells shell;
+  group_into_cells(ds.trials, shell);
+  if (shell.cells.size() > kMaxDiagnosedCells)
+    throw InputError(sweep_csv + ": " + std::to_string(shell.cells.size()) +
+                     " cells (distinct freq_hz, duty, stroke_m), more than a diagnosis takes, " +
+                     "allowed at most " + std::to_string(kMaxDiagnosedCells));
+  std::uintmax_t readings = 0, bytes = 0;
+  for (std::size_t i = 0; i < ds.trials.size(); ++i) {
+    readings += static_cast<std::uintmax_t>(ds.trials[i].cycles) + 2;
+    std::error_code ec;
+    const std::uintmax_t size = std::filesystem::file_size(ds.trial_path(i), ec);
+    // a file the reader refuses (recording::kMaxTrialFileBytes) is left out naming it, unread
+    if (!ec && size <= recording::kMaxTrialFileBytes) bytes += size;
+  }
+  if (readings > kMaxHeldReadings)
+    throw InputError(sweep_csv + ": the trials' cycles add up to " + std::to_string(readings) +
+                     " rest readings, more than a diagnosis holds, allowed at most " +
+                     std::to_string(kMaxHeldReadings));
+  if (bytes > kMaxDiagnosedBytes)
+    throw InputError(sweep_csv + ": the trial files hold " + bytes_text(bytes) +
+                     " in all, more than a diagnosis reads, allowed at most " +
+                     bytes_text(kMaxDiagnosedBytes));
+}
+
+}  // namespace
+
+SweepCells collect_cells(const Dataset& ds, int min_trials) {
+  check_budget(ds);
+  // a cell short of trials is left out and listed, whether the recorder marked the sweep as cut
+  // off or a lab's writer dropped a trial (the format sets no number of trials a cell); so is a
+  // trial whose file is damaged
+  const TrialSource from_file = [&ds](std::size_t i,
+                                      const std::function<void(const TrialSeries&)>& use) {
+    use(read_trial(ds, i));
+  };
+  SweepCells out = collect(ds.stage, ds.trials, from_file, ds.path, min_trials, true,
+                           [&ds](std::size_t i) { return ds.trial_path(i); });
+  out.progress = ds.progress;
+  return out;
+}
+
+SweepCells collect_cells(const model::StageFile& stage, const std::vector<TrialInfo>& infos,
+                         const std::vector<TrialSeries>& series, const std::string& name,
+                         int min_trials, bool skip_small) {
+  if (infos.size() != series.size())
+    throw std::invalid_argument("collect_cells: infos and trials differ in size");
+  const TrialSource in_memory = [&series](std::size_t i,
+                                          const std::function<void(const TrialSeries&)>& use) {
+    use(series[i]);
+  };
+  return collect(stage, infos, in_memory, name, min_trials, skip_small, {});
 }
 
 std::string progress_summary(const SweepCells& sweep) {

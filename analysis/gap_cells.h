@@ -4,6 +4,8 @@
 // procedure.
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -29,6 +31,21 @@ struct Cell {
   model::Region test_region = model::Region::Cutoff;      // vote of the held-out trials
 };
 
+// A trial left out of the diagnosis: its file could not be read (damaged, cut short, too large) or
+// does not cover its burst.
+struct LeftOutTrial {
+  std::string file;  // DATASET/trials/...
+  std::string why;   // one line starting with the file: the reader's message (line, column)
+};
+
+// What idm-gap diagnoses at most, checked from sweep.csv before a trial file is read (a larger
+// sweep is refused naming sweep.csv and the limit): cells (the fit's work grows with them: 80
+// cells take 9-150 s, bench/README.md), the rest readings its trials' features hold (cycles + 2 a
+// trial, 8 bytes each), and the bytes of its trial files (each read twice, one at a time).
+inline constexpr std::size_t kMaxDiagnosedCells = 1000;
+inline constexpr std::uintmax_t kMaxHeldReadings = std::uintmax_t{1} << 25;
+inline constexpr std::uintmax_t kMaxDiagnosedBytes = std::uintmax_t{4} << 30;
+
 struct SweepCells {
   std::vector<Cell> cells;
   double resolution_m = 0;
@@ -44,10 +61,15 @@ struct SweepCells {
   recording::SweepProgress progress;
   std::vector<CellKey> skipped;
   std::vector<std::size_t> skipped_trials;  // the trials each skipped cell has
+  std::vector<LeftOutTrial> damaged;        // trials left out (read from files only), in file order
   int min_trials = 3;                       // the trials a cell needs
 };
 
-// Reads every trial (each error names its file) and groups them. A cell with fewer than
+// Reads every trial and groups them: first checks the sweep against what a diagnosis takes
+// (kMaxDiagnosedCells, kMaxHeldReadings, kMaxDiagnosedBytes; InputError naming sweep.csv), then
+// streams the trial files twice, one at a time (the noise, then each trial's features), holding
+// only features. A trial whose file cannot be read (each error names its file, line and column) or
+// does not cover its burst is left out and listed in `damaged`. A cell with fewer than
 // `min_trials` trials is left out and listed in `skipped` (a sweep the recorder cut off, or a lab's
 // writer that dropped a trial: the format sets no number of trials a cell); a sweep with no cell
 // left is refused (InputError: "the sweep is too small to diagnose: ...").

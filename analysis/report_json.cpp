@@ -56,8 +56,8 @@ std::string region(model::Region r) {
   return json_string(model::region_name(r));
 }
 
-// The recorder's mark: status, whether the sweep was cut off, the planned cells short of trials
-// and the cells the diagnosis left out.
+// The recorder's mark: status, whether the sweep was cut off, the planned cells short of trials,
+// the cells the diagnosis left out and the trials it left out (files it could not use, and why).
 std::string dataset_status_json(const SweepCells& sweep) {
   const recording::SweepProgress& p = sweep.progress;
   std::ostringstream s;
@@ -80,6 +80,10 @@ std::string dataset_status_json(const SweepCells& sweep) {
     s << (i ? ", " : "") << "[" << json_number(sweep.skipped[i].freq_hz) << ", "
       << json_number(sweep.skipped[i].duty) << ", " << json_number(sweep.skipped[i].stroke_m)
       << "]";
+  s << "], \"trials_left_out\": [";
+  for (std::size_t i = 0; i < sweep.damaged.size(); ++i)
+    s << (i ? ", " : "") << "{\"file\": " << json_string(sweep.damaged[i].file)
+      << ", \"why\": " << json_string(sweep.damaged[i].why) << "}";
   s << "]}";
   return s.str();
 }

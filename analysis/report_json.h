@@ -4,13 +4,14 @@
 // name, so a reader never sees half a report).
 //
 // Further extensions (extending, not contradicting): "dataset_status" (the recorder's mark,
-// recording/README.md); the baseline's fitted "friction_coefficient" and "systematic_gap"; per
-// cell "stroke_m", "held_out_trials", "first_step_m", "transient_cycles", "reverse_m",
-// "model_step_after_m", "model_region_after", "residual_after"; per candidate "train_gap" and,
-// when implausible, "why"; "where" also carries "summary_after" and the significant cells with
-// their stroke; a top-level "not_identifiable" with "needs" and "selection" (the forward and
-// backward steps); the diagnosis also carries the joint fit's "step_correction" and
-// "friction_coefficient", the unexplained part's "systematic_gap", "cells_with_stroke" and
+// recording/README.md, the cells left out and, as "trials_left_out" [{"file", "why"}], the trials
+// whose files could not be used); the baseline's fitted "friction_coefficient" and
+// "systematic_gap"; per cell "stroke_m", "held_out_trials", "first_step_m", "transient_cycles",
+// "reverse_m", "model_step_after_m", "model_region_after", "residual_after"; per candidate
+// "train_gap" and, when implausible, "why"; "where" also carries "summary_after" and the
+// significant cells with their stroke; a top-level "not_identifiable" with "needs" and "selection"
+// (the forward and backward steps); the diagnosis also carries the joint fit's "step_correction"
+// and "friction_coefficient", the unexplained part's "systematic_gap", "cells_with_stroke" and
 // "closest", and each ambiguity's "chosen", "alternative" and their gaps.
 #pragma once
 

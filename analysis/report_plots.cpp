@@ -57,13 +57,21 @@ std::string esc(const std::string& s) {
   return o;
 }
 
+// The fill of a cell with no data (none recorded, or no value): grey with hatching, never a
+// colour of the scale (white is a heat map's 0).
+constexpr const char* kNoDataId = "idm-no-data";
+const std::string kNoDataFill = std::string("url(#") + kNoDataId + ")";
+
 struct Svg {
   std::ostringstream s;
   Svg(int w, int h) {
     s << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" << w << "\" height=\"" << h
       << "\" viewBox=\"0 0 " << w << " " << h
-      << "\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" "
-         "fill=\"white\"/>\n";
+      << "\" font-family=\"sans-serif\" font-size=\"12\">\n<defs><pattern id=\"" << kNoDataId
+      << "\" width=\"6\" height=\"6\" patternUnits=\"userSpaceOnUse\" "
+         "patternTransform=\"rotate(45)\"><rect width=\"6\" height=\"6\" fill=\"#e0e0e0\"/>"
+         "<line x1=\"0\" y1=\"0\" x2=\"0\" y2=\"6\" stroke=\"#9a9a9a\" stroke-width=\"2\"/>"
+         "</pattern></defs>\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n";
   }
   void text(double x, double y, const std::string& t, const char* anchor = "middle", int size = 12,
             double rotate = 0) {
@@ -132,6 +140,7 @@ void panel(Svg& g, const SweepCells& sweep, double stroke, int direction, double
   const std::vector<double> fr = keys(sweep, &CellKey::freq_hz),
                             du = keys(sweep, &CellKey::duty, direction);
   const double cw = w / fr.size(), ch = h / std::max<std::size_t>(1, du.size());
+  g.rect(x0, y0, w, h, kNoDataFill, "white");  // positions of the grid no cell covers
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     const CellKey& k = sweep.cells[c].key;
     if (k.stroke_m != stroke || (direction != 0 && (direction < 0) != (k.duty < 0.5))) continue;
@@ -160,6 +169,7 @@ std::vector<int> directions_of(const SweepCells& sweep) {
 }
 
 std::string heat(double r) {
+  if (!std::isfinite(r)) return kNoDataFill;
   // white at 0, yellow at the significance threshold, dark red at 100 and beyond (log scale)
   const double t = std::clamp(std::log10(1 + r) / 2.0, 0.0, 1.0);
   const int red = static_cast<int>(255 - 120 * std::max(0.0, t - 0.3) / 0.7);
@@ -168,6 +178,12 @@ std::string heat(double r) {
   char b[16];
   std::snprintf(b, sizeof b, "#%02x%02x%02x", red, green, blue);
   return b;
+}
+
+// The legend's swatch for cells without data.
+void no_data_legend(Svg& g, double x, double y) {
+  g.rect(x, y, 16, 16, kNoDataFill, "#888");
+  g.text(x + 22, y + 12, "no data", "start", 10);
 }
 
 // Step axes: micrometres when the steps reach one, else nanometres.
@@ -283,17 +299,24 @@ std::string regions_svg(const SweepCells& sweep, const Diagnosis& d) {
     g.text(lx + 16, 40, model::region_name(reg), "start");
     lx += 100;
   }
+  no_data_legend(g, lx, 28);
   return g.done();
 }
 
 std::string cell_map_svg(const SweepCells& sweep, const std::vector<double>& values,
-                         const std::string& title, const std::string& legend) {
+                         const std::string& title, const std::string& legend,
+                         const std::string& when_empty) {
   const std::vector<double> strokes = keys(sweep, &CellKey::stroke_m);
   const std::vector<int> dirs = directions_of(sweep);
   const double pw = 260, ph = 220;
   const std::size_t panels = strokes.size() * dirs.size();
+  const bool empty =
+      !when_empty.empty() && std::none_of(values.begin(), values.end(),
+                                          [](double v) { return std::isfinite(v) && v > 0; });
   Svg g(static_cast<int>(panels * (pw + 90) + 150), static_cast<int>(ph + 130));
-  g.text(20, 22, title + " (colour: " + legend + "; 1 = the noise, 3 = significant)", "start", 13);
+  g.text(20, 22,
+         title + " (colour: " + legend + ", in " + kGapUnit + "; 1 = the noise, 3 = significant)",
+         "start", 13);
   std::size_t k = 0;
   for (double s : strokes)
     for (int dir : dirs) {
@@ -306,7 +329,13 @@ std::string cell_map_svg(const SweepCells& sweep, const std::vector<double>& val
   for (int i = 0; i <= 4; ++i) {
     const double v = i == 0 ? 0.0 : std::pow(10.0, (i - 1) * 0.5 + 0.5);
     g.rect(lx, 70 + 24 * i, 16, 16, heat(v), "#888");
-    g.text(lx + 22, 82 + 24 * i, fmt("%.3g", v), "start", 10);
+    g.text(lx + 22, 82 + 24 * i, fmt("%.3g", v) + " " + kGapUnit, "start", 10);
+  }
+  no_data_legend(g, lx, 70 + 24 * 5);
+  if (empty) {
+    const double width = panels * (pw + 90) - 90;
+    g.rect(70 + width / 2 - 190, 60 + ph / 2 - 22, 380, 44, "white", "#444");
+    g.text(70 + width / 2, 60 + ph / 2 + 5, when_empty, "middle", 15);
   }
   return g.done();
 }
@@ -316,7 +345,7 @@ std::string ranking_svg(const Diagnosis& d) {
   Svg g(760, static_cast<int>(80 + rowh * (d.candidates.size() + d.not_identifiable.size())));
   g.text(20, 22,
          "Each effect added alone: shrink of the held-out gap (from " + fmt("%.3g", d.gap_before) +
-             ")",
+             " " + kGapUnit + ")",
          "start", 14);
   auto px = [&](double s) { return X0 + W * std::clamp(s, 0.0, 1.0); };
   for (double t : nice_ticks(0, 100, 4)) {
@@ -332,7 +361,7 @@ std::string ranking_svg(const Diagnosis& d) {
     g.rect(X0, y + 4, std::max(0.0, px(c.shrink) - X0), rowh - 8,
            chosen ? "#2b8cbe" : (c.plausible ? "#a6bddb" : "#eeeeee"), "#666");
     g.text(px(std::max(0.0, c.shrink)) + 6, y + 16,
-           fmt("%.1f %%", 100 * c.shrink) + " (gap " + fmt("%.3g", c.gap) + ")" +
+           fmt("%.1f %%", 100 * c.shrink) + " (gap " + fmt("%.3g", c.gap) + " " + kGapUnit + ")" +
                (c.plausible ? "" : " implausible") + (chosen ? " named" : ""),
            "start", 11);
     y += rowh;
@@ -345,10 +374,116 @@ std::string ranking_svg(const Diagnosis& d) {
   return g.done();
 }
 
-std::string write_report(const SweepCells& sweep, const Diagnosis& d, const std::string& summary,
-                         const std::string& dir) {
-  std::filesystem::create_directories(dir);
-  const std::filesystem::path p(dir);
+namespace {
+
+const char* kStyle =
+    "body{font-family:sans-serif;line-height:1.45;max-width:72em;margin:0 auto;padding:0 1em 2em;"
+    "color:#222}\n"
+    "h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;margin-top:2em}\n"
+    "nav a{margin-right:1em}\n"
+    "pre{white-space:pre-wrap;overflow-wrap:anywhere;background:#f6f6f6;padding:.6em}\n"
+    "figure{margin:1em 0}figcaption{font-size:.9em;color:#555}\n"
+    "svg{max-width:100%;height:auto;display:block}\n"
+    "table{border-collapse:collapse;margin:.5em 0}\n"
+    "th,td{border:1px solid #ccc;padding:.2em .6em;vertical-align:top;text-align:left}\n"
+    "td.n{text-align:right;white-space:nowrap}\n"
+    ".wrap{overflow-wrap:anywhere}\n";
+
+std::string row(const std::string& key, const std::string& value) {
+  return "<tr><th>" + esc(key) + "</th><td>" + esc(value) + "</td></tr>\n";
+}
+
+std::string gap_text(double gap) {
+  return fmt("%.3g", gap) + " " + kGapUnit;
+}
+
+// The key figures, each with its unit.
+std::string facts_table(const SweepCells& sweep, const Diagnosis& d) {
+  std::size_t trials = 0;
+  for (const Cell& c : sweep.cells) trials += c.train.size() + c.test.size();
+  std::string names;
+  for (const model::EffectSpec& e : d.chosen) names += (names.empty() ? "" : " + ") + e.name;
+  std::string t = "<table>\n";
+  t += row("diagnosis", d.named
+                            ? names
+                            : (d.unexplained.significant ? "nothing named: the gap is unexplained"
+                                                         : "no significant gap to explain"));
+  t += row("cells, trials",
+           std::to_string(sweep.cells.size()) + " cells, " + std::to_string(trials) + " trials");
+  t += row("reading noise", fmt("%.2g", sweep.reading_sd_m * 1e9) + " nm (one count " +
+                                fmt("%.4g", sweep.resolution_m * 1e9) + " nm)");
+  t += row("held-out gap of the impulse model", gap_text(d.gap_before));
+  if (d.named)
+    t += row("held-out gap after the diagnosis",
+             gap_text(d.gap_after) + " (shrink " + fmt("%.1f", 100 * d.shrink) + " %)");
+  t += row("unexplained", std::string(d.unexplained.significant ? "significant: " : "no: ") +
+                              d.unexplained.summary);
+  t += row("unit of the gap", std::string(kGapUnit) +
+                                  ": the standard uncertainty of a cell's measured mean step and "
+                                  "spread; about 1 is within the noise, 3 significant");
+  return t + "</table>\n";
+}
+
+// Each effect alone: held-out gap, shrink, parameters, intervals.
+std::string candidates_table(const Diagnosis& d) {
+  std::string t = "<table>\n<tr><th>effect</th><th>held-out gap (" + std::string(kGapUnit) +
+                  ")</th><th>shrink (%)</th><th>fitted parameters (unit in the name)</th>"
+                  "<th>95 % intervals (held-out)</th><th>note</th></tr>\n";
+  for (std::size_t i = 0; i < d.candidates.size(); ++i) {
+    const SetFit& c = d.candidates[i];
+    std::string params, intervals;
+    for (const model::EffectSpec& e : c.effects)
+      for (const auto& [k, v] : e.params)
+        if (k != "correlation_m" && k != "mean_shift" && !(k == "slew_rate_m_s" && v == 0))
+          params += (params.empty() ? "" : ", ") + k + " = " + model::format_number(v, 4);
+    if (i < d.intervals.size())
+      for (const ParameterIntervals& pi : d.intervals[i])
+        for (const ParameterInterval& p : pi.params)
+          intervals += (intervals.empty() ? "" : ", ") + p.param + " " +
+                       model::format_number(p.lo, 4) + " to " + model::format_number(p.hi, 4) +
+                       (p.limited_by_range ? " (range)" : "");
+    t += "<tr><td>" + esc(c.effects.front().name) + "</td><td class=\"n\">" + fmt("%.3g", c.gap) +
+         "</td><td class=\"n\">" + fmt("%.1f", 100 * c.shrink) + "</td><td class=\"wrap\">" +
+         esc(params) + "</td><td class=\"wrap\">" + esc(intervals) + "</td><td class=\"wrap\">" +
+         esc(c.plausible ? "" : "implausible: " + c.note) + "</td></tr>\n";
+  }
+  for (const NotIdentifiable& n : d.not_identifiable)
+    t += "<tr><td>" + esc(n.effect) +
+         "</td><td colspan=\"5\">not identifiable from this data: needs " + esc(n.needs) +
+         "</td></tr>\n";
+  return t + "</table>\n";
+}
+
+// The cells and the trials the diagnosis left out, and why; "" when none.
+std::string left_out_section(const SweepCells& sweep) {
+  const std::string progress = progress_summary(sweep);
+  if (sweep.damaged.empty() && progress.empty()) return "";
+  std::string h = "<section id=\"left-out\"><h2>Left out</h2>\n";
+  if (!progress.empty()) h += "<p>" + esc(progress) + "</p>\n";
+  if (!sweep.damaged.empty()) {
+    h += "<table>\n<tr><th>trial file</th><th>why it was left out</th></tr>\n";
+    for (const LeftOutTrial& t : sweep.damaged)
+      h += "<tr><td class=\"wrap\">" + esc(t.file) + "</td><td class=\"wrap\">" + esc(t.why) +
+           "</td></tr>\n";
+    h += "</table>\n";
+  }
+  return h + "</section>\n";
+}
+
+// The caption links the plot's own file, written next to report.html.
+std::string figure(const std::string& svg, const std::string& caption, const std::string& file) {
+  return "<figure>" + svg + "<figcaption>" + esc(caption) + " (<a href=\"" + esc(file) + "\">" +
+         esc(file) + "</a>)</figcaption></figure>\n";
+}
+
+// The plots of the report by file name, in the order the page shows them.
+struct Plot {
+  const char* file;
+  std::string svg;
+  const char* caption;
+};
+
+std::vector<Plot> report_plots(const SweepCells& sweep, const Diagnosis& d) {
   std::vector<double> before, after, footprint, spread, departure;
   for (std::size_t c = 0; c < sweep.cells.size(); ++c) {
     before.push_back(d.baseline.test.cells[c].residual);
@@ -357,41 +492,71 @@ std::string write_report(const SweepCells& sweep, const Diagnosis& d, const std:
     spread.push_back(d.where.cells[c].spread_excess);
     departure.push_back(d.where.cells[c].departure);
   }
-  write_file_atomic((p / "steps.svg").string(), steps_svg(sweep, d));
-  write_file_atomic((p / "regions.svg").string(), regions_svg(sweep, d));
-  write_file_atomic((p / "gap_before.svg").string(),
-                    cell_map_svg(sweep, before, "The gap of the impulse model, cell by cell",
-                                 "held-out residual"));
-  write_file_atomic((p / "effect_gap.svg").string(),
-                    cell_map_svg(sweep, footprint, "Where the named effects act (effect_gap)",
-                                 "the model with them against without"));
-  write_file_atomic(
-      (p / "spread_excess.svg").string(),
-      cell_map_svg(sweep, spread, "Trial-to-trial spread beyond the model's", "spread_excess"));
-  write_file_atomic((p / "departure.svg").string(),
-                    cell_map_svg(sweep, departure, "Where the stage departs from stage.yaml's",
-                                 "held-out residual at stage.yaml's mu, alpha 1"));
-  write_file_atomic(
-      (p / "gap_after.svg").string(),
-      cell_map_svg(sweep, after, "What is left after the diagnosis", "held-out residual"));
-  write_file_atomic((p / "ranking.svg").string(), ranking_svg(d));
+  return {
+      {"effect_gap.svg",
+       cell_map_svg(sweep, footprint, "Where the named effects act (effect_gap)",
+                    "the model with them against without", "no effect named: no footprint"),
+       "Where the named effects act"},
+      {"spread_excess.svg",
+       cell_map_svg(sweep, spread, "Trial-to-trial spread beyond the model's", "spread_excess",
+                    "no cell shows a spread excess"),
+       "Spread beyond the model's"},
+      {"gap_before.svg",
+       cell_map_svg(sweep, before, "The gap of the impulse model, cell by cell",
+                    "held-out residual"),
+       "The gap of the impulse model, cell by cell"},
+      {"gap_after.svg",
+       cell_map_svg(sweep, after, "What is left after the diagnosis", "held-out residual"),
+       "What is left after the diagnosis"},
+      {"departure.svg",
+       cell_map_svg(sweep, departure, "Where the stage departs from stage.yaml's",
+                    "held-out residual at stage.yaml's mu, alpha 1"),
+       "Where the stage departs from its description"},
+      {"steps.svg", steps_svg(sweep, d), "Step size against duty"},
+      {"regions.svg", regions_svg(sweep, d), "Region maps"},
+      {"ranking.svg", ranking_svg(d), "Which effect: each alone"},
+  };
+}
+
+std::string report_html(const SweepCells& sweep, const Diagnosis& d, const std::string& summary,
+                        const std::vector<Plot>& plots) {
+  auto fig = [&](const char* file) {
+    for (const Plot& p : plots)
+      if (std::string(p.file) == file) return figure(p.svg, p.caption, p.file);
+    return std::string();
+  };
   std::ostringstream h;
-  h << "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>idm-gap: " << esc(sweep.name)
-    << "</title></head>\n<body style=\"font-family:sans-serif;max-width:1300px\">\n<h1>Sim-to-real "
-       "gap: "
-    << esc(sweep.name) << "</h1>\n<pre style=\"white-space:pre-wrap\">" << esc(summary)
-    << "</pre>\n"
-    << "<h2>Step size against duty</h2><img src=\"steps.svg\" alt=\"steps\">\n"
-    << "<h2>Where the named effects act</h2><img src=\"effect_gap.svg\" alt=\"effect gap\">\n"
-    << "<h2>Spread beyond the model's</h2><img src=\"spread_excess.svg\" alt=\"spread excess\">\n"
-    << "<h2>The gap, cell by cell</h2><img src=\"gap_before.svg\" alt=\"gap before\"><br>"
-    << "<img src=\"gap_after.svg\" alt=\"gap after\">\n"
-    << "<h2>Where the stage departs from its description</h2><img src=\"departure.svg\" "
-       "alt=\"departure\">\n"
-    << "<h2>Region maps</h2><img src=\"regions.svg\" alt=\"region maps\">\n"
-    << "<h2>Which effect</h2><img src=\"ranking.svg\" alt=\"ranking\">\n</body></html>\n";
+  h << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+    << "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+    << "<title>idm-gap: " << esc(sweep.name) << "</title>\n<style>\n"
+    << kStyle << "</style></head>\n<body>\n<h1>Sim-to-real gap: " << esc(sweep.name) << "</h1>\n"
+    << "<nav><a href=\"#summary\">Summary</a><a href=\"#which\">Which effect</a>"
+    << "<a href=\"#where\">Where</a><a href=\"#steps\">Steps</a><a href=\"#regions\">Regions</a>"
+    << "<a href=\"#text\">Text</a></nav>\n"
+    << "<section id=\"summary\"><h2>Summary</h2>\n"
+    << facts_table(sweep, d) << "</section>\n"
+    << left_out_section(sweep) << "<section id=\"which\"><h2>Which effect</h2>\n"
+    << candidates_table(d) << fig("ranking.svg") << "</section>\n"
+    << "<section id=\"where\"><h2>Where</h2>\n<p>" << esc(d.where.summary) << "</p>\n"
+    << fig("effect_gap.svg") << fig("spread_excess.svg") << fig("gap_before.svg")
+    << fig("gap_after.svg") << fig("departure.svg") << "</section>\n"
+    << "<section id=\"steps\"><h2>Step size against duty</h2>\n"
+    << fig("steps.svg") << "</section>\n<section id=\"regions\"><h2>Region maps</h2>\n"
+    << fig("regions.svg") << "</section>\n<section id=\"text\"><h2>Text summary</h2>\n<pre>"
+    << esc(summary) << "</pre></section>\n</body></html>\n";
+  return h.str();
+}
+
+}  // namespace
+
+std::string write_report(const SweepCells& sweep, const Diagnosis& d, const std::string& summary,
+                         const std::string& dir) {
+  std::filesystem::create_directories(dir);
+  const std::filesystem::path p(dir);
+  const std::vector<Plot> plots = report_plots(sweep, d);
+  for (const Plot& plot : plots) write_file_atomic((p / plot.file).string(), plot.svg);
   std::string html = (p / "report.html").string();
-  write_file_atomic(html, h.str());
+  write_file_atomic(html, report_html(sweep, d, summary, plots));
   return html;
 }
 

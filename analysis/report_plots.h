@@ -30,9 +30,13 @@ std::string tick_label(double value, double step);
 
 std::string steps_svg(const SweepCells& sweep, const Diagnosis& d);
 std::string regions_svg(const SweepCells& sweep, const Diagnosis& d);
-// A map of one value per cell, one panel per stroke and direction.
+// A map of one value per cell (in the gap's unit), one panel per stroke and direction; grid
+// positions without a cell and values that are not finite are hatched grey ("no data" in the
+// legend), never white (a value of 0). With `when_empty` and no value above 0, that sentence is
+// written across the panels ("no cell shows a spread excess") instead of a map left blank.
 std::string cell_map_svg(const SweepCells& sweep, const std::vector<double>& values,
-                         const std::string& title, const std::string& legend);
+                         const std::string& title, const std::string& legend,
+                         const std::string& when_empty = "");
 std::string ranking_svg(const Diagnosis& d);
 
 // Writes every file above into `dir` (created if missing). Returns the path of report.html.

@@ -38,6 +38,18 @@ std::string names_of(const std::vector<std::string>& n) {
 
 }  // namespace
 
+std::string left_out_summary(const SweepCells& sweep) {
+  if (sweep.damaged.empty()) return "";
+  constexpr std::size_t kListed = 8;
+  std::ostringstream s;
+  s << sweep.damaged.size() << " trial(s) left out (their files could not be used):\n";
+  for (std::size_t i = 0; i < sweep.damaged.size() && i < kListed; ++i)
+    s << "  " << sweep.damaged[i].why << "\n";
+  if (sweep.damaged.size() > kListed)
+    s << "  and " << sweep.damaged.size() - kListed << " more (all in the JSON)\n";
+  return s.str();
+}
+
 std::string text_summary(const SweepCells& sweep, const Diagnosis& d) {
   std::ostringstream s;
   char buf[512];
@@ -46,20 +58,23 @@ std::string text_summary(const SweepCells& sweep, const Diagnosis& d) {
   std::snprintf(
       buf, sizeof buf, "%s: %zu cells, %d trials; reading noise %.2g m (one count %.4g m)\n",
       sweep.name.c_str(), sweep.cells.size(), trials, sweep.reading_sd_m, sweep.resolution_m);
-  s << buf << progress_summary(sweep);
+  s << buf << progress_summary(sweep) << left_out_summary(sweep);
+  s << "(gaps and residuals in " << kGapUnit
+    << ": standard uncertainties of the measured mean step and spread; about 1 is within the "
+       "noise, 3 significant)\n";
   const Calibration& b = d.baseline.calibration;
   std::snprintf(buf, sizeof buf,
                 "baseline (impulse model; alpha %.3f and mu %.4g fitted on training trials, "
                 "stage.yaml: mu %.4g): "
-                "held-out gap %.3g\n",
-                b.alpha, b.mu, sweep.stage.stage.friction_coefficient, d.gap_before);
+                "held-out gap %.3g %s\n",
+                b.alpha, b.mu, sweep.stage.stage.friction_coefficient, d.gap_before, kGapUnit);
   s << buf << "where: " << d.where.summary << "\n";
   s << "which (each effect alone, fitted on training trials; held-out gap; 95 % intervals from "
        "held-out trials):\n";
   for (std::size_t i = 0; i < d.candidates.size(); ++i) {
     const SetFit& c = d.candidates[i];
-    std::snprintf(buf, sizeof buf, "  %-20s gap %8.3g  shrink %6.1f %%  ",
-                  c.effects.front().name.c_str(), c.gap, 100 * c.shrink);
+    std::snprintf(buf, sizeof buf, "  %-20s gap %8.3g %s  shrink %6.1f %%  ",
+                  c.effects.front().name.c_str(), c.gap, kGapUnit, 100 * c.shrink);
     s << buf << params_text(c.effects);
     if (i < d.intervals.size() && !d.intervals[i].empty())
       s << "  [" << intervals_text(d.intervals[i]) << "]";
@@ -72,12 +87,14 @@ std::string text_summary(const SweepCells& sweep, const Diagnosis& d) {
     s << "selection:";
     for (const SelectionStep& st : d.steps)
       s << " " << st.action << " -> " << names_of(st.effects) << " (gap "
-        << model::format_number(st.gap, 3) << ");";
+        << model::format_number(st.gap, 3) << " " << kGapUnit << ");";
     s << "\n";
   }
   if (d.named) {
-    std::snprintf(buf, sizeof buf, "diagnosis: %s; held-out gap %.3g -> %.3g (shrink %.1f %%)\n",
-                  names_of(d.best.names()).c_str(), d.gap_before, d.gap_after, 100 * d.shrink);
+    std::snprintf(buf, sizeof buf,
+                  "diagnosis: %s; held-out gap %.3g %s -> %.3g %s (shrink %.1f %%)\n",
+                  names_of(d.best.names()).c_str(), d.gap_before, kGapUnit, d.gap_after, kGapUnit,
+                  100 * d.shrink);
     s << buf << "  fitted jointly: " << params_text(d.chosen);
     s << "; alpha " << model::format_number(d.after.calibration.alpha, 3) << ", mu "
       << model::format_number(d.after.calibration.mu, 4) << "\n";
@@ -87,8 +104,8 @@ std::string text_summary(const SweepCells& sweep, const Diagnosis& d) {
     s << "diagnosis: no effect of the library explains the gap (nothing named)\n";
   } else {
     s << "diagnosis: no significant gap to explain (held-out gap "
-      << model::format_number(d.gap_before, 3) << ", systematic part "
-      << model::format_number(systematic_gap(d.baseline), 3) << ")\n";
+      << model::format_number(d.gap_before, 3) << " " << kGapUnit << ", systematic part "
+      << model::format_number(systematic_gap(d.baseline), 3) << " " << kGapUnit << ")\n";
   }
   s << "unexplained: " << (d.unexplained.significant ? "SIGNIFICANT. " : "no. ")
     << d.unexplained.summary;

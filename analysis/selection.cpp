@@ -277,8 +277,8 @@ std::string why_alike(const std::vector<std::string>& a, const std::vector<std::
         "the triangle; "
         "below the resonance they look alike. ";
   char buf[200];
-  std::snprintf(buf, sizeof buf, "%s leaves a held-out gap of %.3g, %s %.3g.", joined(a).c_str(),
-                ga, joined(b).c_str(), gb);
+  std::snprintf(buf, sizeof buf, "%s leaves a held-out gap of %.3g %s, %s %.3g %s.",
+                joined(a).c_str(), ga, kGapUnit, joined(b).c_str(), gb, kGapUnit);
   return s + buf;
 }
 
@@ -296,9 +296,10 @@ std::string remainder_summary(const SweepCells& sweep, const FittedModel& after,
     if (r.label > 0) ++labels;
   }
   std::ostringstream s;
-  s << "After " << named << ", a held-out gap of " << model::format_number(after.test.gap, 3)
-    << " (systematic part " << model::format_number(systematic_gap(after), 3)
-    << ") remains that no effect of the library explains. " << pattern_summary(sweep, rest, "It")
+  s << "After " << named << ", a held-out gap of " << model::format_number(after.test.gap, 3) << " "
+    << kGapUnit << " (systematic part " << model::format_number(systematic_gap(after), 3) << " "
+    << kGapUnit << ") remains that no effect of the library explains. "
+    << pattern_summary(sweep, rest, "It")
     << " In the significant cells the stage steps further than the model in " << further
     << ", less far in " << shorter << "; its trial-to-trial spread is wider than predicted in "
     << wider << "; the region label differs in " << labels << ".";
@@ -524,9 +525,9 @@ void describe_unexplained(const SweepCells& sweep, bool searched, Diagnosis& d) 
                   ", shrinks the gap by " +
                   model::format_number(std::round(1000 * d.candidates.front().shrink) / 10) + " %";
   } else {
-    u.summary = "After " + named + " the held-out gap is " + model::format_number(u.gap, 3) +
-                ", within what the measurement's noise allows (systematic part " +
-                model::format_number(u.systematic_gap, 3) + ").";
+    u.summary = "After " + named + " the held-out gap is " + model::format_number(u.gap, 3) + " " +
+                kGapUnit + ", within what the measurement's noise allows (systematic part " +
+                model::format_number(u.systematic_gap, 3) + " " + kGapUnit + ").";
   }
 }
 

@@ -146,5 +146,8 @@ bool explains_weak_gap(const SetFit& fit, const FittedModel& baseline);
 
 // A short text summary (a few lines) for a person.
 std::string text_summary(const SweepCells& sweep, const Diagnosis& d);
+// The trials left out because their files could not be used (SweepCells::damaged), a line each
+// (at most 8, then how many more); "" when none was (report_text.cpp).
+std::string left_out_summary(const SweepCells& sweep);
 
 }  // namespace idm::analysis

@@ -246,8 +246,9 @@ std::string pattern_summary(const SweepCells& sweep, const std::vector<double>& 
       (strokes.size() > 1 ? ", stroke " + fmt("%.4g", k.stroke_m * 1e6) + " um" : "");
   if (v[top] < kSignificantResidual)
     return s + " is within the noise at all " + std::to_string(n) + " cells (largest " +
-           fmt("%.2g", v[top]) + " at " + at + ").";
-  s += " is largest at " + at + " (" + fmt("%.3g", v[top]) + "); " + carrying_part(sweep, v);
+           fmt("%.2g", v[top]) + " " + kGapUnit + " at " + at + ").";
+  s += " is largest at " + at + " (" + fmt("%.3g", v[top]) + " " + kGapUnit + "); " +
+       carrying_part(sweep, v);
   const std::vector<std::string> trends = trends_of(sweep, v, strokes, fwd, rev);
   if (!trends.empty()) {
     s += " It ";

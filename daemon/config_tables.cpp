@@ -6,6 +6,7 @@
 
 #include "daemon/config.h"
 #include "model/yaml_util.h"
+#include "recording/dataset_limits.h"
 
 namespace idm::daemon {
 
@@ -34,10 +35,12 @@ const model::ParamTable<ControlConfig>& control_params() {
               "stroke_count", "count", 1, 64, "region map grid: strokes",
               [](auto& c) -> auto& { return c.stroke_count; }),
           real<C>(
-              "min_freq_hz", "Hz", {0, 1e6, true}, "lowest frequency (narrowed by the device)",
+              "min_freq_hz", "Hz", recording::kFreqRangeHz,
+              "lowest frequency (narrowed by the device)",
               [](auto& c) -> auto& { return c.min_freq_hz; }),
           real<C>(
-              "max_freq_hz", "Hz", {0, 1e6, true}, "highest frequency (narrowed by the device)",
+              "max_freq_hz", "Hz", recording::kFreqRangeHz,
+              "highest frequency (narrowed by the device)",
               [](auto& c) -> auto& { return c.max_freq_hz; }),
           real<C>(
               "min_stroke_m", "m", {0, 1e-3, true}, "smallest stroke of the map",

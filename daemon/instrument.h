@@ -16,6 +16,8 @@
 #include <string>
 #include <vector>
 
+#include "recording/dataset_limits.h"
+
 namespace idm::daemon {
 
 // SCPI-style codes: negative are the standard ones, positive are the device's own.
@@ -88,9 +90,10 @@ inline constexpr DeviceFault kDeviceFaults[] = {
     {"device_lost", error_code::kFaultDeviceLost, "Device lost"},
 };
 
-// SWEEP's per-cell trials and per-trial cycles: the protocol's check and the daemon's.
-inline constexpr int kMaxSweepTrials = 100000;
-inline constexpr int kMaxSweepCycles = 100000;
+// SWEEP's per-cell trials and per-trial cycles: the protocol's check and the daemon's; the
+// dataset's own limits (recording/dataset_limits.h), which every reader of a sweep checks.
+inline constexpr int kMaxSweepTrials = recording::kMaxTrialsPerCell;
+inline constexpr int kMaxSweepCycles = recording::kMaxCycles;
 
 struct CommandError {
   int code = error_code::kNoError;

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <set>
 #include <sstream>
+#include <stdexcept>
 
 #include "model/range.h"
 #include "model/yaml_util.h"
@@ -25,13 +26,13 @@ struct StageKey {
 constexpr StageKey kStageKeys[] = {
     {"slider_mass_kg",
      &StageParams::slider_mass_kg,
-     {0.0, 1e3, true},
+     {1e-6, 1e3},
      true,
      "kg",
      "M, the slider (Table 1)"},
     {"counter_mass_kg",
      &StageParams::counter_mass_kg,
-     {0.0, 1e3, true},
+     {1e-6, 1e3},
      true,
      "kg",
      "m, the counter mass on the actuator's free end (Table 1)"},
@@ -148,6 +149,12 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file,
 
 StageFile load_stage_file(const std::string& path, const StageYamlOptions& options) {
   return parse_stage_yaml(load_yaml_file(path), path, options);
+}
+
+const Range& stage_key_range(const std::string& key) {
+  for (const StageKey& k : kStageKeys)
+    if (key == k.name) return k.range;
+  throw std::invalid_argument("stage_key_range: '" + key + "' is not a stage key");
 }
 
 std::string stage_reference_rows() {

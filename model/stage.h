@@ -71,6 +71,12 @@ StageFile parse_stage_yaml(const YAML::Node& root, const std::string& file_name,
                            const StageYamlOptions& options = {});
 StageFile load_stage_file(const std::string& path, const StageYamlOptions& options = {});
 
+struct Range;
+// The range of one stage key of stage.yaml ("stroke_m", "slider_mass_kg", ...), from the one table
+// the reader checks with: what a stage can be, for code that checks values against it (a dataset's
+// strokes). std::invalid_argument for a name that is not a stage key.
+const Range& stage_key_range(const std::string& key);
+
 // config/README.md's rows of the stage keys ("| key | unit | default | range | meaning |"), from
 // the same table the reader checks with.
 std::string stage_reference_rows();

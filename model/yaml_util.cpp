@@ -246,38 +246,39 @@ YAML::Node load_yaml_file(const std::string& path, const YamlLimits& limits) {
 }
 
 std::string read_regular_file(const std::string& path, std::size_t max_bytes) {
-  // O_NONBLOCK: opening a FIFO must not wait for a writer; fstat then refuses it.
+  // O_NONBLOCK: opening a FIFO for reading would wait for a writer; fstat then refuses it.
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
-  if (fd < 0) throw InputError(path + ": cannot open file: " + std::strerror(errno));
-  struct stat st {};
-  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
-    ::close(fd);
-    throw InputError(path + ": not a regular file (a FIFO, a device or a directory); refused");
-  }
-  if (static_cast<std::uintmax_t>(st.st_size) > max_bytes) {
-    ::close(fd);
-    throw InputError(path + ": " + std::to_string(st.st_size) + " bytes, more than the " +
-                     std::to_string(max_bytes) + " allowed; refused");
-  }
-  std::string text;
-  char buf[65536];
-  for (;;) {
-    const ssize_t n = ::read(fd, buf, sizeof buf);
+  if (fd < 0) throw InputError(path + ": cannot open file (" + std::strerror(errno) + ")");
+  struct Closer {
+    int fd;
+    ~Closer() { ::close(fd); }
+  } closer{fd};
+  struct stat info {};
+  if (::fstat(fd, &info) != 0)
+    throw InputError(path + ": cannot read file (" + std::strerror(errno) + ")");
+  if (!S_ISREG(info.st_mode))
+    throw InputError(path + ": not a regular file (" +
+                     (S_ISFIFO(info.st_mode)  ? "a FIFO"
+                      : S_ISDIR(info.st_mode) ? "a directory"
+                                              : "a device or socket") +
+                     "), allowed: a regular file");
+  const auto bytes_text = [](std::size_t bytes) {
+    return std::to_string(bytes) + " bytes (" + std::to_string(bytes >> 20) + " MiB)";
+  };
+  const auto size = static_cast<std::size_t>(info.st_size);
+  if (size > max_bytes)
+    throw InputError(path + ": " + bytes_text(size) + ", more than the reader takes in one file, " +
+                     "allowed at most " + bytes_text(max_bytes));
+  std::string text(size, '\0');
+  std::size_t got = 0;
+  while (got < text.size()) {  // the file may have shrunk meanwhile
+    const ssize_t n = ::read(fd, text.data() + got, text.size() - got);
     if (n < 0 && errno == EINTR) continue;
-    if (n < 0) {
-      const int e = errno;
-      ::close(fd);
-      throw InputError(path + ": cannot read: " + std::strerror(e));
-    }
+    if (n < 0) throw InputError(path + ": cannot read file (" + std::strerror(errno) + ")");
     if (n == 0) break;
-    text.append(buf, static_cast<std::size_t>(n));
-    if (text.size() > max_bytes) {  // it grew while read
-      ::close(fd);
-      throw InputError(path + ": more than the " + std::to_string(max_bytes) +
-                       " bytes allowed; refused");
-    }
+    got += static_cast<std::size_t>(n);
   }
-  ::close(fd);
+  text.resize(got);
   return text;
 }
 

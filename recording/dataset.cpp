@@ -1,10 +1,6 @@
 // The dataset reader: read_dataset, read_trial (dataset.h); the writer is dataset_writer.cpp.
 #include "recording/dataset.h"
 
-#include <fcntl.h>
-#include <sys/stat.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <array>
 #include <cerrno>
@@ -16,6 +12,7 @@
 #include <deque>
 #include <filesystem>
 #include <limits>
+#include <map>
 #include <optional>
 #include <stdexcept>
 #include <string_view>
@@ -23,7 +20,9 @@
 #include <unordered_map>
 #include <utility>
 
+#include "model/yaml_util.h"
 #include "recording/dataset_format.h"
+#include "recording/dataset_limits.h"
 
 namespace idm::recording {
 
@@ -75,38 +74,13 @@ std::string number_problem(NumberStatus status, std::string_view text) {
 
 // ---------------------------------------------------------------- CSV
 
-std::string read_text_file(const std::string& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) throw InputError(path + ": cannot open file (" + std::strerror(errno) + ")");
-  struct stat info {};
-  if (::fstat(fd, &info) != 0 || !S_ISREG(info.st_mode)) {
-    ::close(fd);
-    throw InputError(path + ": not a regular file");
-  }
-  std::string text(static_cast<std::size_t>(info.st_size), '\0');
-  std::size_t got = 0;
-  while (got < text.size()) {
-    const ssize_t n = ::read(fd, text.data() + got, text.size() - got);
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) {
-      const int error = errno;
-      ::close(fd);
-      throw InputError(path + ": cannot read file (" + std::strerror(error) + ")");
-    }
-    if (n == 0) break;
-    got += static_cast<std::size_t>(n);
-  }
-  ::close(fd);
-  text.resize(got);
-  return text;
-}
-
 // A CSV file read whole: a header line, then rows. Fields are separated by commas, trimmed of
 // spaces and tabs, and may be quoted ("a,b", "say ""x""") within one line. CRLF or LF line
 // endings, an optional UTF-8 byte order mark, trailing empty lines.
 class CsvFile {
  public:
-  explicit CsvFile(std::string path) : path_(std::move(path)), text_(read_text_file(path_)) {
+  CsvFile(std::string path, std::size_t max_bytes)
+      : path_(std::move(path)), text_(model::read_regular_file(path_, max_bytes)) {
     if (std::string_view(text_).substr(0, 3) == "\xEF\xBB\xBF") pos_ = 3;
   }
 
@@ -272,10 +246,12 @@ Dataset read_dataset(const std::string& dir) {
                      (fs::exists(dir, ec) ? "not a directory" : "does not exist") + ")");
   Dataset out;
   out.path = dir;
-  out.stage = model::load_stage_file((fs::path(dir) / kStageFile).string(),
-                                     {.strict = false, .require_dataset_keys = true});
+  const std::string stage_path = (fs::path(dir) / kStageFile).string();
+  out.stage = model::parse_stage_yaml(
+      model::load_yaml_file(stage_path, {kMaxYamlFileBytes, model::YamlLimits{}.max_nodes}),
+      stage_path, {.strict = false, .require_dataset_keys = true});
 
-  CsvFile csv((fs::path(dir) / kSweepFile).string());
+  CsvFile csv((fs::path(dir) / kSweepFile).string(), kMaxSweepFileBytes);
   const auto col = csv.read_header(kSweepColumns);
   auto column_of = [&](const char* name) {
     for (std::size_t i = 0; i < kSweepColumnCount; ++i)
@@ -284,6 +260,7 @@ Dataset read_dataset(const std::string& dir) {
   };
 
   std::unordered_map<std::string, std::size_t> line_of_id;
+  std::map<std::array<double, 3>, int> trials_of_cell;
   while (csv.next_row()) {
     csv.check_field_count();
     const auto& f = csv.fields();
@@ -310,6 +287,11 @@ Dataset read_dataset(const std::string& dir) {
       csv.fail(col[kFile], in_quotes(t.file) + " does not exist (" + trial_file.string() + ")");
     if (!fs::is_regular_file(trial_file, ec))
       csv.fail(col[kFile], in_quotes(t.file) + " is not a regular file");
+    if (++trials_of_cell[{t.freq_hz, t.duty, t.stroke_m}] > kMaxTrialsPerCell)
+      csv.fail(col[kTrial], "more than " + std::to_string(kMaxTrialsPerCell) +
+                                " trials of one cell (" + format_number(t.freq_hz) + " Hz, duty " +
+                                format_number(t.duty) + ", stroke " + format_number(t.stroke_m) +
+                                " m), allowed at most " + std::to_string(kMaxTrialsPerCell));
     out.trials.push_back(std::move(t));
   }
   const fs::path plan_path = fs::path(dir) / kPlanFile;
@@ -325,7 +307,7 @@ Dataset read_dataset(const std::string& dir) {
 }
 
 TrialSeries read_trial_file(const std::string& path) {
-  CsvFile csv(path);
+  CsvFile csv(path, kMaxTrialFileBytes);
   const auto col = csv.read_header(kTrialColumns);
   TrialSeries out;
   const std::size_t lines =

@@ -100,8 +100,8 @@ class DatasetWriter {
   DatasetWriter(std::string dir, const model::StageFile& stage);
   // Marks the dataset in progress with `planned` (checked first: InputError for a bad cell);
   // `axis`, when not empty, is the name of the axis that plays the sweep (plan.yaml's `axis`).
-  DatasetWriter(std::string dir, const model::StageFile& stage, std::vector<PlannedCell> planned,
-                std::string axis = "");
+  DatasetWriter(const std::string& dir, const model::StageFile& stage,
+                const std::vector<PlannedCell>& planned, std::string axis = "");
   // The same into a directory already held open (the daemon's: created below its data_dir with
   // openat, so that nothing another user swaps into the path afterwards is followed); `shown` is
   // its path for messages and Dataset::path. Every file is written relative to it.

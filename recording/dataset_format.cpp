@@ -1,19 +1,25 @@
 #include "recording/dataset_format.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <limits>
 #include <system_error>
+
+#include "recording/dataset_limits.h"
 
 namespace idm::recording::format {
 
 namespace fs = std::filesystem;
 
 namespace {
-
-constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // A value of `column` outside (lo, hi] ((lo, hi) when hi_open), or not finite; `allowed` says
 // the range in the message.
@@ -55,17 +61,23 @@ std::optional<std::string> file_problem(const std::string& file) {
   return std::nullopt;
 }
 
+std::optional<Problem> range_problem(const char* column, double value, const model::Range& range) {
+  if (range.contains(value)) return std::nullopt;
+  if (!std::isfinite(value)) return Problem{column, format_number(value) + " is not finite"};
+  return Problem{column, format_number(value) + " is out of range, allowed " + range.text()};
+}
+
 std::optional<Problem> trial_problem(const TrialInfo& t) {
   if (trim(t.id).empty()) return Problem{"trial", "empty trial id"};
   if (t.id.find_first_of("\r\n") != std::string::npos)
     return Problem{"trial", "the trial id contains a line break"};
-  if (auto p = range_problem("freq_hz", t.freq_hz, 0.0, kInf, true, "(0, inf)")) return p;
+  if (auto p = range_problem("freq_hz", t.freq_hz, kFreqRangeHz)) return p;
   if (auto p = range_problem("duty", t.duty, 0.0, 1.0, true, "(0, 1)")) return p;
-  if (auto p = range_problem("stroke_m", t.stroke_m, 0.0, kInf, true, "(0, inf)")) return p;
-  if (t.cycles < 1)
-    return Problem{"cycles", std::to_string(t.cycles) + " is out of range, allowed >= 1"};
-  if (auto p = range_problem("sample_rate_hz", t.sample_rate_hz, 0.0, kInf, true, "(0, inf)"))
-    return p;
+  if (auto p = range_problem("stroke_m", t.stroke_m, model::stage_key_range("stroke_m"))) return p;
+  if (t.cycles < 1 || t.cycles > kMaxCycles)
+    return Problem{"cycles", std::to_string(t.cycles) + " is out of range, allowed [1, " +
+                                 std::to_string(kMaxCycles) + "]"};
+  if (auto p = range_problem("sample_rate_hz", t.sample_rate_hz, kSampleRateRangeHz)) return p;
   if (!std::isfinite(t.guide_pos_m))
     return Problem{"guide_pos_m", format_number(t.guide_pos_m) + " is not finite"};
   if (t.file.find_first_of("\r\n") != std::string::npos)

@@ -4,10 +4,12 @@
 #pragma once
 
 #include <array>
+#include <cstddef>
 #include <optional>
 #include <string>
 #include <string_view>
 
+#include "model/range.h"
 #include "model/text_list.h"
 #include "recording/dataset.h"
 
@@ -51,7 +53,10 @@ struct Problem {
 
 // Why `file` is not a path inside the dataset, or nothing.
 std::optional<std::string> file_problem(const std::string& file);
-// The first value of a row that the format does not allow, or nothing.
+// A value outside `range` (recording/dataset_limits.h, the stage table), or nothing.
+std::optional<Problem> range_problem(const char* column, double value, const model::Range& range);
+// The first value of a row that the format does not allow, or nothing: the ranges of
+// dataset_limits.h, the stage's stroke range.
 std::optional<Problem> trial_problem(const TrialInfo& t);
 
 // CSV field as the reader will read it back: quoted when it has a comma, a quote or blanks at

@@ -84,10 +84,8 @@ std::string trial_name(double freq_hz, double duty, double stroke_m, int index) 
 DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage)
     : DatasetWriter(std::move(dir), stage, {}) {}
 
-DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage,
-                             std::vector<PlannedCell> planned, std::string axis)
-    // `planned` copied, not moved: the order in which arguments are evaluated is unspecified, and
-    // open_root must see it.
+DatasetWriter::DatasetWriter(const std::string& dir, const model::StageFile& stage,
+                             const std::vector<PlannedCell>& planned, std::string axis)
     : DatasetWriter(open_root(dir, stage, planned), dir, stage, planned, std::move(axis)) {}
 
 // Checked before the directory is made: a bad stage or plan leaves nothing behind.

@@ -2,10 +2,12 @@
 
 #include <charconv>
 #include <cmath>
-#include <limits>
 
+#include "model/range.h"
 #include "model/yaml_util.h"
 #include "recording/dataset.h"
+#include "recording/dataset_format.h"
+#include "recording/dataset_limits.h"
 
 namespace idm::recording {
 
@@ -81,21 +83,20 @@ std::string plan_yaml(const SweepPlanFile& plan) {
 }
 
 void validate_plan(const std::vector<PlannedCell>& cells, const std::string& where) {
-  constexpr double kInf = std::numeric_limits<double>::infinity();
   for (std::size_t i = 0; i < cells.size(); ++i) {
     const PlannedCell& c = cells[i];
     const std::string at = where + ": planned cell " + std::to_string(i + 1) + " ";
-    auto check = [&](const char* key, double v, double lo, double hi, const char* allowed) {
-      if (!(std::isfinite(v) && v > lo && v < hi))
+    auto check = [&](const char* key, double v, const model::Range& range) {
+      if (!range.contains(v))
         throw InputError(at + key + ": " + model::format_number(v) + " is out of range, allowed " +
-                         allowed);
+                         range.text());
     };
-    check("freq_hz", c.freq_hz, 0.0, kInf, "(0, inf)");
-    check("duty", c.duty, 0.0, 1.0, "(0, 1)");
-    check("stroke_m", c.stroke_m, 0.0, kInf, "(0, inf)");
-    if (c.trials < 1)
+    check("freq_hz", c.freq_hz, kFreqRangeHz);
+    check("duty", c.duty, model::Range{0.0, 1.0, true, true});
+    check("stroke_m", c.stroke_m, model::stage_key_range("stroke_m"));
+    if (c.trials < 1 || c.trials > kMaxTrialsPerCell)
       throw InputError(at + "trials: " + std::to_string(c.trials) +
-                       " is out of range, allowed >= 1");
+                       " is out of range, allowed [1, " + std::to_string(kMaxTrialsPerCell) + "]");
     for (std::size_t k = 0; k < i; ++k)
       if (same_cell(cells[k], c.freq_hz, c.duty, c.stroke_m))
         throw InputError(at + cell_text(c) + " repeats planned cell " + std::to_string(k + 1));
@@ -104,7 +105,7 @@ void validate_plan(const std::vector<PlannedCell>& cells, const std::string& whe
 
 SweepPlanFile read_plan_file(const std::string& path) {
   // A line per planned cell: up to recording.sweep_max_trials cells, each a map of a few keys.
-  const YAML::Node root = model::load_yaml_file(path, {std::size_t{64} << 20, 4000000});
+  const YAML::Node root = model::load_yaml_file(path, {kMaxYamlFileBytes, 4000000});
   if (!root.IsMap()) throw InputError(path + ":1: expected a map with status and cells");
   SweepPlanFile plan;
   const YAML::Node status = root["status"];
@@ -138,15 +139,18 @@ SweepPlanFile read_plan_file(const std::string& path) {
       return v;
     };
     PlannedCell p;
-    p.freq_hz = model::read_double(field("freq_hz"), path, key + ".freq_hz", 0, 1e300, true);
+    p.freq_hz = model::read_double(field("freq_hz"), path, key + ".freq_hz", kFreqRangeHz.lo,
+                                   kFreqRangeHz.hi, kFreqRangeHz.lo_open);
     p.duty = model::read_double(field("duty"), path, key + ".duty", -1e300, 1e300);
     if (!(p.duty > 0 && p.duty < 1))
       throw InputError(
           model::located(path, c["duty"], key + ".duty",
                          model::format_number(p.duty) + " is out of range, allowed (0, 1)"));
-    p.stroke_m = model::read_double(field("stroke_m"), path, key + ".stroke_m", 0, 1e300, true);
+    const model::Range& stroke = model::stage_key_range("stroke_m");
+    p.stroke_m = model::read_double(field("stroke_m"), path, key + ".stroke_m", stroke.lo,
+                                    stroke.hi, stroke.lo_open);
     p.trials = static_cast<int>(
-        model::read_integer(field("trials"), path, key + ".trials", 1, 1000000000L));
+        model::read_integer(field("trials"), path, key + ".trials", 1, kMaxTrialsPerCell));
     for (std::size_t k = 0; k < plan.cells.size(); ++k)
       if (same_cell(plan.cells[k], p.freq_hz, p.duty, p.stroke_m))
         throw InputError(model::located(

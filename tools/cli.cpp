@@ -190,8 +190,15 @@ int run_subcommands(const char* tool, const char* usage, std::initializer_list<S
   }
   const std::string cmd = argv[1];
   try {
-    for (const Subcommand& c : commands)
-      if (cmd == c.name) return c.run(argc, argv);
+    for (const Subcommand& c : commands) {
+      if (cmd != c.name) continue;
+      for (int k = 2; k < argc; ++k)
+        if (std::string(argv[k]) == "--help" || std::string(argv[k]) == "-h") {
+          std::fputs(usage, stdout);
+          return 0;
+        }
+      return c.run(argc, argv);
+    }
     if (cmd == "--help" || cmd == "-h" || cmd == "help") {
       std::fputs(usage, stdout);
       return 0;

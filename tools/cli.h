@@ -60,7 +60,8 @@ struct Subcommand {
   int (*run)(int argc, char** argv);
 };
 
-// The main of a tool with subcommands: usage on no argument (exit 2) or --help (exit 0), an
+// The main of a tool with subcommands: usage on no argument (exit 2) or --help, before or after
+// the subcommand (`tool CMD --help`: exit 0, nothing run), an
 // unknown name lists the allowed ones (exit 2), and an error is one line on stderr:
 // "TOOL CMD: message" for bad input (model::InputError, exit 2), "TOOL CMD: error: message" for
 // anything else (exit 1).

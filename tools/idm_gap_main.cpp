@@ -6,7 +6,9 @@
 //
 // diagnose prints a short summary; --json writes docs/gap-report.md; --report writes plots (SVG)
 // and report.html. Every file is written whole (temporary name, then rename). Bad input: one line
-// on stderr, exit status 2.
+// on stderr, exit status 2, nothing written. A trial file that cannot be read is left out with a
+// warning on stderr naming it and why (listed in the summary and the JSON too). `idm-gap
+// --version` prints the project's version; `--help` after any subcommand its usage (exit 0).
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -14,6 +16,7 @@
 #include <sstream>
 #include <string>
 
+#include "analysis/candidates.h"
 #include "analysis/gap_cells.h"
 #include "analysis/report_json.h"
 #include "analysis/report_plots.h"
@@ -28,7 +31,8 @@ using idm::model::InputError;
 namespace {
 
 const char* kUsage =
-    "usage: idm-gap diagnose DATASET [--json FILE] [--report DIR] [--threads N] [--effects LIST]\n"
+    "usage: idm-gap --version\n"
+    "       idm-gap diagnose DATASET [--json FILE] [--report DIR] [--threads N] [--effects LIST]\n"
     "       idm-gap validate [--seeds N] [--first-seed S] [--json FILE] [--cases LIST] [--quick 1] "
     "[--threads N]\n"
     "DATASET is a sweep in the format of docs/sweep-dataset.md; LIST is comma-separated effect "
@@ -81,6 +85,13 @@ int diagnose(int argc, char** argv) {
   opt.effects = effect_list(f);
   if (!std::filesystem::is_directory(path)) throw InputError(path + ": no such dataset directory");
   const analysis::SweepCells sweep = analysis::collect_cells(recording::read_dataset(path));
+  if (const std::string p = analysis::search_range_problem(sweep, opt.effects); !p.empty())
+    throw InputError((std::filesystem::path(path) / "sweep.csv").string() +
+                     ": freq_hz, duty, stroke_m: the sweep lies outside what the diagnosis "
+                     "searches: " +
+                     p);
+  for (const analysis::LeftOutTrial& t : sweep.damaged)
+    std::fprintf(stderr, "idm-gap diagnose: warning: trial left out: %s\n", t.why.c_str());
   const analysis::Diagnosis d = analysis::diagnose(sweep, opt);
   const std::string summary = analysis::text_summary(sweep, d);
   std::fputs(summary.c_str(), stdout);
@@ -99,18 +110,21 @@ void print_run(const analysis::ValidateRun& r) {
     params += (params.empty() ? "" : ",") + k + "=" + model::format_number(v);
   std::fprintf(
       stdout,
-      "%-4s %-40s seed %-3llu named %-30s%s gap %7.3g -> %7.3g shrink %5.1f %% where %s  %.0f s\n",
+      "%-4s %-40s seed %-3llu named %-30s%s gap %7.3g %s -> %7.3g %s shrink %5.1f %% where %s  "
+      "%.0f s\n",
       r.correct ? "ok" : (r.error.empty() ? "MISS" : "ERR"), r.hidden.c_str(),
       static_cast<unsigned long long>(r.seed), named.empty() ? "(nothing)" : named.c_str(),
-      r.unexplained ? " +unexplained" : "", r.gap_before, r.gap_after, 100 * r.shrink,
+      r.unexplained ? " +unexplained" : "", r.gap_before, analysis::kGapUnit, r.gap_after,
+      analysis::kGapUnit, 100 * r.shrink,
       r.where_scored ? model::format_number(std::round(100 * r.where_rank) / 100).c_str() : "-",
       r.seconds);
   std::fprintf(stdout, "     %s; %s\n", r.setup.c_str(), params.c_str());
   if (r.truth_scored) {
     std::string cannot;
     for (const std::string& n : r.truth_cannot_show) cannot += (cannot.empty() ? "" : ", ") + n;
-    std::fprintf(stdout, "     the true set: held-out gap %.3g%s%s%s\n", r.truth_gap,
-                 cannot.empty() ? "" : "; it does not earn a place for ", cannot.c_str(),
+    std::fprintf(stdout, "     the true set: held-out gap %.3g %s%s%s%s\n", r.truth_gap,
+                 analysis::kGapUnit, cannot.empty() ? "" : "; it does not earn a place for ",
+                 cannot.c_str(),
                  r.fit_short ? "; the fit of the named set stopped short of it" : "");
   }
   if (!r.error.empty()) std::fprintf(stdout, "     error: %s\n", r.error.c_str());
@@ -146,7 +160,15 @@ int validate(int argc, char** argv) {
 
 }  // namespace
 
+#ifndef IDM_VERSION
+#define IDM_VERSION "0"
+#endif
+
 int main(int argc, char** argv) {
+  if (argc == 2 && (std::string(argv[1]) == "--version" || std::string(argv[1]) == "-V")) {
+    std::printf("idm-gap %s\n", IDM_VERSION);
+    return 0;
+  }
   return idm::tools::run_subcommands("idm-gap", kUsage,
                                      {{"diagnose", diagnose}, {"validate", validate}}, argc, argv);
 }

@@ -3,6 +3,9 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cctype>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -150,6 +153,93 @@ TEST(Report, WritesPlotsAndAPageWithoutLeavingTemporaryFiles) {
   std::filesystem::remove_all(dir);
 }
 
+std::string slurp(const std::filesystem::path& p) {
+  std::ifstream in(p);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+TEST(Report, ThePageHasSectionsTablesAndItsPlotsInlineWithNoExternalResource) {
+  const SweepCells sweep = small_sweep({{"tilt", {{"angle_deg", 2}}}});
+  const Diagnosis& d = tilted();
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gap_html_" + std::to_string(getpid()));
+  std::filesystem::remove_all(dir);
+  const std::string html = slurp(write_report(sweep, d, text_summary(sweep, d), dir.string()));
+  for (const char* part :
+       {"<meta name=\"viewport\"", "<style>", "svg{max-width:100%;height:auto", "<nav>",
+        "<section id=\"summary\">", "<section id=\"which\">", "<section id=\"where\">",
+        "<section id=\"steps\">", "<section id=\"regions\">", "<th>effect</th>", "<td>tilt</td>",
+        "held-out gap (σ)", "pre{white-space:pre-wrap"})
+    EXPECT_NE(html.find(part), std::string::npos) << part;
+  // every plot inline, the page whole on its own: no image, script, stylesheet or link to fetch
+  std::size_t svgs = 0;
+  for (std::size_t at = html.find("<svg "); at != std::string::npos;
+       at = html.find("<svg ", at + 1))
+    ++svgs;
+  EXPECT_EQ(svgs, 8u);
+  for (const char* external : {"<img", "src=", "<link", "<script", "@import", "url(http"})
+    EXPECT_EQ(html.find(external), std::string::npos) << external;
+  std::filesystem::remove_all(dir);
+}
+
+TEST(Report, EveryGapTheSummaryPrintsCarriesItsUnit) {
+  const SweepCells sweep = small_sweep({{"tilt", {{"angle_deg", 2}}}});
+  const std::string text = text_summary(sweep, tilted());
+  std::size_t gaps = 0;
+  for (std::size_t at = text.find("gap "); at != std::string::npos;
+       at = text.find("gap ", at + 1)) {
+    std::size_t end = at + 4;
+    if (end >= text.size() ||
+        !(std::isdigit(static_cast<unsigned char>(text[end])) || text[end] == ' '))
+      continue;
+    while (end < text.size() && text[end] == ' ') ++end;
+    const std::size_t number = end;
+    while (end < text.size() && (std::isdigit(static_cast<unsigned char>(text[end])) ||
+                                 text[end] == '.' || text[end] == 'e' || text[end] == '-'))
+      ++end;
+    if (end == number) continue;
+    ++gaps;
+    EXPECT_EQ(text.substr(end, 3), " σ") << text.substr(at, end - at + 8) << "\n" << text;
+  }
+  EXPECT_GE(gaps, 3u) << text;
+  EXPECT_NE(text.find("gaps and residuals in σ"), std::string::npos) << text;
+}
+
+TEST(Report, AMapWithNothingToShowSaysSoAndCellsWithoutDataAreHatchedNotWhite) {
+  SweepCells sweep = small_sweep({});
+  std::vector<double> zeros(sweep.cells.size(), 0.0);
+  const std::string empty = cell_map_svg(sweep, zeros, "Trial-to-trial spread beyond the model's",
+                                         "spread_excess", "no cell shows a spread excess");
+  EXPECT_NE(empty.find(">no cell shows a spread excess<"), std::string::npos) << empty;
+  // write_report's spread_excess.svg, where no cell shows one
+  Diagnosis d = tilted();
+  for (CellWhere& w : d.where.cells) w.spread_excess = 0;
+  const SweepCells tilt = small_sweep({{"tilt", {{"angle_deg", 2}}}});
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gap_empty_" + std::to_string(getpid()));
+  std::filesystem::remove_all(dir);
+  write_report(tilt, d, text_summary(tilt, d), dir.string());
+  EXPECT_NE(slurp(dir / "spread_excess.svg").find(">no cell shows a spread excess<"),
+            std::string::npos);
+  std::filesystem::remove_all(dir);
+  // a cell of the grid without data (left out) and a value that is not a number: hatched grey, in
+  // the legend, never the white of a 0
+  std::vector<double> values(sweep.cells.size(), 5.0);
+  values[1] = std::nan("");
+  sweep.cells.erase(sweep.cells.begin() + 2);
+  values.erase(values.begin() + 2);
+  const std::string map = cell_map_svg(sweep, values, "gap", "held-out residual");
+  EXPECT_NE(map.find("<pattern id=\"idm-no-data\""), std::string::npos) << map;
+  std::size_t hatched = 0;
+  for (std::size_t at = map.find("fill=\"url(#idm-no-data)\""); at != std::string::npos;
+       at = map.find("fill=\"url(#idm-no-data)\"", at + 1))
+    ++hatched;
+  // per panel the grid's background, the NaN cell, and the legend's swatch
+  EXPECT_GE(hatched, 3u) << map;
+  EXPECT_NE(map.find(">no data<"), std::string::npos) << map;
+  EXPECT_EQ(map.find(">no cell shows"), std::string::npos);  // no sentence when not asked
+}
+
 TEST(BadInput, ATooSmallSweepAndABadTrialFileAreRefusedWithAMessage) {
   model::SimConfig sim;
   SweepPlan plan;
@@ -185,11 +275,15 @@ TEST(BadInput, ATooSmallSweepAndABadTrialFileAreRefusedWithAMessage) {
   const std::size_t comma = text.rfind(',', line3);
   text.replace(comma + 1, line3 - comma - 1, "nan");
   std::ofstream(file) << text;
-  try {
+  try {  // the damaged trial is left out; the cell's other 2 are too few, and the message says why
     collect_cells(recording::read_dataset(dir.string()));
     ADD_FAILURE() << "no error";
   } catch (const InputError& e) {
-    EXPECT_NE(std::string(e.what()).find(file + ":3:3"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("too small to diagnose"), std::string::npos) << e.what();
+    EXPECT_NE(
+        std::string(e.what()).find("1 trial(s) left out as damaged, the first: " + file + ":3:3"),
+        std::string::npos)
+        << e.what();
   }
   std::filesystem::remove_all(dir);
 }

@@ -5,10 +5,11 @@
 // is one): stage.yaml, sweep.csv, then trials/t0.csv, trials/t1.csv, ... (at most 4).
 //
 // Invariants: a dataset is read or refused with model::InputError naming one of its files; nothing
-// else is thrown; a trial has equal-length columns, finite values and strictly increasing time;
-// and a dataset read whole is written again by DatasetWriter and reads back identical (the
-// writer's promise that writer -> reader is exact, here from the reader's side) when its trials
-// have distinct files.
+// else is thrown; every value read is within what a stage and a sweep can be
+// (recording/dataset_limits.h, the stage table: the reader checks before it holds more); a trial
+// has equal-length columns, finite values and strictly increasing time; and a dataset read whole is
+// written again by DatasetWriter and reads back identical (the writer's promise that writer ->
+// reader is exact, here from the reader's side) when its trials have distinct files.
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -22,8 +23,10 @@
 #include <string_view>
 #include <vector>
 
+#include "model/range.h"
 #include "model/stage.h"
 #include "recording/dataset.h"
+#include "recording/dataset_limits.h"
 
 namespace fs = std::filesystem;
 using idm::recording::Dataset;
@@ -51,6 +54,18 @@ void write(const fs::path& path, std::string_view text) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   out.write(text.data(), static_cast<std::streamsize>(text.size()));
   if (!out) fail("cannot write", path.string());
+}
+
+void check_limits(const Dataset& d) {
+  namespace rec = idm::recording;
+  const idm::model::Range& stroke = idm::model::stage_key_range("stroke_m");
+  for (const auto& t : d.trials)
+    if (!rec::kFreqRangeHz.contains(t.freq_hz) ||
+        !rec::kSampleRateRangeHz.contains(t.sample_rate_hz) || !stroke.contains(t.stroke_m) ||
+        t.cycles < 1 || t.cycles > rec::kMaxCycles)
+      fail("a value beyond the dataset's limits was read", t.id);
+  if (!idm::model::stage_key_range("slider_mass_kg").contains(d.stage.stage.slider_mass_kg))
+    fail("a stage mass beyond the stage table's range was read", d.path);
 }
 
 void check_series(const TrialSeries& s, const std::string& where) {
@@ -112,6 +127,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   std::vector<TrialSeries> series;
   try {
     dataset = idm::recording::read_dataset(dir.string());
+    check_limits(dataset);
     for (std::size_t i = 0; i < dataset.trials.size(); ++i) {
       series.push_back(idm::recording::read_trial(dataset, i));
       check_series(series.back(), dataset.trial_path(i));

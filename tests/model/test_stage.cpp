@@ -74,7 +74,7 @@ static std::string error_of(const std::string& yaml, StageYamlOptions o = {}) {
 
 TEST(Stage, BadValuesNameFileLineKeyAndRange) {
   EXPECT_EQ(error_of("stage:\n  slider_mass_kg: -1\n"),
-            "stage.yaml:2: stage.slider_mass_kg: -1 is out of range, allowed (0, 1000]");
+            "stage.yaml:2: stage.slider_mass_kg: -1 is out of range, allowed [1e-06, 1000]");
   EXPECT_EQ(error_of("stage:\n  counter_mass_kg: 0.05\n  friction_coefficient: abc\n"),
             "stage.yaml:3: stage.friction_coefficient: 'abc' is not a number");
   EXPECT_NE(error_of("stage:\n  stroke_m: .nan\n").find("stage.stroke_m: must be finite"),

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/resource.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -8,6 +9,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <sstream>
 #include <string>
@@ -429,16 +431,127 @@ TEST(DatasetErrors, OutOfRangeValues) {
   EXPECT_EQ(with_row("a,100,0,2e-05,3,10000,0.01,trials/a.csv"),
             sweep + ":2:3 (duty): 0 is out of range, allowed (0, 1)");
   EXPECT_EQ(with_row("a,-100,0.1,2e-05,3,10000,0.01,trials/a.csv"),
-            sweep + ":2:2 (freq_hz): -100 is out of range, allowed (0, inf)");
+            sweep + ":2:2 (freq_hz): -100 is out of range, allowed (0, 1000000]");
   EXPECT_EQ(with_row("a,100,0.1,0,3,10000,0.01,trials/a.csv"),
-            sweep + ":2:4 (stroke_m): 0 is out of range, allowed (0, inf)");
+            sweep + ":2:4 (stroke_m): 0 is out of range, allowed (0, 0.001]");
   EXPECT_EQ(with_row("a,100,0.1,2e-05,0,10000,0.01,trials/a.csv"),
-            sweep + ":2:5 (cycles): 0 is out of range, allowed >= 1");
+            sweep + ":2:5 (cycles): 0 is out of range, allowed [1, 100000]");
   EXPECT_EQ(with_row("a,100,0.1,2e-05,3,0,0.01,trials/a.csv"),
-            sweep + ":2:6 (sample_rate_hz): 0 is out of range, allowed (0, inf)");
+            sweep + ":2:6 (sample_rate_hz): 0 is out of range, allowed (0, 100000000]");
+  // beyond what a stage and a sweep can be (recording/dataset_limits.h, the stage table), refused
+  // before anything is read or held for them
+  EXPECT_EQ(with_row("a,1e9,0.1,2e-05,3,10000,0.01,trials/a.csv"),
+            sweep + ":2:2 (freq_hz): 1e+09 is out of range, allowed (0, 1000000]");
+  EXPECT_EQ(with_row("a,100,0.1,0.01,3,10000,0.01,trials/a.csv"),
+            sweep + ":2:4 (stroke_m): 0.01 is out of range, allowed (0, 0.001]");
+  EXPECT_EQ(with_row("a,100,0.1,2e-05,100001,10000,0.01,trials/a.csv"),
+            sweep + ":2:5 (cycles): 100001 is out of range, allowed [1, 100000]");
+  EXPECT_EQ(with_row("a,100,0.1,2e-05,3,1e9,0.01,trials/a.csv"),
+            sweep + ":2:6 (sample_rate_hz): 1e+09 is out of range, allowed (0, 100000000]");
   EXPECT_EQ(with_row(",100,0.1,2e-05,3,10000,0.01,trials/a.csv"),
             sweep + ":2:1 (trial): empty trial id");
   EXPECT_EQ(with_row("a,100,0.1,2e-05,3,10000,0.01,trials/a.csv"), "");
+}
+
+TEST(DatasetErrors, AStageBeyondWhatAStageCanBeIsRefusedNamingKeyAndRange) {
+  TempDir tmp;
+  write_small_dataset(tmp);
+  std::string yaml = kStageYaml;
+  yaml.replace(yaml.find("0.16557"), 7, "1e-300");
+  write_text(tmp / "stage.yaml", yaml);
+  EXPECT_EQ(read_error(tmp.str()), tmp / "stage.yaml" +
+                                       ":2: stage.slider_mass_kg: 1e-300 is out of range, allowed "
+                                       "[1e-06, 1000]");
+}
+
+TEST(DatasetErrors, APlanBeyondWhatASweepCanBeIsRefused) {
+  TempDir tmp;
+  write_small_dataset(tmp);
+  write_text(
+      tmp / "plan.yaml",
+      "status: complete\ncells:\n  - {freq_hz: 1e9, duty: 0.1, stroke_m: 2e-05, trials: 1}\n");
+  EXPECT_EQ(read_error(tmp.str()),
+            tmp / "plan.yaml" + ":3: cells[0].freq_hz: 1e+09 is out of range, allowed (0, 1e+06]");
+  write_text(tmp / "plan.yaml",
+             "status: complete\ncells:\n  - {freq_hz: 100, duty: 0.1, stroke_m: 2e-05, trials: "
+             "1000000}\n");
+  EXPECT_NE(read_error(tmp.str()).find("cells[0].trials"), std::string::npos);
+}
+
+TEST(DatasetErrors, MoreTrialsOfACellThanASweepCanHoldAreRefusedNamingTheLine) {
+  TempDir tmp;
+  write_small_dataset(tmp);
+  std::string csv = kSweepHeader;
+  for (int i = 0; i <= 100000; ++i)
+    csv += "t" + std::to_string(i) + ",100,0.1,2e-05,3,10000,0.01,trials/a.csv\n";
+  write_text(tmp / "sweep.csv", csv);
+  EXPECT_EQ(read_error(tmp.str()),
+            tmp / "sweep.csv" +
+                ":100002:1 (trial): more than 100000 trials of one cell (100 Hz, duty 0.1, stroke "
+                "2e-05 m), allowed at most 100000");
+}
+
+// `read` (the message of its InputError, or "") run in a child process, so that a reader that
+// blocks does not hang the suite: "(blocked)" when the child has not finished within 10 s.
+std::string error_in_child(const std::function<std::string()>& read) {
+  int fds[2];
+  if (::pipe(fds) != 0) return "(no pipe)";
+  const pid_t child = ::fork();
+  if (child == 0) {
+    ::close(fds[0]);
+    const std::string e = read();
+    if (::write(fds[1], e.data(), e.size()) < 0) ::_exit(3);
+    ::_exit(0);
+  }
+  ::close(fds[1]);
+  int status = 0;
+  for (int i = 0; i < 1000 && ::waitpid(child, &status, WNOHANG) == 0; ++i) ::usleep(10000);
+  if (::waitpid(child, &status, WNOHANG) == 0) {
+    ::kill(child, SIGKILL);
+    ::waitpid(child, &status, 0);
+    ::close(fds[0]);
+    return "(blocked)";
+  }
+  std::string out;
+  char buf[512];
+  for (ssize_t n; (n = ::read(fds[0], buf, sizeof buf)) > 0;) out.append(buf, n);
+  ::close(fds[0]);
+  return out;
+}
+
+TEST(DatasetErrors, AFifoIsRefusedAtOnceNamingTheFile) {
+  for (const char* name : {"sweep.csv", "stage.yaml", "plan.yaml"}) {
+    TempDir tmp;
+    write_small_dataset(tmp);
+    fs::remove(tmp / name);
+    ASSERT_EQ(::mkfifo((tmp / name).c_str(), 0600), 0) << name;
+    EXPECT_EQ(error_in_child([&] { return read_error(tmp.str()); }),
+              tmp / name + ": not a regular file (a FIFO), allowed: a regular file")
+        << name;
+  }
+  TempDir tmp;
+  const std::string fifo = tmp / "trial.csv";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_EQ(error_in_child([&] {
+              try {
+                read_trial_file(fifo);
+              } catch (const InputError& e) {
+                return std::string(e.what());
+              }
+              return std::string();
+            }),
+            fifo + ": not a regular file (a FIFO), allowed: a regular file");
+}
+
+TEST(DatasetErrors, AFileLargerThanTheReaderTakesIsRefusedNamingItAndTheLimit) {
+  TempDir tmp;
+  write_small_dataset(tmp);
+  // sparse: 300 MiB that take no room on the disk
+  fs::resize_file(tmp / "trials/a.csv", std::uintmax_t{300} << 20);
+  EXPECT_EQ(read_error(tmp.str()),
+            tmp / "trials/a.csv" +
+                ": 314572800 bytes (300 MiB), more than the reader takes in one file, allowed at "
+                "most 268435456 bytes (256 MiB)");
 }
 
 TEST(DatasetErrors, FilePathMustStayInsideTheDataset) {

@@ -14,9 +14,14 @@ struct ToolResult {
   std::string out;  // stdout and stderr
 };
 
-// IDM_BUILD_DIR/tools/TOOL ARGS (ARGS as a shell would split them).
-inline ToolResult run_tool(const std::string& tool, const std::string& args) {
-  const std::string cmd = std::string(IDM_BUILD_DIR) + "/tools/" + tool + " " + args + " 2>&1";
+// IDM_BUILD_DIR/tools/TOOL ARGS (ARGS as a shell would split them). With timeout_s > 0 the tool is
+// killed after that long (status 124, or 137 after SIGKILL), so a tool that blocks cannot hang
+// the suite.
+inline ToolResult run_tool(const std::string& tool, const std::string& args, int timeout_s = 0) {
+  const std::string prefix =
+      timeout_s > 0 ? "timeout -k 5 " + std::to_string(timeout_s) + " " : std::string();
+  const std::string cmd =
+      prefix + std::string(IDM_BUILD_DIR) + "/tools/" + tool + " " + args + " 2>&1";
   FILE* p = popen(cmd.c_str(), "r");
   std::string out;
   char buf[4096];

@@ -3,6 +3,7 @@
 // validate.
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -19,8 +20,8 @@ namespace {
 
 using Result = idm::test::ToolResult;
 
-Result run(const std::string& args) {
-  return idm::test::run_tool("idm-gap", args);
+Result run(const std::string& args, int timeout_s = 0) {
+  return idm::test::run_tool("idm-gap", args, timeout_s);
 }
 
 std::string slurp(const std::filesystem::path& p) {
@@ -70,7 +71,10 @@ TEST(IdmGap, DiagnoseNamesTheAmplifierAndWritesJsonAndReport) {
   for (const char* f : {"report.html", "regions.svg", "steps.svg", "gap_before.svg",
                         "gap_after.svg", "ranking.svg"})
     EXPECT_TRUE(std::filesystem::exists(report / f)) << f;
-  EXPECT_NE(slurp(report / "report.html").find("ranking.svg"), std::string::npos);
+  const std::string page = slurp(report / "report.html");
+  // The ranking plot is inline (the page reads alone) and its caption links the file.
+  EXPECT_NE(page.find("Which effect: each alone (<a href=\"ranking.svg\">"), std::string::npos);
+  EXPECT_NE(page.find("<svg"), std::string::npos);
   std::filesystem::remove_all(ds);
   std::filesystem::remove(json);
   std::filesystem::remove_all(report);
@@ -98,6 +102,118 @@ TEST(IdmGap, BadInputIsOneLineWithStatus2AndNothingWritten) {
     EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << c.args << ": " << r.out;
   }
   EXPECT_FALSE(std::filesystem::exists(json));
+}
+
+TEST(IdmGap, EverySubcommandsHelpPrintsTheUsageAndVersionTheProjectsVersion) {
+  for (const char* args : {"--help", "diagnose --help", "validate --help", "diagnose -h",
+                           "diagnose /nonexistent --help"}) {
+    const Result r = run(args);
+    EXPECT_EQ(r.status, 0) << args << ": " << r.out;
+    EXPECT_EQ(r.out.rfind("usage: idm-gap", 0), 0u) << args << ": " << r.out;
+    EXPECT_NE(r.out.find("idm-gap diagnose DATASET"), std::string::npos) << args;
+  }
+  const Result v = run("--version");
+  EXPECT_EQ(v.status, 0) << v.out;
+  EXPECT_EQ(v.out, std::string("idm-gap ") + IDM_PROJECT_VERSION + "\n");
+}
+
+// A small sweep of the ideal stage: 2 x 2 cells of 3 trials.
+std::filesystem::path small_sweep(const std::string& name) {
+  const auto dir = temp(name);
+  idm::analysis::SweepPlan plan;
+  plan.freqs_hz = {200, 400};
+  plan.duties = {0.05, 0.25};
+  plan.trials = 3;
+  plan.cycles = 6;
+  plan.sample_rate_hz = 20e3;
+  idm::model::SimConfig sim;
+  sim.noise_m = 2e-9;
+  idm::analysis::run_simulated_sweep(idm::model::StageFile{}, sim, plan, dir.string());
+  return dir;
+}
+
+// Every occurrence of `from` in the file replaced by `to`.
+void replace_in(const std::filesystem::path& file, const std::string& from, const std::string& to) {
+  std::string text = slurp(file);
+  for (std::size_t at = text.find(from); at != std::string::npos; at = text.find(from, at + 1))
+    text.replace(at, from.size(), to);
+  std::ofstream(file, std::ios::trunc) << text;
+}
+
+TEST(IdmGap, AFifoInTheDatasetIsRefusedAtOnceNamingIt) {
+  for (const char* name : {"sweep.csv", "stage.yaml", "plan.yaml"}) {
+    const auto dir = small_sweep("idm_gap_fifo");
+    std::filesystem::remove(dir / name);
+    ASSERT_EQ(::mkfifo((dir / name).c_str(), 0600), 0);
+    const Result r = run("diagnose " + dir.string(), 30);
+    EXPECT_EQ(r.status, 2) << name << ": " << r.out;
+    EXPECT_NE(r.out.find((dir / name).string() + ": not a regular file (a FIFO)"),
+              std::string::npos)
+        << r.out;
+    EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+    std::filesystem::remove_all(dir);
+  }
+}
+
+TEST(IdmGap, ValuesBeyondWhatAStageAndASweepCanBeAreRefusedBeforeAnythingIsSimulated) {
+  struct Case {
+    const char* file;
+    std::string from, to, expect;
+  } cases[] = {
+      // the reader's ranges
+      {"sweep.csv", ",200,0.05,", ",1e9,0.05,", "sweep.csv:2:2 (freq_hz): 1e+09 is out of range"},
+      {"stage.yaml", "slider_mass_kg: 0.1655", "slider_mass_kg: 1e-300 # was 0.1655",
+       "stage.yaml:2: stage.slider_mass_kg: 1e-300 is out of range, allowed [1e-06, 1000]"},
+      {"sweep.csv", ",20000,", ",1e12,", "(sample_rate_hz): 1e+12 is out of range"},
+      // a frequency a drive can play, beyond what the diagnosis searches (it ran for minutes)
+      {"sweep.csv", ",200,0.05,", ",1e6,0.05,",
+       "sweep.csv: freq_hz, duty, stroke_m: the sweep lies outside what the diagnosis searches: "
+       "actuator_compliance's resonance_hz: [500000, 200000] is empty"},
+  };
+  const auto json = temp("idm_gap_beyond") += ".json";
+  for (const Case& c : cases) {
+    const auto dir = small_sweep("idm_gap_beyond");
+    replace_in(dir / c.file, c.from, c.to);
+    const Result r = run("diagnose " + dir.string() + " --json " + json.string(), 60);
+    EXPECT_EQ(r.status, 2) << c.to << ": " << r.out;
+    EXPECT_NE(r.out.find(c.expect), std::string::npos) << r.out;
+    EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+    EXPECT_FALSE(std::filesystem::exists(json));
+    std::filesystem::remove(json);
+    std::filesystem::remove_all(dir);
+  }
+}
+
+TEST(IdmGap, ADamagedOrHugeTrialFileIsLeftOutWithAWarningAndListed) {
+  const auto dir = small_sweep("idm_gap_damaged");
+  std::vector<std::filesystem::path> files;
+  for (const auto& e : std::filesystem::directory_iterator(dir / "trials"))
+    files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+  ASSERT_EQ(files.size(), 12u);
+  std::ofstream(files[0], std::ios::app) << "garbage,1,2\n";           // cell 200 Hz, 0.05
+  std::filesystem::resize_file(files[11], std::uintmax_t{300} << 20);  // sparse: 300 MiB
+  const auto json = temp("idm_gap_damaged_json") += ".json";
+  const Result r =
+      run("diagnose " + dir.string() + " --effects amplifier --json " + json.string(), 120);
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("idm-gap diagnose: warning: trial left out: " + files[0].string() + ":"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("'garbage' is not a number"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(files[11].string() +
+                       ": 314572800 bytes (300 MiB), more than the reader takes in one file, "
+                       "allowed at most 268435456 bytes (256 MiB)"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("2 trial(s) left out (their files could not be used):"), std::string::npos)
+      << r.out;
+  const std::string j = slurp(json);
+  EXPECT_NE(j.find("\"trials_left_out\": [{\"file\": \"" + files[0].string() + "\""),
+            std::string::npos)
+      << j;
+  std::filesystem::remove_all(dir);
+  std::filesystem::remove(json);
 }
 
 TEST(IdmGap, AFormatErrorNamesFileLineAndColumn) {

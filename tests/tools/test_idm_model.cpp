@@ -124,7 +124,7 @@ TEST(IdmModel, NegativeMassInAStageFileNamesTheKey) {
   const Result r = run("regions --stage " + path.string() + " --freq 100 --duty 0.1");
   EXPECT_EQ(r.status, 2);
   EXPECT_NE(r.out.find(path.string() +
-                       ":3: stage.counter_mass_kg: -0.05 is out of range, allowed (0, 1000]"),
+                       ":3: stage.counter_mass_kg: -0.05 is out of range, allowed [1e-06, 1000]"),
             std::string::npos)
       << r.out;
   std::filesystem::remove(path);
