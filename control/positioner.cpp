@@ -59,6 +59,37 @@ std::vector<model::Param<P>> move_params() {
   };
 }
 
+// hold_s: -1 (until the next motion) or [0, 86400] s, which one interval cannot say: the real
+// key's range, read, check and assign, each refusing what lies between -1 and 0.
+model::Param<P> hold_param() {
+  const auto get = [](auto& c) -> auto& {
+    return c.hold_s;
+  };
+  model::Param<P> p = real<P>(
+      "hold_s", "s", {-1, 86400},
+      "after a move: keep the target this long (0: no hold, -1: until the next motion; HOLD)", get);
+  p.range = "-1 or [0, 86400]";
+  const auto ok = [](double x) { return x == -1 || (x >= 0 && x <= 86400); };
+  const auto refuse = [range = p.range](double x) {
+    return model::format_number(x) + " is out of range, allowed " + range;
+  };
+  p.read = [read = p.read, ok, refuse, get](P& c, const YAML::Node& v, const std::string& file,
+                                            const std::string& key) {
+    P t = c;
+    read(t, v, file, key);
+    if (!ok(t.hold_s)) throw model::InputError(model::located(file, v, key, refuse(t.hold_s)));
+    get(c) = t.hold_s;
+  };
+  p.check = [ok, refuse](const P& c, const std::string& key) {
+    if (!ok(c.hold_s)) throw model::InputError(key + ": " + refuse(c.hold_s));
+  };
+  p.assign = [ok, refuse](P& c, double x, const std::string& key) {
+    if (!ok(x)) throw model::InputError(key + ": " + refuse(x) + " s");
+    c.hold_s = x;
+  };
+  return p;
+}
+
 // The approach and the step ladder, and how a motion ends: dwell, timeout, end of travel, hold.
 std::vector<model::Param<P>> ladder_and_end_params() {
   return {
@@ -106,10 +137,7 @@ std::vector<model::Param<P>> ladder_and_end_params() {
           "eot_cycles", "count", 1, 100000,
           "end of travel: the cycles the mean step is taken over (EOT:CYCLes)",
           [](auto& c) -> auto& { return c.eot_cycles; }),
-      real<P>(
-          "hold_s", "s", {-1, 86400},
-          "after a move: keep the target this long (0: no hold, -1: until the next motion; HOLD)",
-          [](auto& c) -> auto& { return c.hold_s; }),
+      hold_param(),
       real<P>(
           "hold_window_m", "m", {0, 1e-3},
           "a hold corrects when a reading leaves this window (0: the move window; HOLD:WINDow)",
@@ -136,9 +164,6 @@ void validate(const PositionerConfig& c, const std::string& where) {
                             model::format_number(c.soft_lower_m) + ", " +
                             model::format_number(c.soft_upper_m) +
                             "] is not an interval, allowed soft_lower_m < soft_upper_m");
-  if (c.hold_s < 0 && c.hold_s != -1)
-    throw model::InputError(where + ".hold_s: " + model::format_number(c.hold_s) +
-                            " is out of range, allowed -1 (until the next motion) or [0, 86400]");
   if (!(c.min_step_counts < c.final_step_counts))
     throw model::InputError(where + ".min_step_counts: " + model::format_number(c.min_step_counts) +
                             " must be below final_step_counts (" +

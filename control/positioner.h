@@ -24,6 +24,7 @@
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "control/calibration.h"
@@ -214,6 +215,9 @@ class Positioner {
   // Settings for the motions that follow (checked by the caller; NaN/negative where not allowed
   // is refused with OutOfRange). window_m 0: half a count.
   Refusal set_window(double window_m);
+  // Sets keys of the config (PositionerConfig's table names) all or none, each checked by the
+  // table's range: OutOfRange / NotFinite otherwise.
+  Refusal set_settings(const std::vector<std::pair<const char*, double>>& values);
   Refusal set_dwell(double dwell_s);
   Refusal set_eot(double step_m, int cycles);
   Refusal set_hold(double hold_s, double window_m);

@@ -7,6 +7,7 @@
 #include "control/calibration.h"
 #include "control/positioner.h"
 #include "model/impulse_model.h"
+#include "model/yaml_util.h"
 
 namespace idm::control {
 
@@ -217,36 +218,37 @@ Refusal Positioner::reference_mark(int direction, double position_at_mark_m) {
   return start_reference(direction, position_at_mark_m, true);
 }
 
-Refusal Positioner::set_window(double window_m) {
-  if (!std::isfinite(window_m)) return Refusal::NotFinite;
-  if (window_m < 0 || window_m > 1e-3) return Refusal::OutOfRange;
-  config_.tolerance_m = window_m;
+// The settings a command changes go through the config's own table (positioner_params): one
+// range for the file, the protocol and the code.
+Refusal Positioner::set_settings(const std::vector<std::pair<const char*, double>>& values) {
+  PositionerConfig c = config_;
+  for (const auto& [key, value] : values) {
+    if (!std::isfinite(value)) return Refusal::NotFinite;
+    try {
+      positioner_params().set(c, key, value, key);
+    } catch (const model::InputError&) {
+      return Refusal::OutOfRange;
+    }
+  }
+  config_ = c;
   status_.window_m = tolerance_m();
   return Refusal::None;
 }
 
+Refusal Positioner::set_window(double window_m) {
+  return set_settings({{"tolerance_m", window_m}});
+}
+
 Refusal Positioner::set_dwell(double dwell_s) {
-  if (!std::isfinite(dwell_s)) return Refusal::NotFinite;
-  if (dwell_s < 0 || dwell_s > 60) return Refusal::OutOfRange;
-  config_.dwell_s = dwell_s;
-  return Refusal::None;
+  return set_settings({{"dwell_s", dwell_s}});
 }
 
 Refusal Positioner::set_eot(double step_m, int cycles) {
-  if (!std::isfinite(step_m)) return Refusal::NotFinite;
-  if (step_m < 0 || step_m > 1e-3 || cycles < 1 || cycles > 100000) return Refusal::OutOfRange;
-  config_.eot_step_m = step_m;
-  config_.eot_cycles = cycles;
-  return Refusal::None;
+  return set_settings({{"eot_step_m", step_m}, {"eot_cycles", cycles}});
 }
 
 Refusal Positioner::set_hold(double hold_s, double window_m) {
-  if (!std::isfinite(hold_s) || !std::isfinite(window_m)) return Refusal::NotFinite;
-  if (!(hold_s == -1 || (hold_s >= 0 && hold_s <= 86400)) || window_m < 0 || window_m > 1e-3)
-    return Refusal::OutOfRange;
-  config_.hold_s = hold_s;
-  config_.hold_window_m = window_m;
-  return Refusal::None;
+  return set_settings({{"hold_s", hold_s}, {"hold_window_m", window_m}});
 }
 
 void Positioner::resume_hold(double until_s) {

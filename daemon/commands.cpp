@@ -201,27 +201,23 @@ CommandError Daemon::set_soft_limits(int axis, double lower_m, double upper_m) {
 }
 
 CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double value) {
+  // The command's name and the config key (control.*) whose table checks the value: one range
+  // for the file, the protocol and the positioner.
   static const struct {
-    const char* name;
-    double lo, hi;
-    const char* unit;
-  } kRange[] = {{"MOVE:WINDow", 0, 1e-3, "m (0: half a count)"},
-                {"MOVE:DWELl", 0, 60, "s"},
-                {"EOT:STEP", 0, 1e-3, "m (0: detection off)"},
-                {"EOT:CYCLes", 1, 100000, "cycles"},
-                {"HOLD", -1, 86400, "s (0: no hold, -1: until the next motion)"},
-                {"HOLD:WINDow", 0, 1e-3, "m (0: the move window)"}};
-  const auto& r = kRange[static_cast<std::size_t>(which)];
+    const char* command;
+    const char* key;
+  } kSetting[] = {
+      {"MOVE:WINDow", "tolerance_m"}, {"MOVE:DWELl", "dwell_s"}, {"EOT:STEP", "eot_step_m"},
+      {"EOT:CYCLes", "eot_cycles"},   {"HOLD", "hold_s"},        {"HOLD:WINDow", "hold_window_m"}};
+  const auto& r = kSetting[static_cast<std::size_t>(which)];
   if (!std::isfinite(value))
-    return {error_code::kNumericDataError, std::string(r.name) + ": not a finite number"};
-  const bool integral = which == MotionSetting::EotCycles;
-  const bool hold_gap = which == MotionSetting::Hold && value < 0 && value != -1;
-  if (value < r.lo || value > r.hi || hold_gap || (integral && value != std::floor(value)))
-    return {error_code::kDataOutOfRange,
-            std::string(r.name) + ": " + num(value) + " is out of range, allowed " +
-                (which == MotionSetting::Hold ? std::string("-1 or [0, 86400]")
-                                              : "[" + num(r.lo) + ", " + num(r.hi) + "]") +
-                (integral ? " (an integer)" : "") + " " + r.unit};
+    return {error_code::kNumericDataError, std::string(r.command) + ": not a finite number"};
+  try {
+    control::PositionerConfig probe;
+    control::positioner_params().set(probe, r.key, value, r.command);
+  } catch (const model::InputError& e) {
+    return {error_code::kDataOutOfRange, e.what()};
+  }
   const AxisPublished p = axes_.at(static_cast<std::size_t>(axis))->published();
   AxisCommand c;
   c.axis = axis;

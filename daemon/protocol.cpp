@@ -435,15 +435,19 @@ CommandError parse_number(std::string_view text, std::string_view what, double& 
     ok = exponent_digits > 0;
   }
   if (!ok || i != t.size()) return bad("is not a number");
-  const char* first = t.data();
-  if (*first == '+') ++first;  // from_chars takes no '+'
+  // The grammar is checked above; the value read as every reader of ours reads one (a number
+  // below the smallest normal double reads as the nearest double).
   double v = 0;
-  const auto r = std::from_chars(first, t.data() + t.size(), v, std::chars_format::general);
-  if (r.ec == std::errc::result_out_of_range || !std::isfinite(v))
-    return bad("is not finite (out of the range of a double)");
-  if (r.ec != std::errc() || r.ptr != t.data() + t.size()) return bad("is not a number");
-  value = v;
-  return {};
+  switch (model::parse_decimal(t, v)) {
+    case model::NumberText::Ok:
+      value = v;
+      return {};
+    case model::NumberText::NotANumber:
+      return bad("is not a number");
+    case model::NumberText::NotFinite:
+      break;
+  }
+  return bad("is not finite (out of the range of a double)");
 }
 
 CommandError parse_integer(std::string_view text, std::string_view what, std::int64_t lo,

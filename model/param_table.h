@@ -38,6 +38,9 @@ struct Param {
   std::string default_text;  // "" -> show(S{})
   std::function<void(S&, const YAML::Node&, const std::string& file, const std::string& key)> read;
   std::function<void(const S&, const std::string& key)> check;  // throws InputError
+  // Numbers only (real, integer): stores a value set at run time (a protocol command) after the
+  // same range check as a file's; InputError naming `key` otherwise.
+  std::function<void(S&, double, const std::string& key)> assign;
   std::function<std::string(const S&)> show;
 };
 
@@ -80,6 +83,14 @@ class ParamTable {
              p.doc + " |\n";
     }
     return out;
+  }
+  // Sets the number `name` of `s` to `value`, checked as a file's value is (the table's range, an
+  // integer for a count): InputError "SHOWN: VALUE is out of range, allowed RANGE UNIT" leaves
+  // `s` as it was. The one check of a setting a command changes (MOVE:WINDow, HOLD, ...).
+  void set(S& s, const std::string& name, double value, const std::string& shown) const {
+    const Param<S>* p = find(name);
+    if (p == nullptr || !p->assign) throw InputError(shown + ": no such number setting");
+    p->assign(s, value, shown);
   }
   const Param<S>* find(const std::string& name) const {
     for (const Param<S>& p : params_)
@@ -126,6 +137,12 @@ Param<S> real(const char* name, const char* unit, Range range, const char* doc, 
   p.check = [range, get](const S& s, const std::string& key) {
     check_range("", key, get(s), range);
   };
+  p.assign = [range, get, unit = std::string(unit)](S& s, double x, const std::string& key) {
+    if (!range.contains(x))
+      throw InputError(key + ": " + format_number(x) + " is out of range, allowed " + range.text() +
+                       " " + unit);
+    get(s) = x;
+  };
   p.show = [get](const S& s) { return format_number(get(s)); };
   return p;
 }
@@ -147,6 +164,13 @@ Param<S> integer(const char* name, const char* unit, long lo, long hi, const cha
     if (x < lo || x > hi)
       throw InputError(key + ": " + std::to_string(x) + " is out of range, allowed [" +
                        std::to_string(lo) + ", " + std::to_string(hi) + "]");
+  };
+  p.assign = [lo, hi, get, unit = std::string(unit)](S& s, double x, const std::string& key) {
+    using T = std::remove_reference_t<decltype(get(s))>;
+    if (!(x >= static_cast<double>(lo) && x <= static_cast<double>(hi)) || x != std::floor(x))
+      throw InputError(key + ": " + format_number(x) + " is out of range, allowed [" +
+                       std::to_string(lo) + ", " + std::to_string(hi) + "] (an integer) " + unit);
+    get(s) = static_cast<T>(x);
   };
   p.show = [get](const S& s) { return std::to_string(get(s)); };
   return p;

@@ -1,8 +1,23 @@
 #include "model/range.h"
 
+#include <cctype>
+#include <cmath>
+#include <cstdlib>
 #include <sstream>
 
 namespace idm::model {
+
+NumberText parse_decimal(std::string_view text, double& value) {
+  if (text.empty() || std::isspace(static_cast<unsigned char>(text.front())) != 0)
+    return NumberText::NotANumber;
+  const std::string copy(text);  // strtod needs the terminating NUL
+  char* end = nullptr;
+  const double v = std::strtod(copy.c_str(), &end);
+  if (end != copy.c_str() + copy.size()) return NumberText::NotANumber;
+  if (!std::isfinite(v)) return NumberText::NotFinite;
+  value = v;
+  return NumberText::Ok;
+}
 
 std::string format_number(double value) {
   return format_number(value, 9);

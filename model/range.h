@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <string>
+#include <string_view>
 
 #include "model/stage.h"
 
@@ -16,6 +17,12 @@ std::string format_number(double value);
 // The same with `significant` digits: a fitted figure in a sentence for a person ("3510",
 // "0.534"), where nine digits would claim a precision the fit does not have.
 std::string format_number(double value, int significant);
+
+// The one reader of a decimal number's text (files, command lines, the protocol): the whole text
+// must be the number. A value too small for a normal double (1e-320) reads as the nearest double
+// (stod and from_chars call it out of range); one too large, inf and nan are NotFinite.
+enum class NumberText : unsigned char { Ok, NotANumber, NotFinite };
+NumberText parse_decimal(std::string_view text, double& value);
 
 // A closed (or half-open) interval of allowed values; an unbounded end is +-1e300.
 struct Range {

@@ -122,14 +122,9 @@ EffectSpec parse_effect_arg(const std::string& text) {
       if (eq == std::string::npos) throw InputError(where + ": '" + item + "' is not key=value");
       const std::string key = item.substr(0, eq), value = item.substr(eq + 1);
       double v = 0;
-      try {
-        std::size_t used = 0;
-        v = std::stod(value, &used);
-        if (used != value.size()) throw std::invalid_argument(value);
-      } catch (const std::exception&) {
+      if (parse_decimal(value, v) != NumberText::Ok)
         throw InputError(where + ": " + spec.name + "." + key + ": '" + value +
-                         "' is not a number");
-      }
+                         "' is not a finite number");
       spec.params[key] = v;
     }
   }

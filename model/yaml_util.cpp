@@ -45,12 +45,13 @@ double read_double(const YAML::Node& node, const std::string& file, const std::s
                               "-.INF", "nan", "inf", "-inf", "NaN"})
     if (text == special)
       throw InputError(located(file, node, key, "must be finite, " + range_text(lo, hi, lo_open)));
-  try {
-    std::size_t used = 0;
-    value = std::stod(text, &used);
-    if (used != text.size()) throw std::invalid_argument(text);
-  } catch (const std::exception&) {
-    throw InputError(located(file, node, key, "'" + text + "' is not a number"));
+  switch (parse_decimal(text, value)) {
+    case NumberText::Ok:
+      break;
+    case NumberText::NotANumber:
+      throw InputError(located(file, node, key, "'" + text + "' is not a number"));
+    case NumberText::NotFinite:
+      throw InputError(located(file, node, key, "must be finite, " + range_text(lo, hi, lo_open)));
   }
   if (!std::isfinite(value))
     throw InputError(located(file, node, key, "must be finite, " + range_text(lo, hi, lo_open)));
@@ -251,6 +252,11 @@ std::string read_regular_file(const std::string& path, std::size_t max_bytes) {
   if (fd < 0) throw InputError(path + ": cannot open file (" + std::strerror(errno) + ")");
   struct Closer {
     int fd;
+    explicit Closer(int f) : fd(f) {}
+    Closer(const Closer&) = delete;
+    Closer& operator=(const Closer&) = delete;
+    Closer(Closer&&) = delete;
+    Closer& operator=(Closer&&) = delete;
     ~Closer() { ::close(fd); }
   } closer{fd};
   struct stat info {};

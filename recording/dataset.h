@@ -97,7 +97,7 @@ class DatasetWriter {
  public:
   // `dir` may exist but must not already hold a sweep.csv. No mark: the dataset looks like one
   // from any other source (finish() does nothing).
-  DatasetWriter(std::string dir, const model::StageFile& stage);
+  DatasetWriter(const std::string& dir, const model::StageFile& stage);
   // Marks the dataset in progress with `planned` (checked first: InputError for a bad cell);
   // `axis`, when not empty, is the name of the axis that plays the sweep (plan.yaml's `axis`).
   DatasetWriter(const std::string& dir, const model::StageFile& stage,

@@ -81,8 +81,8 @@ std::string trial_name(double freq_hz, double duty, double stroke_m, int index) 
   return name;
 }
 
-DatasetWriter::DatasetWriter(std::string dir, const model::StageFile& stage)
-    : DatasetWriter(std::move(dir), stage, {}) {}
+DatasetWriter::DatasetWriter(const std::string& dir, const model::StageFile& stage)
+    : DatasetWriter(dir, stage, {}) {}
 
 DatasetWriter::DatasetWriter(const std::string& dir, const model::StageFile& stage,
                              const std::vector<PlannedCell>& planned, std::string axis)

@@ -83,15 +83,15 @@ std::vector<double> Flags::list(const std::string& name) const {
 
 double parse_number(const std::string& text, const std::string& what) {
   double v = 0;
-  try {
-    std::size_t used = 0;
-    v = std::stod(text, &used);
-    if (used != text.size()) throw std::invalid_argument(text);
-  } catch (const std::exception&) {
-    throw InputError(what + ": '" + text + "' is not a number");
+  switch (model::parse_decimal(text, v)) {
+    case model::NumberText::Ok:
+      return v;
+    case model::NumberText::NotANumber:
+      throw InputError(what + ": '" + text + "' is not a number");
+    case model::NumberText::NotFinite:
+      break;
   }
-  if (!std::isfinite(v)) throw InputError(what + ": '" + text + "' is not finite");
-  return v;
+  throw InputError(what + ": '" + text + "' is not finite");
 }
 
 std::vector<double> parse_list(const std::string& text, const std::string& what) {

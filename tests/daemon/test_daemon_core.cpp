@@ -13,12 +13,14 @@
 #include <filesystem>
 #include <fstream>
 #include <new>
+#include <random>
 #include <string>
 #include <thread>
 #include <tuple>
 #include <vector>
 
 #include "control/calibration.h"
+#include "control/positioner.h"
 #include "daemon/config.h"
 #include "daemon/daemon.h"
 #include "daemon/rt_loop.h"
@@ -499,6 +501,87 @@ TEST_F(DaemonSim, ResetDuringASweepLetsTheSweepWindDownInTheBackground) {
   d.shutdown();
   std::filesystem::remove(file);
   std::filesystem::remove_all(dir);
+}
+
+// A setting a command changes (MOVE:WINDow, MOVE:DWELl, EOT:STEP, EOT:CYCLes, HOLD, HOLD:WINDow)
+// is accepted exactly when the config file's reader accepts the same value for its key, and a
+// refusal shows the key's range as config/README.md does: one range from file to protocol (the
+// protocol had copies of them, and HOLD's gap between -1 and 0 in a third place). Values drawn at
+// random around and across each range's ends.
+TEST_F(DaemonSim, EverySettingACommandChangesIsCheckedByTheConfigsOwnRange) {
+  auto d = make(sim_config("wall", ""));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  const struct {
+    MotionSetting which;
+    const char* key;
+  } kSettings[] = {
+      {MotionSetting::Window, "tolerance_m"}, {MotionSetting::Dwell, "dwell_s"},
+      {MotionSetting::EotStep, "eot_step_m"}, {MotionSetting::EotCycles, "eot_cycles"},
+      {MotionSetting::Hold, "hold_s"},        {MotionSetting::HoldWindow, "hold_window_m"}};
+  std::mt19937_64 rng(31);
+  const auto& table = idm::control::positioner_params();
+  for (const auto& s : kSettings) {
+    const auto* param = table.find(s.key);
+    ASSERT_NE(param, nullptr) << s.key;
+    // The scale of the key's values, from what the file reader takes.
+    double scale = 0;
+    for (double probe = 1e-9; probe <= 1e6; probe *= 10) {
+      idm::control::PositionerConfig c;
+      try {
+        table.read(YAML::Load(std::string(s.key) + ": " + idm::model::format_number(probe)),
+                   "t.yaml", "control", c);
+        scale = probe;
+      } catch (const InputError&) {
+      }
+    }
+    ASSERT_GT(scale, 0) << s.key;
+    int accepted = 0, refused = 0;
+    for (int k = 0; k < 120; ++k) {
+      double v = std::uniform_real_distribution<double>(-1.5, 1.5)(rng) * scale;
+      switch (rng() % 5) {
+        case 0:
+        case 3:
+          v = std::round(v);
+          break;
+        case 1:
+          v = -1;
+          break;
+        case 2:
+          v = std::nextafter(scale * (rng() % 2 ? 1 : 0), rng() % 2 ? 1e300 : -1e300);
+          break;
+        default:
+          break;
+      }
+      idm::control::PositionerConfig c;
+      bool file_takes = true;
+      try {
+        table.read(YAML::Load(std::string(s.key) + ": " + idm::model::format_number(v, 17)),
+                   "t.yaml", "control", c);
+      } catch (const InputError&) {
+        file_takes = false;
+      }
+      const CommandError e = d->set_motion_setting(0, s.which, v);
+      EXPECT_EQ(e.ok(), file_takes) << s.key << " = " << v << ": " << e.text;
+      if (e.ok()) {
+        ++accepted;
+        // 0 reads back as what it stands for (one count, the move window).
+        const bool stands_for_another =
+            v == 0 && (s.which == MotionSetting::Window || s.which == MotionSetting::HoldWindow);
+        if (!stands_for_another)
+          EXPECT_TRUE(wait_for([&] { return d->motion_setting(0, s.which) == v; }, 5))
+              << s.key << " = " << v << " reads back " << d->motion_setting(0, s.which);
+      } else {
+        ++refused;
+        EXPECT_EQ(e.code, error_code::kDataOutOfRange) << e.text;
+        EXPECT_NE(e.text.find("allowed " + param->range), std::string::npos)
+            << e.text << " (the config's range: " << param->range << ")";
+      }
+    }
+    EXPECT_GT(accepted, 5) << s.key;
+    EXPECT_GT(refused, 5) << s.key;
+  }
+  d->shutdown();
 }
 
 }  // namespace
