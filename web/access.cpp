@@ -128,10 +128,12 @@ FileRead read_file_nofollow(const std::string& path, std::size_t max_bytes) {
             std::to_string(max_bytes) + " are read";
     return r;
   }
-  // Read to the end, never past max_bytes (the file may have grown since fstat).
-  r.text.resize(max_bytes + 1);
+  // Read to the end, never past max_bytes (the file may have grown since fstat): a buffer of the
+  // size fstat gave and a byte more (the end seen without a second read), doubled as needed.
+  r.text.resize(static_cast<std::size_t>(r.st.st_size) + 1);
   std::size_t got = 0;
-  while (got < r.text.size()) {
+  while (got <= max_bytes) {
+    if (got == r.text.size()) r.text.resize(std::min(max_bytes + 1, 2 * got));
     const ssize_t n = read(fd, r.text.data() + got, r.text.size() - got);
     if (n < 0 && errno == EINTR) continue;
     if (n < 0) {
