@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstring>
 #include <memory>
+#include <optional>
 
 #include "model/stage.h"
 
@@ -25,6 +26,14 @@ std::string lower(std::string_view s) {
 bool digits(std::string_view s, std::size_t max) {
   return !s.empty() && s.size() <= max &&
          std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
+}
+
+bool letter_or_digit(char c) {
+  return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9');
+}
+
+bool hex_digit(char c) {
+  return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f') || (c >= 'A' && c <= 'F');
 }
 
 }  // namespace
@@ -46,25 +55,30 @@ bool loopback_name(std::string_view name) {
 }
 
 bool host_name(std::string_view value, std::string& name) {
-  std::string_view host = value, port;
-  if (!value.empty() && value.front() == '[') {
+  std::string_view host = value;
+  std::optional<std::string_view> port;
+  bool ok = false;
+  if (!value.empty() && value.front() == '[') {  // [v6]: hex digits, ':' and a dotted IPv4 tail
     const std::size_t close = value.find(']');
     if (close == std::string_view::npos) return false;
     host = value.substr(0, close + 1);
     const std::string_view rest = value.substr(close + 1);
     if (!rest.empty() && rest.front() != ':') return false;
     if (!rest.empty()) port = rest.substr(1);
-    if (!rest.empty() && !digits(port, 5)) return false;
-  } else if (const std::size_t colon = value.find(':'); colon != std::string_view::npos) {
+    const std::string_view inside = host.substr(1, host.size() - 2);
+    ok = inside.find(':') != std::string_view::npos &&
+         std::all_of(inside.begin(), inside.end(),
+                     [](char c) { return hex_digit(c) || c == ':' || c == '.'; });
+  } else {  // a name or an IPv4 address: letters, digits, '.', '-', '_'
+    const std::size_t colon = value.find(':');
     host = value.substr(0, colon);
-    if (!digits(value.substr(colon + 1), 5)) return false;
+    if (colon != std::string_view::npos) port = value.substr(colon + 1);
+    ok = !host.empty() && std::all_of(host.begin(), host.end(), [](char c) {
+      return letter_or_digit(c) || c == '.' || c == '-' || c == '_';
+    });
   }
-  if (host.empty() || host.size() > 255) return false;
-  for (const char c : host) {
-    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
-                    c == '.' || c == '-' || c == '_' || c == '[' || c == ']' || c == ':';
-    if (!ok) return false;
-  }
+  if (!ok || host.size() > 255) return false;
+  if (port && (!digits(*port, 5) || std::stoi(std::string(*port)) > 65535)) return false;
   name = lower(host);
   if (name.size() > 1 && name.back() == '.') name.pop_back();
   return true;
@@ -98,6 +112,44 @@ bool same_secret(std::string_view a, std::string_view b) {
   return diff == 0;
 }
 
+bool is_control(const HttpRequest& req) {
+  return req.method == "POST" && (req.path == "/api/stop" || req.path == "/api/move");
+}
+
+std::optional<Denial> deny(const AccessRules& rules, const HttpRequest& req) {
+  const std::string* host = req.header("host");
+  if (!host || !rules.hosts.allows(*host))
+    return Denial{403,
+                  "forbidden: Host " + (host ? host->substr(0, 100) : std::string()) +
+                      " is not a name of this server (idm-web --allow-host NAME)",
+                  false,
+                  {}};
+  const bool read = req.method == "GET" || req.method == "HEAD";
+  const bool control_post = rules.control && is_control(req);
+  if (!read && !control_post)
+    return Denial{405,
+                  rules.control
+                      ? "method not allowed"
+                      : "method not allowed: idm-web is read-only (start it with --control)",
+                  false,
+                  {{"Allow", rules.control ? "GET, HEAD, POST" : "GET, HEAD"}}};
+  if (!control_post) return std::nullopt;
+  // A form on another site cannot set this header; a script there cannot without a CORS
+  // preflight, which is never granted.
+  const std::string* mark = req.header("x-idm-control");
+  if (!mark || *mark != "1")
+    return Denial{403, "control requests need the header X-Idm-Control: 1", true, {}};
+  if (rules.token.empty()) return std::nullopt;
+  const std::string* auth = req.header("authorization");
+  const bool bearer = auth && auth->size() > 7 && auth->compare(0, 7, "Bearer ") == 0;
+  if (bearer && same_secret(std::string_view(*auth).substr(7), rules.token)) return std::nullopt;
+  return Denial{401,
+                "control requests need the token: Authorization: Bearer TOKEN (idm-web "
+                "--token-file or IDM_WEB_TOKEN)",
+                true,
+                {{"WWW-Authenticate", "Bearer realm=\"idm-web control\""}}};
+}
+
 FileRead read_file_nofollow(const std::string& path, std::size_t max_bytes) {
   FileRead r;
   // O_NONBLOCK: a FIFO put there does not hang the reader (it is refused below).
@@ -128,10 +180,12 @@ FileRead read_file_nofollow(const std::string& path, std::size_t max_bytes) {
             std::to_string(max_bytes) + " are read";
     return r;
   }
-  // Read to the end, never past max_bytes (the file may have grown since fstat).
-  r.text.resize(max_bytes + 1);
+  // Read to the end, never past max_bytes (the file may have grown since fstat): a buffer of the
+  // size fstat gave and a byte more (the end seen without a second read), doubled as needed.
+  r.text.resize(static_cast<std::size_t>(r.st.st_size) + 1);
   std::size_t got = 0;
-  while (got < r.text.size()) {
+  while (got <= max_bytes) {
+    if (got == r.text.size()) r.text.resize(std::min(max_bytes + 1, 2 * got));
     const ssize_t n = read(fd, r.text.data() + got, r.text.size() - got);
     if (n < 0 && errno == EINTR) continue;
     if (n < 0) {

@@ -1,13 +1,17 @@
-// Who may ask idm-web what: the Host names it answers (DNS rebinding), the control token, and
-// files read without following a symbolic link (the gap report, the token file). README.md here.
+// Who may ask idm-web what: the Host names it answers (DNS rebinding), the methods, control and
+// its token (deny: the decision on every request), and files read without following a symbolic
+// link (the gap report, the token file). README.md here.
 #pragma once
 
 #include <sys/stat.h>
 
 #include <cstddef>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
+
+#include "web/http_request.h"
 
 namespace idm::web {
 
@@ -36,6 +40,33 @@ class HostPolicy {
 
 // Equal strings, in a time that does not depend on where they differ.
 bool same_secret(std::string_view a, std::string_view b);
+
+// What idm-web lets through: the Host names, control (--control) and its token (empty: none).
+struct AccessRules {
+  HostPolicy hosts;
+  bool control = false;
+  std::string token;
+};
+
+// Why a request is not let through: the status, what to say (one line, without its line end),
+// whether it is a control request's (answered as JSON), and the headers that go with it (Allow,
+// WWW-Authenticate).
+struct Denial {
+  int status = 0;
+  std::string why;
+  bool control = false;
+  HeaderList headers;
+};
+
+// A control request: POST to /api/stop or /api/move.
+bool is_control(const HttpRequest& req);
+
+// The decision on every request before its route: the Host it names (DNS rebinding: on every
+// listen address), the method (GET and HEAD; POST on the control paths with --control), and for
+// control the header a cross-site form cannot send (X-Idm-Control: 1) and, with a token,
+// "Authorization: Bearer <token>". Nothing when the request may go on. The request has exactly
+// one Host header (RequestReader refuses any other).
+std::optional<Denial> deny(const AccessRules& rules, const HttpRequest& req);
 
 // A file read through a descriptor opened without following a symbolic link (O_NOFOLLOW),
 // checked with fstat on that descriptor: a regular file of at most max_bytes.

@@ -3,10 +3,10 @@
 #include <arpa/inet.h>
 #include <netdb.h>
 #include <netinet/in.h>
-#include <poll.h>
 #include <sys/epoll.h>
 #include <sys/eventfd.h>
 #include <sys/socket.h>
+#include <sys/uio.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -21,6 +21,7 @@
 #include <mutex>
 #include <thread>
 #include <unordered_map>
+#include <vector>
 
 namespace idm::web {
 
@@ -35,72 +36,6 @@ constexpr std::size_t kReadChunk = 16384;
 Clock::time_point after(double seconds) {
   return Clock::now() +
          std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
-}
-
-char lower(char c) {
-  return c >= 'A' && c <= 'Z' ? static_cast<char>(c - 'A' + 'a') : c;
-}
-
-std::string lower(std::string_view s) {
-  std::string out(s);
-  for (char& c : out) c = lower(c);
-  return out;
-}
-
-bool token_char(char c) {
-  const auto u = static_cast<unsigned char>(c);
-  if (u <= 0x20 || u >= 0x7f) return false;
-  return std::string_view("\"(),/:;<=>?@[\\]{}").find(c) == kNone;
-}
-
-bool is_token(std::string_view s) {
-  return !s.empty() && std::all_of(s.begin(), s.end(), token_char);
-}
-
-std::string_view trim(std::string_view s) {
-  while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
-  while (!s.empty() && (s.back() == ' ' || s.back() == '\t')) s.remove_suffix(1);
-  return s;
-}
-
-int hex_value(char c) {
-  if (c >= '0' && c <= '9') return c - '0';
-  c = lower(c);
-  if (c >= 'a' && c <= 'f') return c - 'a' + 10;
-  return -1;
-}
-
-// "%41b+c" -> "Ab c" (plus as a blank, as forms encode it); a '%' without two hex digits is kept.
-std::string percent_decode(std::string_view text) {
-  std::string out;
-  out.reserve(text.size());
-  for (std::size_t i = 0; i < text.size(); ++i) {
-    const char c = text[i];
-    if (c == '+') {
-      out += ' ';
-    } else if (c == '%' && i + 2 < text.size() && hex_value(text[i + 1]) >= 0 &&
-               hex_value(text[i + 2]) >= 0) {
-      out += static_cast<char>(hex_value(text[i + 1]) * 16 + hex_value(text[i + 2]));
-      i += 2;
-    } else {
-      out += c;
-    }
-  }
-  return out;
-}
-
-// The first `name=value` of an a=b&c=d list, decoded.
-std::optional<std::string> find_param(std::string_view list, std::string_view name) {
-  while (!list.empty()) {
-    const std::size_t amp = list.find('&');
-    const std::string_view item = list.substr(0, amp);
-    const std::size_t eq = item.find('=');
-    if (percent_decode(item.substr(0, eq)) == name)
-      return eq == kNone ? std::string() : percent_decode(item.substr(eq + 1));
-    if (amp == kNone) break;
-    list.remove_prefix(amp + 1);
-  }
-  return std::nullopt;
 }
 
 const char* reason(int status) {
@@ -151,8 +86,8 @@ std::string http_date() {
   return buf;
 }
 
-std::string serialize(const HttpResponse& res, const HeaderList& defaults, bool head_only,
-                      bool keep_alive) {
+// The status line and header fields of a reply, with the blank line that ends them.
+std::string reply_head(const HttpResponse& res, const HeaderList& defaults, bool keep_alive) {
   std::string out = "HTTP/1.1 " + std::to_string(res.status) + " " + reason(res.status) + "\r\n";
   out += "Date: " + http_date() + "\r\n";
   out += "Content-Type: " + res.content_type + "\r\n";
@@ -160,224 +95,68 @@ std::string serialize(const HttpResponse& res, const HeaderList& defaults, bool 
   for (const auto& [name, value] : defaults) out += name + ": " + value + "\r\n";
   for (const auto& [name, value] : res.headers) out += name + ": " + value + "\r\n";
   out += keep_alive ? "Connection: keep-alive\r\n\r\n" : "Connection: close\r\n\r\n";
-  if (!head_only) out += res.body;
   return out;
 }
 
-// Writes all of `data` to a non-blocking socket, waiting for room until `deadline`.
-bool write_all(int fd, std::string_view data, Clock::time_point deadline) {
-  while (!data.empty()) {
-    const ssize_t n = send(fd, data.data(), data.size(), MSG_NOSIGNAL);
-    if (n > 0) {
-      data.remove_prefix(static_cast<std::size_t>(n));
-      continue;
-    }
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
-      const auto left =
-          std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()).count();
-      if (left <= 0) return false;
-      pollfd p{fd, POLLOUT, 0};
-      if (poll(&p, 1, static_cast<int>(std::min<long long>(left, 60000))) < 0 && errno != EINTR)
-        return false;
-      continue;
-    }
-    return false;
-  }
-  return true;
-}
-
-bool has_token(const std::string* list, std::string_view token) {
-  if (!list) return false;
-  std::string_view rest = *list;
-  while (!rest.empty()) {
-    const std::size_t comma = rest.find(',');
-    if (lower(trim(rest.substr(0, comma))) == token) return true;
-    if (comma == kNone) break;
-    rest.remove_prefix(comma + 1);
-  }
-  return false;
-}
-
-bool keep_alive_asked(const HttpRequest& r) {
-  const std::string* c = r.header("connection");
-  return r.version == "HTTP/1.1" ? !has_token(c, "close") : has_token(c, "keep-alive");
-}
-
-// A refusal of the server itself: the status and why, in words.
-struct Refusal {
-  int status = 0;
-  std::string why;
-};
-
-// The request line: METHOD SP origin-form SP HTTP/1.x.
-std::optional<Refusal> parse_request_line(std::string_view line, HttpRequest& r) {
-  const std::size_t a = line.find(' ');
-  const std::size_t b = a == kNone ? kNone : line.find(' ', a + 1);
-  if (b == kNone || line.find(' ', b + 1) != kNone)
-    return Refusal{400, "a request line is METHOD /path HTTP/1.1"};
-  r.method = std::string(line.substr(0, a));
-  r.target = std::string(line.substr(a + 1, b - a - 1));
-  r.version = std::string(line.substr(b + 1));
-  if (!is_token(r.method) || r.method.size() > 32) return Refusal{400, "a malformed method"};
-  if (r.target.empty() || r.target[0] != '/' ||
-      !std::all_of(r.target.begin(), r.target.end(), [](char c) {
-        const auto u = static_cast<unsigned char>(c);
-        return u > 0x20 && u < 0x7f;
-      }))
-    return Refusal{400, "the target must be a path starting with / (printable ASCII)"};
-  if (r.version != "HTTP/1.1" && r.version != "HTTP/1.0") {
-    const bool http = r.version.size() == 8 && r.version.compare(0, 5, "HTTP/") == 0;
-    return http ? Refusal{505, "HTTP/1.1 and HTTP/1.0 only"} : Refusal{400, "not HTTP"};
-  }
-  const std::size_t q = r.target.find('?');
-  r.path = r.target.substr(0, q);
-  r.query = q == kNone ? "" : r.target.substr(q + 1);
-  return std::nullopt;
-}
-
-// One header field line (without its line end) into r.headers.
-std::optional<Refusal> parse_field(std::string_view line, HttpRequest& r) {
-  if (line.front() == ' ' || line.front() == '\t')
-    return Refusal{400, "a folded header line (obsolete line folding is not accepted)"};
-  const std::size_t colon = line.find(':');
-  if (colon == kNone || !is_token(line.substr(0, colon)))
-    return Refusal{400, "a header line is Name: value"};
-  const std::string_view value = trim(line.substr(colon + 1));
-  for (const char c : value) {
-    const auto u = static_cast<unsigned char>(c);
-    if ((u < 0x20 && c != '\t') || u == 0x7f)
-      return Refusal{400, "a control character in a header value"};
-  }
-  r.headers.emplace_back(lower(line.substr(0, colon)), std::string(value));
-  return std::nullopt;
-}
-
-// What the head says of the body: its length (Content-Length), within the limit.
-std::optional<Refusal> body_length(const HttpRequest& r, const HttpLimits& lim, std::size_t& n) {
-  n = 0;
-  if (r.header("transfer-encoding"))
-    return Refusal{411,
-                   "a body in chunks (Transfer-Encoding) is not accepted: send Content-Length"};
-  const std::string* first = r.header("content-length");
-  if (!first) return std::nullopt;
-  for (const auto& [name, value] : r.headers)
-    if (name == "content-length" && value != *first)
-      return Refusal{400, "Content-Length given twice, differently"};
-  if (first->empty() || first->size() > 18 ||
-      first->find_first_not_of("0123456789") != std::string::npos)
-    return Refusal{400, "Content-Length: a decimal number of bytes"};
-  n = static_cast<std::size_t>(std::stoull(*first));
-  if (n > lim.max_body_bytes)
-    return Refusal{413, "the body is " + *first + " bytes, at most " +
-                            std::to_string(lim.max_body_bytes) + " are accepted"};
-  return std::nullopt;
-}
-
-enum class Phase { Idle, Reading, Busy, Draining };
-
-}  // namespace
-
-const std::string* HttpRequest::header(std::string_view name) const {
-  for (const auto& [n, v] : headers)
-    if (n == name) return &v;
-  return nullptr;
-}
-
-std::size_t HttpRequest::header_count(std::string_view name) const {
-  return static_cast<std::size_t>(std::count_if(headers.begin(), headers.end(),
-                                                [name](const auto& h) { return h.first == name; }));
-}
-
-std::optional<std::string> HttpRequest::param(std::string_view name) const {
-  if (auto v = find_param(query, name)) return v;
-  const std::string* type = header("content-type");
-  if (type && lower(*type).rfind("application/x-www-form-urlencoded", 0) == 0)
-    return find_param(body, name);
-  return std::nullopt;
-}
-
-namespace {
+// Idle: kept alive (or new), nothing of a request yet; Reading: a request coming; Busy: whole, with
+// a worker; Writing: its reply waiting for the client to take it; Draining: refused, the client's
+// further bytes read and dropped.
+enum class Phase { Idle, Reading, Busy, Writing, Draining };
 
 // One client connection. The event loop owns it; while Busy a worker alone touches it.
 struct Connection {
   int fd = -1;
   std::string in;  // bytes received and not yet taken by a request
   Phase phase = Phase::Idle;
-  Clock::time_point deadline{};  // of the phase (Idle, Reading, Draining)
+  Clock::time_point deadline{};  // of the phase (Idle, Reading, Writing, Draining)
   Clock::time_point since{};     // entered Idle: the oldest idle one makes room first
   std::size_t served = 0;
   bool peer_closed = false;  // the client shut its side: what is whole is answered, then closed
-  // The head being read: scanned up to `scanned`; the request line ends at `line_end` (kNone:
-  // not yet), the current line starts at `line_start`; `fields` header lines so far; `head_end`
-  // past the blank line once it came (kNone: not yet), then `body` bytes after it.
-  std::size_t scanned = 0, line_start = 0, line_end = kNone, fields = 0, head_end = kNone;
-  std::size_t body = 0;
-  HttpRequest request;  // the whole request, while Busy
-  bool close_after = false;
+  RequestReader reader;      // the request at the front of `in`
+  std::string reply_head, reply_body;  // the reply, while Writing
+  std::size_t reply_sent = 0;          // ... and how much of head and body went
+  bool close_after = false;            // the reply ends the connection
   std::size_t drained = 0;
 
-  void next_request() {
-    in.erase(0, head_end + body);
-    scanned = line_start = fields = body = 0;
-    line_end = head_end = kNone;
-    request = HttpRequest{};
+  explicit Connection(const HttpLimits& limits) : reader(limits) {}
+
+  std::size_t reply_left() const { return reply_head.size() + reply_body.size() - reply_sent; }
+
+  void next_request(const HttpLimits& limits) {
+    in.erase(0, reader.size());
+    reader = RequestReader(limits);
+    reply_head.clear();
+    reply_body.clear();
+    reply_body.shrink_to_fit();
+    reply_sent = 0;
   }
 };
 
-// Scans the new bytes of c.in for the end of the head, counting lines; a limit passed is a
-// refusal (414, 431). Leaves c.head_end set once the blank line came.
-std::optional<Refusal> scan_head(Connection& c, const HttpLimits& lim) {
-  const auto too_many = [&] {
-    return Refusal{431, "the request's header fields are too large: at most " +
-                            std::to_string(lim.max_header_fields) + " fields and " +
-                            std::to_string(lim.max_header_bytes) + " bytes"};
-  };
-  for (; c.scanned < c.in.size() && c.head_end == kNone; ++c.scanned) {
-    if (c.in[c.scanned] != '\n') continue;
-    const std::size_t len = c.scanned - c.line_start;
-    const bool blank = len == 0 || (len == 1 && c.in[c.line_start] == '\r');
-    if (c.line_end == kNone) {
-      if (!blank) c.line_end = c.scanned;  // blank lines before the request line are skipped
-      if (c.scanned > lim.max_request_line_bytes) break;
-    } else if (blank) {
-      c.head_end = c.scanned + 1;
-    } else if (++c.fields > lim.max_header_fields) {
-      return too_many();
-    }
-    c.line_start = c.scanned + 1;
-  }
-  if (c.line_end == kNone || c.line_end > lim.max_request_line_bytes) {
-    if (std::min(c.line_end, c.in.size()) > lim.max_request_line_bytes)
-      return Refusal{414, "the request line is longer than " +
-                              std::to_string(lim.max_request_line_bytes) + " bytes"};
-    return std::nullopt;
-  }
-  const std::size_t end = c.head_end == kNone ? c.in.size() : c.head_end;
-  if (end - c.line_end - 1 > lim.max_header_bytes) return too_many();
-  return std::nullopt;
-}
+enum class Sent { kAll, kPart, kFailed };
 
-// The whole head (request line and fields) into c.request, and the body's length.
-std::optional<Refusal> parse_head(Connection& c, const HttpLimits& lim) {
-  const std::string_view in = c.in;
-  std::size_t start = 0;
-  while (in[start] == '\r' || in[start] == '\n') ++start;
-  std::string_view line = in.substr(start, c.line_end - start);
-  if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-  if (auto r = parse_request_line(line, c.request)) return r;
-  std::size_t pos = c.line_end + 1;
-  while (pos < c.head_end) {
-    const std::size_t nl = in.find('\n', pos);
-    line = in.substr(pos, nl - pos);
-    pos = nl + 1;
-    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-    if (line.empty()) break;
-    if (auto r = parse_field(line, c.request)) return r;
+// Sends what the socket takes now of c's reply (head and body, without joining them).
+Sent send_reply(Connection& c) {
+  while (c.reply_left() > 0) {
+    iovec iov[2];
+    int n = 0;
+    const std::size_t head = c.reply_head.size();
+    if (c.reply_sent < head) iov[n++] = {c.reply_head.data() + c.reply_sent, head - c.reply_sent};
+    const std::size_t from = c.reply_sent > head ? c.reply_sent - head : 0;
+    if (from < c.reply_body.size())
+      iov[n++] = {c.reply_body.data() + from, c.reply_body.size() - from};
+    msghdr m{};
+    m.msg_iov = iov;
+    m.msg_iovlen = static_cast<std::size_t>(n);
+    const ssize_t k = sendmsg(c.fd, &m, MSG_NOSIGNAL | MSG_DONTWAIT);
+    if (k > 0) {
+      c.reply_sent += static_cast<std::size_t>(k);
+      continue;
+    }
+    if (k < 0 && errno == EINTR) continue;
+    if (k < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) return Sent::kPart;
+    return Sent::kFailed;
   }
-  if (c.request.header_count("host") != 1)
-    return Refusal{400, "a request needs exactly one Host header"};
-  return body_length(c.request, lim, c.body);
+  return Sent::kAll;
 }
 
 }  // namespace
@@ -395,7 +174,8 @@ struct HttpServer::Impl {
   std::atomic<bool> stopping{false};
   std::atomic<std::uint64_t> open{0}, answered{0};
   std::unordered_map<int, std::unique_ptr<Connection>> connections;  // the loop's own
-  std::size_t draining = 0;
+  std::size_t draining = 0;       // connections Draining (not counted in `open`)
+  std::size_t pending_bytes = 0;  // of the replies Writing
   Clock::time_point accept_paused_until{};
 
   // A lane of workers: the urgent one (one thread) and the rest.
@@ -426,25 +206,23 @@ struct HttpServer::Impl {
     if (write(wake_fd, &one, sizeof one) < 0 && errno != EAGAIN) std::perror("idm-web: eventfd");
   }
 
-  bool watch(int fd, int op) const {
+  bool watch(int fd, int op, std::uint32_t events = EPOLLIN | EPOLLRDHUP) const {
     epoll_event ev{};
-    ev.events = EPOLLIN | EPOLLRDHUP;
+    ev.events = events;
     ev.data.fd = fd;
     return epoll_ctl(epoll_fd, op, fd, &ev) == 0;
   }
 
-  // The most a connection's buffer holds: a request at every limit, and its line ends.
-  std::size_t read_cap() const {
-    return limits.max_request_line_bytes + limits.max_header_bytes + limits.max_body_bytes + 64;
-  }
   void bind_to(const std::string& host, int port);
   bool loop();
   void accept_all();
   void on_readable(Connection& c);
+  void on_writable(Connection& c);
   void advance(Connection& c);
   void refuse(Connection& c, const Refusal& r);
   void close_connection(int fd);
   void take_returned();
+  void reply_sent(Connection& c);
   void expire();
   int wait_ms() const;
   Connection* evictable() const;
@@ -519,10 +297,12 @@ void HttpServer::Impl::bind_to(const std::string& host, int port) {
 void HttpServer::Impl::close_connection(int fd) {
   const auto it = connections.find(fd);
   if (it == connections.end()) return;
-  if (it->second->phase == Phase::Draining)
+  const Connection& c = *it->second;
+  if (c.phase == Phase::Draining)
     --draining;
   else
     --open;
+  if (c.phase == Phase::Writing) pending_bytes -= c.reply_left();
   close(fd);  // also leaves the epoll set
   connections.erase(it);
 }
@@ -535,7 +315,7 @@ void HttpServer::Impl::refuse(Connection& c, const Refusal& r) {
   res.status = r.status;
   res.body = "HTTP " + std::to_string(r.status) + ": " + r.why + "\n";
   if (r.status == 503) res.headers.emplace_back("Retry-After", "1");
-  const std::string out = serialize(res, defaults, false, false);
+  const std::string out = reply_head(res, defaults, false) + res.body;
   ++answered;
   (void)!send(c.fd, out.data(), out.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
   shutdown(c.fd, SHUT_WR);
@@ -570,7 +350,7 @@ void HttpServer::Impl::accept_all() {
       }
       return;
     }
-    auto c = std::make_unique<Connection>();
+    auto c = std::make_unique<Connection>(limits);
     c->fd = fd;
     c->since = Clock::now();
     c->deadline = after(limits.request_timeout_s);
@@ -606,7 +386,7 @@ void HttpServer::Impl::on_readable(Connection& c) {
       close_connection(c.fd);  // the client is done (or sent too much): closed
       return;
     }
-    const std::size_t cap = read_cap();
+    const std::size_t cap = limits.max_request_bytes();
     const std::size_t room = cap > c.in.size() ? std::min(cap - c.in.size(), sizeof buf) : 0;
     if (room == 0) break;
     const ssize_t n = recv(c.fd, buf, room, 0);
@@ -629,25 +409,19 @@ void HttpServer::Impl::on_readable(Connection& c) {
 // A request whole in c.in goes to a worker; a bad one is refused; a closed client with nothing
 // whole is closed.
 void HttpServer::Impl::advance(Connection& c) {
-  if (c.phase == Phase::Draining || c.phase == Phase::Busy) return;
-  std::optional<Refusal> refusal;
-  if (c.head_end == kNone) {
-    refusal = scan_head(c, limits);
-    if (!refusal && c.head_end != kNone) refusal = parse_head(c, limits);
+  if (c.phase != Phase::Idle && c.phase != Phase::Reading) return;
+  switch (c.reader.read(c.in)) {
+    case RequestReader::Step::kRefused:
+      return refuse(c, c.reader.refusal());
+    case RequestReader::Step::kMore:
+      if (c.peer_closed) close_connection(c.fd);
+      return;
+    case RequestReader::Step::kWhole:
+      break;
   }
-  if (refusal) return refuse(c, *refusal);
-  const bool whole = c.head_end != kNone && c.in.size() >= c.head_end + c.body;
-  if (!whole) {
-    if (c.peer_closed)
-      close_connection(c.fd);
-    else if (c.in.size() >= read_cap())  // not reached within the limits; never waits unread
-      refuse(c, {413, "the request is larger than its limits"});
-    return;
-  }
-  c.request.body = c.in.substr(c.head_end, c.body);
   c.phase = Phase::Busy;
   epoll_ctl(epoll_fd, EPOLL_CTL_DEL, c.fd, nullptr);
-  Lane& lane = urgent && urgent(c.request) ? urgent_lane : normal_lane;
+  Lane& lane = urgent && urgent(c.reader.request()) ? urgent_lane : normal_lane;
   {
     std::lock_guard<std::mutex> lock(lane.mutex);
     lane.queue.push_back(&c);
@@ -655,6 +429,8 @@ void HttpServer::Impl::advance(Connection& c) {
   lane.ready.notify_one();
 }
 
+// Replies back from the workers: sent as far as their sockets take them now; the rest waits for
+// room (Writing), within the write timeout and the budget of waiting replies.
 void HttpServer::Impl::take_returned() {
   std::vector<Connection*> back;
   {
@@ -662,28 +438,51 @@ void HttpServer::Impl::take_returned() {
     back.swap(returned);
   }
   for (Connection* c : back) {
-    if (c->close_after || stopping) {
+    const Sent sent = stopping ? Sent::kFailed : send_reply(*c);
+    if (sent == Sent::kAll) {
+      reply_sent(*c);
+      continue;
+    }
+    const bool fits = pending_bytes + c->reply_left() <= limits.max_pending_reply_bytes;
+    if (sent == Sent::kFailed || !fits || !watch(c->fd, EPOLL_CTL_ADD, EPOLLOUT)) {
       close_connection(c->fd);
       continue;
     }
-    c->next_request();
-    c->phase = Phase::Idle;
-    c->since = Clock::now();
-    c->deadline = after(limits.idle_timeout_s);
-    if (!watch(c->fd, EPOLL_CTL_ADD)) {
-      close_connection(c->fd);
-      continue;
-    }
-    if (!c->in.empty()) {  // the next request came with the last one
-      c->phase = Phase::Reading;
-      c->deadline = after(limits.request_timeout_s);
-      advance(*c);
-    }
+    c->phase = Phase::Writing;
+    c->deadline = after(limits.write_timeout_s);
+    pending_bytes += c->reply_left();
   }
 }
 
-// Connections past their phase's deadline: a request still coming is answered 408, an idle or
-// draining one closed.
+void HttpServer::Impl::on_writable(Connection& c) {
+  const std::size_t left = c.reply_left();
+  const Sent sent = send_reply(c);
+  pending_bytes -= left - c.reply_left();
+  if (sent == Sent::kFailed) return close_connection(c.fd);
+  if (sent == Sent::kPart) return;
+  epoll_ctl(epoll_fd, EPOLL_CTL_DEL, c.fd, nullptr);
+  reply_sent(c);
+}
+
+// A reply all sent (the connection out of the epoll set): the connection ends, or waits for the
+// next request, which may be in c.in already (pipelined).
+void HttpServer::Impl::reply_sent(Connection& c) {
+  c.phase = Phase::Idle;
+  if (c.close_after) return close_connection(c.fd);
+  c.next_request(limits);
+  if (c.peer_closed && c.in.empty()) return close_connection(c.fd);
+  c.since = Clock::now();
+  c.deadline = after(limits.idle_timeout_s);
+  if (!watch(c.fd, EPOLL_CTL_ADD)) return close_connection(c.fd);
+  if (!c.in.empty()) {  // the next request came with the last one
+    c.phase = Phase::Reading;
+    c.deadline = after(limits.request_timeout_s);
+    advance(c);
+  }
+}
+
+// Connections past their phase's deadline: a request still coming is answered 408; an idle one,
+// a reply not taken and a draining one are closed.
 void HttpServer::Impl::expire() {
   const auto now = Clock::now();
   std::vector<int> late;
@@ -731,7 +530,11 @@ bool HttpServer::Impl::loop() {
         (void)!read(wake_fd, &count, sizeof count);
         take_returned();
       } else if (const auto it = connections.find(fd); it != connections.end()) {
-        on_readable(*it->second);
+        Connection& c = *it->second;
+        if (c.phase == Phase::Writing)
+          on_writable(c);
+        else if (c.phase != Phase::Busy)  // an event fetched before it went to a worker
+          on_readable(c);
       }
     }
     expire();
@@ -739,22 +542,24 @@ bool HttpServer::Impl::loop() {
   return true;
 }
 
+// The handler's reply, made ready to send; the loop sends it (take_returned).
 void HttpServer::Impl::serve(Connection& c) const {
+  const HttpRequest& req = c.reader.request();
   HttpResponse res;
   try {
-    res = handler(c.request);
+    res = handler(req);
   } catch (const std::exception& e) {
     res = HttpResponse{
         500, "text/plain; charset=utf-8", std::string("internal error: ") + e.what() + "\n", {}};
   } catch (...) {
     res = HttpResponse{500, "text/plain; charset=utf-8", "internal error\n", {}};
   }
-  const bool keep = keep_alive_asked(c.request) && !c.peer_closed &&
-                    c.served + 1 < limits.max_requests_per_connection;
-  const std::string out = serialize(res, defaults, c.request.method == "HEAD", keep);
-  const bool written = write_all(c.fd, out, after(limits.write_timeout_s));
+  const bool keep = req.keep_alive() && c.served + 1 < limits.max_requests_per_connection;
+  c.reply_head = reply_head(res, defaults, keep);
+  c.reply_body = req.method == "HEAD" ? std::string() : std::move(res.body);
+  c.reply_sent = 0;
   ++c.served;
-  c.close_after = !keep || !written;
+  c.close_after = !keep;
 }
 
 void HttpServer::Impl::work(Lane& lane) {

@@ -22,6 +22,7 @@
 #include <optional>
 #include <string>
 #include <thread>
+#include <utility>
 
 #include "client/connection.h"
 #include "daemon/protocol.h"
@@ -237,52 +238,14 @@ std::string check_access(const WebOptions& o, bool loopback) {
   return token;
 }
 
-// What every request is checked for before its route: the Host it names (DNS rebinding: on every
-// listen address), the method, and for control the header a cross-site form cannot send and, with a
-// token, the token. A refusal, or nothing.
-struct Guard {
-  idm::web::HostPolicy hosts;
-  bool control = false;
-  std::string token;
+// The access rules' denial (access.h) as a reply: a control request's as JSON, others as text.
+HttpResponse denial_reply(const idm::web::Denial& d) {
+  HttpResponse res = d.control ? json_error(d.status, d.why) : text_reply(d.status, d.why + "\n");
+  res.headers.insert(res.headers.end(), d.headers.begin(), d.headers.end());
+  return res;
+}
 
-  std::optional<HttpResponse> refuse(const HttpRequest& req) const {
-    const std::string& host = *req.header("host");  // exactly one: the server checked
-    if (!hosts.allows(host))
-      return text_reply(403, "forbidden: Host " + host.substr(0, 100) +
-                                 " is not a name of this server (idm-web --allow-host NAME)\n");
-    const bool read = req.method == "GET" || req.method == "HEAD";
-    const bool control_post = control && is_control(req);
-    if (!read && !control_post) {
-      HttpResponse res = text_reply(
-          405, control ? "method not allowed\n"
-                       : "method not allowed: idm-web is read-only (start it with --control)\n");
-      res.headers.emplace_back("Allow", control ? "GET, HEAD, POST" : "GET, HEAD");
-      return res;
-    }
-    if (!control_post) return std::nullopt;
-    // A form on another site cannot set this header; a script there cannot without a CORS
-    // preflight, which is never granted.
-    const std::string* mark = req.header("x-idm-control");
-    if (!mark || *mark != "1")
-      return json_error(403, "control requests need the header X-Idm-Control: 1");
-    if (token.empty()) return std::nullopt;
-    const std::string* auth = req.header("authorization");
-    const bool bearer = auth && auth->size() > 7 && auth->compare(0, 7, "Bearer ") == 0;
-    if (bearer && idm::web::same_secret(std::string_view(*auth).substr(7), token))
-      return std::nullopt;
-    HttpResponse res = json_error(401,
-                                  "control requests need the token: Authorization: Bearer TOKEN "
-                                  "(idm-web --token-file or IDM_WEB_TOKEN)");
-    res.headers.emplace_back("WWW-Authenticate", "Bearer realm=\"idm-web control\"");
-    return res;
-  }
-
-  static bool is_control(const HttpRequest& req) {
-    return req.method == "POST" && (req.path == "/api/stop" || req.path == "/api/move");
-  }
-};
-
-// Everything idm-web answers, after the guard.
+// Everything idm-web answers, after the access rules.
 struct Routes {
   idm::web::Monitor& monitor;
   const WebOptions& options;
@@ -332,10 +295,10 @@ HttpResponse Routes::gap() const {
   using idm::web::FileRead;
   if (options.gap_report.empty())
     return json_error(404, "no gap report (idm-web --gap-report FILE)");
-  const FileRead f = idm::web::read_file_nofollow(options.gap_report, kMaxGapReportBytes);
+  FileRead f = idm::web::read_file_nofollow(options.gap_report, kMaxGapReportBytes);
   switch (f.kind) {
     case FileRead::kOk:
-      return json_reply(200, f.text);
+      return json_reply(200, std::move(f.text));
     case FileRead::kMissing:
       return json_error(404, "no gap report at " + options.gap_report + " yet");
     case FileRead::kSymlink:
@@ -349,7 +312,7 @@ HttpResponse Routes::gap() const {
   return json_error(404, "cannot read the gap report " + f.why);
 }
 
-// STOP and moves (POST); the guard lets them through only with --control.
+// STOP and moves (POST); the access rules let them through only with --control.
 HttpResponse Routes::post(const HttpRequest& req) const {
   const int axis = axis_param(req);
   if (req.path == "/api/stop") {
@@ -402,10 +365,11 @@ bool serve_until_signal(idm::web::HttpServer& server, const sigset_t& signals) {
 }
 
 // Loud lines on stderr when the page is reachable from other machines.
-void warn_if_remote(const WebOptions& o, const Guard& guard, bool loopback, int port) {
+void warn_if_remote(const WebOptions& o, const idm::web::AccessRules& rules, bool loopback,
+                    int port) {
   if (loopback) return;
   std::string names;
-  for (const std::string& n : guard.hosts.listed()) names += " " + n;
+  for (const std::string& n : rules.hosts.listed()) names += " " + n;
   std::fprintf(stderr,
                "idm-web: listening on %s, which other machines may reach; Host names accepted: "
                "localhost, 127.x, [::1]%s\n",
@@ -417,7 +381,7 @@ void warn_if_remote(const WebOptions& o, const Guard& guard, bool loopback, int 
                  o.listen_host.c_str(), port);
 }
 
-int run(const WebOptions& o, const Guard& guard, bool loopback) {
+int run(const WebOptions& o, const idm::web::AccessRules& rules, bool loopback) {
   // SIGINT/SIGTERM end the server; they are blocked here, before any thread starts, and read
   // from a signalfd (serve_until_signal).
   sigset_t signals;
@@ -428,16 +392,16 @@ int run(const WebOptions& o, const Guard& guard, bool loopback) {
   signal(SIGPIPE, SIG_IGN);
 
   idm::web::Monitor monitor(o.monitor);
-  Routes routes{monitor, o, nullptr, !guard.token.empty()};
+  Routes routes{monitor, o, nullptr, !rules.token.empty()};
   idm::web::HttpLimits limits;
   limits.max_connections = static_cast<std::size_t>(o.max_connections);
   idm::web::HttpServer server(
       limits,
-      [&routes, &guard](const HttpRequest& req) {
-        if (auto refusal = guard.refuse(req)) return *refusal;
+      [&routes, &rules](const HttpRequest& req) {
+        if (const auto denial = idm::web::deny(rules, req)) return denial_reply(*denial);
         return req.method == "POST" ? routes.post(req) : routes.get(req);
       },
-      [](const HttpRequest& req) { return Guard::is_control(req); },
+      [](const HttpRequest& req) { return idm::web::is_control(req); },
       {{"X-Content-Type-Options", "nosniff"},
        {"X-Frame-Options", "DENY"},
        {"Referrer-Policy", "no-referrer"},
@@ -450,14 +414,14 @@ int run(const WebOptions& o, const Guard& guard, bool loopback) {
     std::fprintf(stderr, "idm-web: %s\n", e.what());
     return 4;
   }
-  warn_if_remote(o, guard, loopback && server.loopback(), server.port());
+  warn_if_remote(o, rules, loopback && server.loopback(), server.port());
   monitor.start();
   const std::string shown_host =
       o.listen_host.find(':') != std::string::npos ? "[" + o.listen_host + "]" : o.listen_host;
   std::printf("idm-web: listening on http://%s:%d/ (idmd at %s, control %s)\n", shown_host.c_str(),
               server.port(), o.monitor.address.text().c_str(),
               !o.control            ? "off"
-              : guard.token.empty() ? "on"
+              : rules.token.empty() ? "on"
                                     : "on, with a token");
   std::fflush(stdout);
   const bool ok = serve_until_signal(server, signals);
@@ -469,7 +433,7 @@ int run(const WebOptions& o, const Guard& guard, bool loopback) {
 
 int main(int argc, char** argv) {
   WebOptions o;
-  Guard guard;
+  idm::web::AccessRules rules;
   bool loopback = false;
   try {
     o = parse_options(argc, argv);
@@ -484,7 +448,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "idm-web: %s\n", e.what());
       return 4;
     }
-    guard.token = check_access(o, loopback);
+    rules.token = check_access(o, loopback);
   } catch (const InputError& e) {
     std::fprintf(stderr, "idm-web: %s\n", e.what());
     return 2;
@@ -492,8 +456,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "idm-web: %s\n", e.what());
     return 2;
   }
-  guard.control = o.control;
-  for (const std::string& name : o.allow_hosts) guard.hosts.allow(name);
-  guard.hosts.allow(o.listen_host);  // the literal listen address
-  return run(o, guard, loopback);
+  rules.control = o.control;
+  for (const std::string& name : o.allow_hosts) rules.hosts.allow(name);
+  rules.hosts.allow(o.listen_host);  // the literal listen address
+  return run(o, rules, loopback);
 }

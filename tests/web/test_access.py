@@ -277,6 +277,33 @@ def test_the_gap_report_is_never_read_through_a_symbolic_link(daemon, tmp_path):
         assert web.stop() == 0
 
 
+def vm_hwm_kb(pid):
+    with open("/proc/%d/status" % pid) as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:"))
+
+
+def test_a_gap_report_costs_its_own_size(daemon, tmp_path):
+    """Reading the gap report takes about its size of memory, not the 16 MiB it may reach (every
+    request took a 16 MiB buffer): generated sizes up to 1 MiB, the peak resident size checked."""
+    report = tmp_path / "gap.json"
+    report.write_text("{}")
+    web = Web(str(tmp_path), ["--idmd", "127.0.0.1:%d" % daemon.port, "--gap-report",
+                              str(report)], "gap-size")
+    try:
+        assert web.json("/api/gap") == {}
+        rng = random.Random(16)
+        before = vm_hwm_kb(web.proc.pid)
+        for n in [0, 1, 4095, 4096, 4097, 1 << 20] + [rng.randrange(1, 1 << 20) for _ in range(8)]:
+            text = json.dumps({"pad": "x" * n})
+            report.write_text(text)
+            status, _, body = web.request("/api/gap")
+            assert status == 200 and body == text.encode(), (n, status, len(body))
+        grown = vm_hwm_kb(web.proc.pid) - before
+        assert grown < 8 * 1024, "the peak resident size grew by %d kB" % grown
+    finally:
+        assert web.stop() == 0
+
+
 # ---- The port, the version ----------------------------------------------------------------------
 
 def test_a_taken_port_is_refused(daemon, tmp_path):

@@ -1,7 +1,9 @@
 """idm-web over HTTP against a real idmd on the simulated stage: the JSON endpoints and /metrics
 follow the daemon, a read-only server refuses everything but GET, control (STOP, moves) works
-only with --control and its header, foreign Host names are refused, and hostile requests do not
-bring it down."""
+only with --control and its header, foreign Host names are refused, hostile requests do not
+bring it down, and pipelined requests are all answered in order.
+
+Inputs that vary (pipelined requests, how they are cut into pieces) come from hypothesis."""
 import json
 import math
 import os
@@ -14,6 +16,7 @@ import threading
 import time
 
 import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 from conftest import Web, ask, fixtures, mean_position, send, wait_done, wait_for
 
@@ -302,6 +305,74 @@ def test_hostile_requests_do_not_bring_it_down(lab):
         assert web.json("/api/state")["connected"] is True
     # No move came of any of it.
     assert ask(daemon, "MOVE:DONE?")[0] == "1"
+
+
+# What each path answers on a read-only server: (status, the start of its Content-Type).
+PIPELINED = {b"/api/state": (200, "application/json"), b"/metrics": (200, "text/plain; version"),
+             b"/": (200, "text/html"), b"/app.js": (200, "text/javascript"),
+             b"/nothing": (404, "text/plain"), b"/api/regions": (400, "application/json")}
+
+
+def parse_replies(data):
+    """The HTTP/1.1 replies in `data`, in order: [(status, headers dict (lower case), body)]."""
+    replies = []
+    while data:
+        head, sep, rest = data.partition(b"\r\n\r\n")
+        assert sep, "a reply cut short: %r" % data[:200]
+        lines = head.decode("latin-1").split("\r\n")
+        assert lines[0].startswith("HTTP/1.1 "), lines[0]
+        headers = dict((k.strip().lower(), v.strip())
+                       for k, v in (line.split(":", 1) for line in lines[1:]))
+        n = int(headers["content-length"])
+        assert len(rest) >= n, "a body cut short"
+        replies.append((int(lines[0][9:12]), headers, rest[:n]))
+        data = rest[n:]
+    return replies
+
+
+@settings(max_examples=40, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(paths=st.lists(st.sampled_from(sorted(PIPELINED)), min_size=1, max_size=12),
+       cuts=st.lists(st.integers(1, 400), max_size=8),
+       end=st.sampled_from(["half-close", "connection-close", "both"]), cork=st.booleans())
+def test_pipelined_requests_are_all_answered_in_order(lab, paths, cuts, end, cork):
+    """Requests sent back to back, in pieces of any size or corked (TCP_CORK: the bytes and the
+    end of the client's side arrive together), then the client's end (a half-close of its side,
+    Connection: close on the last request, or both): every one answered, in order, then the
+    connection closed. (Corked, a half-close after two requests got one answer.)"""
+    _, web, _ = lab
+    data = b""
+    for k, path in enumerate(paths):
+        last = k == len(paths) - 1
+        close = b"Connection: close\r\n" if last and end != "half-close" else b""
+        data += b"GET " + path + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n" + close + b"\r\n"
+    s = socket.create_connection(("127.0.0.1", web.port), timeout=20)
+    try:
+        if cork:
+            s.setsockopt(socket.IPPROTO_TCP, socket.TCP_CORK, 1)
+        pos = 0
+        for cut in cuts:
+            s.sendall(data[pos:pos + cut])
+            pos += cut
+        s.sendall(data[pos:])
+        if end != "connection-close":
+            s.shutdown(socket.SHUT_WR)
+        elif cork:
+            s.setsockopt(socket.IPPROTO_TCP, socket.TCP_CORK, 0)
+        out = b""
+        while True:
+            chunk = s.recv(65536)
+            if not chunk:
+                break
+            out += chunk
+    finally:
+        s.close()
+    replies = parse_replies(out)
+    assert [r[0] for r in replies] == [PIPELINED[p][0] for p in paths], (paths, end)
+    for (status, headers, _), path in zip(replies, paths):
+        assert headers["content-type"].startswith(PIPELINED[path][1]), (path, headers)
+    if end != "half-close":
+        assert replies[-1][1]["connection"] == "close"
 
 
 def test_the_gap_report_is_served_when_there_is_one(tmp_path, lab):
