@@ -47,7 +47,8 @@ budget, each candidate on a fresh idmd, kept only if the same class of violation
     stateful_daemon.py BUILD_DIR SOURCE_DIR replay=TRACE     the steps of a saved trace again
     stateful_daemon.py BUILD_DIR SOURCE_DIR minimize=TRACE[:CLASS]
 Environment: IDM_STATEFUL_SEED (master seed), IDM_STATEFUL_BUDGET_S (the run's generation time),
-IDM_STATEFUL_MINIMIZE_S (minimization budget after a failed run; the long run's default 600).
+IDM_STATEFUL_MINIMIZE_S (minimization budget after a failed run; the long run's default 600),
+IDM_STATEFUL_WITHOUT (actions left out, e.g. `sweep,push,sighup,rst`, to check one fix at a time).
 """
 import json
 import math
@@ -71,6 +72,9 @@ NOISE_COUNTS = 3          # (b): a position at rest repeats within this many cou
 REST_SAMPLES = 24         # readings averaged for a position at rest
 MOTION_END_CODES = "a positive code or -200"
 ROOT = None               # the run's directory (harness.TMP points at the episode's while it runs)
+# Actions the generator leaves out (IDM_STATEFUL_WITHOUT=sweep,push,...: the names of Generator's
+# gen_* methods), to check one fix at a time.
+WITHOUT = [w for w in os.environ.get("IDM_STATEFUL_WITHOUT", "").split(",") if w]
 
 
 def motion_end_error(code):
@@ -85,7 +89,12 @@ def fmt(x):
 
 
 class Unresponsive(Exception):
-    """(e): idmd did not answer, closed a connection, or exited."""
+    """(e): idmd did not answer, closed a connection, or exited; `conn` the connection that
+    waited."""
+
+    def __init__(self, msg, conn=None):
+        super().__init__(msg)
+        self.conn = conn
 
 
 class EndEpisode(Exception):
@@ -115,7 +124,7 @@ class Conn(harness.Client):
         try:
             r = self.line()
         except socket.timeout:
-            raise Unresponsive("no reply to %r within %g s" % (what, timeout))
+            raise Unresponsive("no reply to %r within %g s" % (what, timeout), self)
         except OSError as e:
             raise Unresponsive("reading the reply to %r: %s" % (what, e))
         if r is None:
@@ -203,6 +212,8 @@ class Generator:
             for name, more in (("stop", 8), ("rst", 6), ("sighup", 4), ("push", 4), ("lim", 3), ("opc", 3)):
                 acts[name] += more
         self.running = False
+        for name in WITHOUT:
+            acts[name] = 0
         act = r.choices(list(acts), list(acts.values()))[0]
         c = self.client()
         if c is None:
@@ -432,7 +443,7 @@ class Episode:
     """One idmd on `cfg_name` in `workdir`, the steps run against it and their violations."""
 
     def __init__(self, cfg_name, workdir, seed=None, quiet=False):
-        self.cfg_name, self.workdir, self.seed, self.quiet = cfg_name, workdir, seed, quiet
+        self.cfg_name, self.workdir, self.seed, self.silent = cfg_name, workdir, seed, quiet
         self.steps = []
         self.violations = []
         self.seen = set()
@@ -475,7 +486,7 @@ class Episode:
     def violate(self, cls, detail):
         v = Violation(cls, self.i, detail)
         self.violations.append(v)
-        if cls not in self.seen and not self.quiet:
+        if cls not in self.seen and not self.silent:
             self.seen.add(cls)
             print("VIOLATION %s at step %d: %s" % (cls, self.i, detail), flush=True)
 
@@ -714,8 +725,11 @@ class Episode:
         if pend["kind"] == "STEP" and word == "TIMEOUT":
             return  # README: a STEP queues errors for 111/112 (and faults) only
         if owed and not got:
-            self.violate("d:%s_without_error" % word.lower(),
-                         "%s ended %s,%s and left its client no error (%s owed)" % (what, word, dist, MOTION_END_CODES))
+            after = "(after %s)" % sorted(others)[0].split(" ")[0] if others else ""
+            self.violate("d:%s_without_error%s" % (word.lower(), after),
+                         "%s ended %s,%s and left its client no error (%s owed)%s" % (
+                             what, word, dist, MOTION_END_CODES,
+                             "; meanwhile " + ", ".join(sorted(others)) if others else ""))
 
     # -- the steps
     def run_step(self, st):
@@ -726,7 +740,7 @@ class Episode:
             self.alive()
             self.readings("after the step")
         except Unresponsive as e:
-            self.violate("e:unresponsive", "%s; %s" % (e, self.diagnose()))
+            self.violate("e:unresponsive", "%s; %s" % (e, self.diagnose(e.conn)))
             raise EndEpisode()
 
     def accepted(self, a, kind, st, before, got):
@@ -952,9 +966,10 @@ class Episode:
         else:
             self.violate("e:exited", "idmd had exited with %s" % self.d.proc.returncode)
 
-    def diagnose(self):
+    def diagnose(self, stuck=None):
         """What a hang looks like from outside: whether idmd runs, whether a new connection and
-        the checker's own are answered; every thread's stack (gdb) in idmd-stacks.txt."""
+        the checker's own are answered (and what the axes say), whether the waiting connection
+        answers within a minute more; every thread's stack (gdb) in idmd-stacks.txt."""
         if self.d.proc.poll() is not None:
             return "idmd exited with %s" % self.d.proc.returncode
         notes = []
@@ -965,6 +980,14 @@ class Episode:
                 notes.append("%s is answered" % name)
             except Unresponsive as e:
                 notes.append("%s is not (%s)" % (name, e))
+        try:
+            notes.append("MOVE:DONE? %s, SWEEP? %s, SYST:CLI:TABL? %s" % (
+                ",".join(self.obs.ask("AXIS%d:MOVE:DONE?" % a.n, timeout=5) for a in self.axes),
+                self.obs.ask("SWEEP?", timeout=5), self.obs.ask("SYST:CLI:TABL?", timeout=5)))
+            for a in self.axes:
+                notes.append("axis %d: %s" % (a.n, self.obs.ask("AXIS%d:STAT?" % a.n, timeout=5)))
+        except Unresponsive as e:
+            notes.append("the checker's queries failed (%s)" % e)
         path = os.path.join(self.workdir, "idmd-stacks.txt")
         try:
             with open(path, "w") as f:
@@ -973,6 +996,13 @@ class Episode:
             notes.append("threads' stacks in %s" % path)
         except (OSError, subprocess.SubprocessError) as e:
             notes.append("no stacks (%s)" % e)
+        if stuck is not None:
+            t0 = time.time()
+            try:
+                r = stuck.reply("the same line", timeout=60)
+                notes.append("the waiting connection answered %r %.1f s later" % (r, time.time() - t0))
+            except Unresponsive as e:
+                notes.append("the waiting connection: still %s" % e)
         return "; ".join(notes)
 
     def kill(self):
@@ -1014,6 +1044,7 @@ def run_episode(workdir, cfg_name, seed, steps=None, max_steps=40, deadline=None
         ep.kill()
     except BaseException:
         ep.kill()
+        save_trace(ep)  # a fault of this script: its steps kept for a replay
         raise
     save_trace(ep)
     return ep
@@ -1053,7 +1084,8 @@ def report(episodes):
 
 def run_generated(master, budget_s, max_steps, minimize_s):
     root = ROOT
-    print("stateful: master seed %d (IDM_STATEFUL_SEED), %g s, work in %s" % (master, budget_s, root))
+    print("stateful: master seed %d (IDM_STATEFUL_SEED), %g s, work in %s%s" % (
+        master, budget_s, root, "; without " + ",".join(WITHOUT) if WITHOUT else ""))
     deadline = time.time() + budget_s
     episodes = []
     k = 0
