@@ -1,5 +1,5 @@
 """The process and client plumbing of the script tests in this folder (idmd_integration.py,
-axes_integration.py, motion_integration.py, fault_matrix.py): their command line and temporary
+axes_integration.py, motion_integration.py, fault_matrix.py, stateful_daemon.py): their command line and temporary
 directory, configs edited from config/*.yaml, idmd and tools/idm-simdev as child processes, a
 plain line client of idmd's sockets, raw Modbus reads, and the case table's dispatch. No library
 of the product: the scripts talk to idmd through its sockets only.
