@@ -33,7 +33,7 @@ Housekeeping::~Housekeeping() {
 }
 
 void Housekeeping::start() {
-  thread_ = drivers::StackThread(drivers::kSmallStackBytes * 4, [this] { main(); });
+  thread_ = drivers::StackThread("idmd-house", drivers::kSmallStackBytes * 4, [this] { main(); });
 }
 
 void Housekeeping::quit() {

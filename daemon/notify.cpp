@@ -34,25 +34,26 @@ double Notifier::start_watchdog(std::function<std::uint64_t()> ticks) {
     std::lock_guard<std::mutex> lock(mutex_);
     quit_ = false;
   }
-  thread_ = StackThread(kSmallStackBytes, [this, interval, ticks = std::move(ticks)] {
-    std::uint64_t last = ticks();
-    bool stalled = false;
-    std::unique_lock<std::mutex> lock(mutex_);
-    for (;;) {
-      if (cv_.wait_for(lock, interval, [this] { return quit_; })) return;
-      const std::uint64_t now = ticks();
-      if (now != last) {
-        sd_notify(0, stalled ? "WATCHDOG=1\nSTATUS=Running: the real-time loop advances again"
-                             : "WATCHDOG=1");
-        pings_.fetch_add(1);
-        stalled = false;
-      } else if (!stalled) {
-        sd_notify(0, "STATUS=The real-time loop has stalled: no watchdog ping");
-        stalled = true;
-      }
-      last = now;
-    }
-  });
+  thread_ =
+      StackThread("idmd-notify", kSmallStackBytes, [this, interval, ticks = std::move(ticks)] {
+        std::uint64_t last = ticks();
+        bool stalled = false;
+        std::unique_lock<std::mutex> lock(mutex_);
+        for (;;) {
+          if (cv_.wait_for(lock, interval, [this] { return quit_; })) return;
+          const std::uint64_t now = ticks();
+          if (now != last) {
+            sd_notify(0, stalled ? "WATCHDOG=1\nSTATUS=Running: the real-time loop advances again"
+                                 : "WATCHDOG=1");
+            pings_.fetch_add(1);
+            stalled = false;
+          } else if (!stalled) {
+            sd_notify(0, "STATUS=The real-time loop has stalled: no watchdog ping");
+            stalled = true;
+          }
+          last = now;
+        }
+      });
   return static_cast<double>(usec) * 1e-6;
 }
 

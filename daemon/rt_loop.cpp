@@ -61,7 +61,7 @@ std::string RtLoop::start() {
   stop_.store(false);
   setup_done_.store(0);
   running_.store(true, std::memory_order_release);
-  thread_ = StackThread(kLoopStackBytes, [this] { run(); });
+  thread_ = StackThread("idmd-rt", kLoopStackBytes, [this] { run(); });
   while (setup_done_.load(std::memory_order_acquire) == 0) std::this_thread::yield();
   return setup_warning_;
 }

@@ -569,7 +569,7 @@ std::string Server::start() {
   if (thread_.joinable()) return "command server: already started";
   if (epoll_fd_ < 0)
     if (std::string error = listen(); !error.empty()) return error;
-  thread_ = StackThread(kServerStackBytes, [this] { run(); });
+  thread_ = StackThread("idmd-server", kServerStackBytes, [this] { run(); });
   return {};
 }
 

@@ -46,7 +46,7 @@ std::vector<recording::PlannedCell> planned_cells(const SweepJob& job) {
 
 SweepRunner::SweepRunner(MotionSupervisor& supervisor, std::vector<Axis*> axes)
     : supervisor_(supervisor), axes_(std::move(axes)) {
-  thread_ = drivers::StackThread(drivers::kRecorderStackBytes, [this] { main(); });
+  thread_ = drivers::StackThread("idmd-sweep", drivers::kRecorderStackBytes, [this] { main(); });
 }
 
 SweepRunner::~SweepRunner() {

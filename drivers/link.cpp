@@ -176,7 +176,7 @@ void DeviceLink::close() {
 void DeviceLink::start_thread() {
   if (thread_.joinable()) return;
   quit_.store(false);
-  thread_ = StackThread(kIoStackBytes, [this] {
+  thread_ = StackThread("idmd-io-" + name_, kIoStackBytes, [this] {
     const double period = config_.io_period_s;
     double next = monotonic_s();
     while (!quit_.load(std::memory_order_acquire)) {

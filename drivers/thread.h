@@ -10,6 +10,7 @@
 #include <cstddef>
 #include <functional>
 #include <memory>
+#include <string>
 #include <system_error>
 #include <utility>
 
@@ -29,10 +30,12 @@ inline constexpr std::size_t kIoStackBytes =
 
 class StackThread {
  public:
+  static constexpr std::size_t kMaxNameChars = 15;  // TASK_COMM_LEN - 1
   StackThread() = default;
-  // Starts fn on a new thread with a stack of stack_bytes (at least PTHREAD_STACK_MIN). Throws
+  // Starts fn on a new thread named `name` (what top -H, ps -L and gdb show; cut to the kernel's
+  // 15 characters) with a stack of stack_bytes (at least PTHREAD_STACK_MIN). Throws
   // std::system_error when the thread cannot be created (as std::thread does).
-  StackThread(std::size_t stack_bytes, std::function<void()> fn) {
+  StackThread(const std::string& name, std::size_t stack_bytes, std::function<void()> fn) {
     auto owned = std::make_unique<std::function<void()>>(std::move(fn));
     pthread_attr_t attr;
     pthread_attr_init(&attr);
@@ -40,6 +43,7 @@ class StackThread {
     const int e = pthread_create(&id_, &attr, &StackThread::entry, owned.get());
     pthread_attr_destroy(&attr);
     if (e != 0) throw std::system_error(e, std::generic_category(), "pthread_create");
+    pthread_setname_np(id_, name.substr(0, kMaxNameChars).c_str());
     static_cast<void>(owned.release());  // the thread owns it now
     joinable_ = true;
   }

@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -582,6 +583,43 @@ TEST_F(DaemonSim, EverySettingACommandChangesIsCheckedByTheConfigsOwnRange) {
     EXPECT_GT(refused, 5) << s.key;
   }
   d->shutdown();
+}
+
+}  // namespace
+
+namespace {
+
+// The names of this process's threads (/proc/self/task/*/comm).
+std::vector<std::string> thread_names() {
+  std::vector<std::string> out;
+  for (const auto& t : std::filesystem::directory_iterator("/proc/self/task")) {
+    std::ifstream f(t.path() / "comm");
+    std::string name;
+    std::getline(f, name);
+    out.push_back(name);
+  }
+  return out;
+}
+
+// Every thread the daemon starts is named for its job (top -H, ps -L, gdb): the loop, the
+// server, housekeeping, the recorder and each device's I/O thread.
+TEST_F(DaemonSim, EveryThreadItStartsIsNamedForItsJob) {
+  const std::vector<std::string> before = thread_names();
+  auto d = make(sim_config("wall", ""));
+  d->start();
+  ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
+  std::vector<std::string> started = thread_names();
+  for (const std::string& b : before) {
+    const auto it = std::find(started.begin(), started.end(), b);
+    if (it != started.end()) started.erase(it);
+  }
+  d->shutdown();
+  ASSERT_FALSE(started.empty());
+  for (const char* job : {"idmd-rt", "idmd-house", "idmd-sweep"})
+    EXPECT_NE(std::find(started.begin(), started.end(), job), started.end()) << job;
+  EXPECT_TRUE(std::any_of(started.begin(), started.end(),
+                          [](const std::string& n) { return n.rfind("idmd-io-", 0) == 0; }));
+  for (const std::string& n : started) EXPECT_EQ(n.rfind("idmd-", 0), 0u) << n;
 }
 
 }  // namespace
