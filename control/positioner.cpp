@@ -122,6 +122,11 @@ std::vector<model::Param<P>> ladder_and_end_params() {
           "time a chunk costs beyond its cycles (planning weight)",
           [](auto& c) -> auto& { return c.chunk_overhead_s; }),
       real<P>(
+          "max_speed_m_s", "m/s", {0, 1},
+          "speed limit of a move's approach (0: none; MOVE:VELocity; the final rung plays at its "
+          "own speed)",
+          [](auto& c) -> auto& { return c.max_speed_m_s; }),
+      real<P>(
           "dwell_s", "s", {0, 60},
           "a move is done once fresh readings stayed in the window this long (MOVE:DWELl)",
           [](auto& c) -> auto& { return c.dwell_s; }),
@@ -558,8 +563,12 @@ void Positioner::after_chunk(double now_s, double position) {
     finish(now_s, stop_result_);
     return;
   }
+  // A closed-loop move may land on a target at a limit up to its window and a final step past
+  // it (a final chunk may pass the target by most of a step): a landing, not a runaway.
+  const double landing_m =
+      status_.closed_loop ? tolerance_m() + finest_live_step_m(chunk_.direction) : tolerance_m();
   if (!referencing_ && !reading_allowed(position, motion_start_m_, config_.soft_lower_m,
-                                        config_.soft_upper_m, tolerance_m())) {
+                                        config_.soft_upper_m, landing_m)) {
     finish(now_s, MoveResult::Limit);  // outside the soft limits: nothing more is played
     return;
   }

@@ -78,6 +78,10 @@ struct PositionerConfig {
   // Time a chunk costs beyond its cycles (device settle, the positioner's settle, the reading),
   // used to weigh fewer, longer chunks against more, shorter ones.
   double chunk_overhead_s = 5e-3;
+  // The speed limit (MOVE:VELocity, EPICS VELO): the approach uses only rungs whose learned step
+  // times frequency is at most this; 0: no limit. The final chunks' rung (the finest that lands
+  // within the window) plays whatever its speed: it is the slowest that can arrive.
+  double max_speed_m_s = 0.0;
   // ---- in position, end of travel, hold (the protocol's MOVE:DWELl, EOT:, HOLD) ----
   // A move is done once fresh readings have stayed within the window (tolerance_m) of the target
   // for this long (0: the first fresh reading inside).

@@ -285,6 +285,12 @@ int Positioner::approach_rung(const std::vector<Rung>& ladder, double distance, 
     if (r.dead) continue;  // rung_live ran before
     const RegionCell& cell = map_.cells()[r.cell];
     const double a = r.est.offset_m, b = r.est.step_m;
+    // The speed limit: a rung whose learned speed, grown two standard deviations, exceeds it is
+    // not used to approach.
+    if (config_.max_speed_m_s > 0 &&
+        (std::fabs(b) + 2.0 * std::sqrt(std::max(r.est.p_ss, 0.0))) * cell.freq_hz >
+            config_.max_speed_m_s)
+      continue;
     // Pessimistic: offset and step two standard deviations up, and the whole grown by
     // approach_uncertainty (friction along the guide).
     const double a_hi = a + 2.0 * std::sqrt(std::max(r.est.p_oo, 0.0));

@@ -168,6 +168,8 @@ control::Refusal Axis::apply(const AxisCommand& c) {
       return positioner_->set_eot(c.a, static_cast<int>(c.n));
     case AxisCommand::Kind::SetHold:
       return positioner_->set_hold(c.a, c.b);
+    case AxisCommand::Kind::SetSpeed:
+      return positioner_->set_settings({{"max_speed_m_s", c.a}});
     case AxisCommand::Kind::Reference: {
       if (busy) return Refusal::Busy;
       const int direction = c.n > 0 ? 1 : -1;
@@ -335,6 +337,7 @@ void Axis::publish(bool parked) {
   const control::PositionerConfig& pc = positioner_->config();
   pub_.settings.window_m = positioner_->tolerance_m();
   pub_.settings.dwell_s = pc.dwell_s;
+  pub_.settings.max_speed_m_s = pc.max_speed_m_s;
   pub_.settings.eot_step_m = pc.eot_step_m;
   pub_.settings.eot_cycles = pc.eot_cycles;
   pub_.settings.hold_s = pc.hold_s;

@@ -35,6 +35,7 @@ struct AxisCommand {
     SetDwell,
     SetEot,
     SetHold,
+    SetSpeed,
     Reference,  // settings: a (and b, n); Reference: n = direction, a = the position it
                 // sets, b != 0: find the reference mark (else the end stop)
   };
@@ -51,6 +52,7 @@ struct MotionSettings {
   double window_m = 0, dwell_s = 0, eot_step_m = 0, hold_s = 0, hold_window_m = 0;
   double hold_window_set_m = 0;  // as set (0: the move window)
   int eot_cycles = 0;
+  double max_speed_m_s = 0;  // 0: no limit
 };
 
 struct AxisPublished {

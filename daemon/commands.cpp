@@ -206,9 +206,13 @@ CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double va
   static const struct {
     const char* command;
     const char* key;
-  } kSetting[] = {
-      {"MOVE:WINDow", "tolerance_m"}, {"MOVE:DWELl", "dwell_s"}, {"EOT:STEP", "eot_step_m"},
-      {"EOT:CYCLes", "eot_cycles"},   {"HOLD", "hold_s"},        {"HOLD:WINDow", "hold_window_m"}};
+  } kSetting[] = {{"MOVE:WINDow", "tolerance_m"},
+                  {"MOVE:DWELl", "dwell_s"},
+                  {"EOT:STEP", "eot_step_m"},
+                  {"EOT:CYCLes", "eot_cycles"},
+                  {"HOLD", "hold_s"},
+                  {"HOLD:WINDow", "hold_window_m"},
+                  {"MOVE:VELocity", "max_speed_m_s"}};
   const auto& r = kSetting[static_cast<std::size_t>(which)];
   if (!std::isfinite(value))
     return {error_code::kNumericDataError, std::string(r.command) + ": not a finite number"};
@@ -228,6 +232,10 @@ CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double va
       break;
     case MotionSetting::Dwell:
       c.kind = AxisCommand::Kind::SetDwell;
+      c.a = value;
+      break;
+    case MotionSetting::MaxSpeed:
+      c.kind = AxisCommand::Kind::SetSpeed;
       c.a = value;
       break;
     case MotionSetting::EotStep:
@@ -261,6 +269,8 @@ double Daemon::motion_setting(int axis, MotionSetting which) {
       return s.window_m;
     case MotionSetting::Dwell:
       return s.dwell_s;
+    case MotionSetting::MaxSpeed:
+      return s.max_speed_m_s;
     case MotionSetting::EotStep:
       return s.eot_step_m;
     case MotionSetting::EotCycles:

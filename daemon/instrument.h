@@ -136,7 +136,15 @@ struct InstrumentStatus {
 
 // Settings of the motions that follow, per axis (MOVE:WINDow, MOVE:DWELl, EOT:STEP, EOT:CYCLes,
 // HOLD, HOLD:WINDow).
-enum class MotionSetting : std::uint8_t { Window, Dwell, EotStep, EotCycles, Hold, HoldWindow };
+enum class MotionSetting : std::uint8_t {
+  Window,
+  Dwell,
+  EotStep,
+  EotCycles,
+  Hold,
+  HoldWindow,
+  MaxSpeed
+};
 // REFerence's argument (Default: the axis's configured one).
 enum class ReferenceMethod : std::uint8_t { Default, Negative, Positive, Mark };
 

@@ -287,6 +287,15 @@ class Session {
   CommandError dwell(const Args& a, std::string&) {
     return set_setting(MotionSetting::Dwell, a, "MOVE:DWELl");
   }
+  CommandError speed(const Args& a, std::string&) {
+    return set_setting(MotionSetting::MaxSpeed, a, "MOVE:VELocity");
+  }
+  CommandError speed_query(const Args&, std::string& r) {
+    return setting_query(MotionSetting::MaxSpeed, r);
+  }
+  // JOG POSitive|NEGative: a move to that soft limit at the speed limit (MOVE:VELocity), ended
+  // by STOP or there.
+  CommandError jog(const Args& a, std::string&);
   CommandError eot_step(const Args& a, std::string&) {
     return set_setting(MotionSetting::EotStep, a, "EOT:STEP");
   }

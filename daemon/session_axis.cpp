@@ -83,6 +83,28 @@ CommandError Session::start_move(const Args& args, std::string_view what,
   return e;
 }
 
+CommandError Session::jog(const Args& args, std::string&) {
+  if (args.quoted[0]) return make_error(ec::kDataTypeError, "JOG: a keyword, not a string");
+  int sign = 0;
+  if (header_matches("POSitive", args[0]))
+    sign = 1;
+  else if (header_matches("NEGative", args[0]))
+    sign = -1;
+  else
+    return make_error(ec::kDataOutOfRange, "JOG: '" + std::string(args[0]) +
+                                               "' is not allowed, allowed POSitive, NEGative");
+  // A move to the soft limit that way, less the window (it lands within its window of the
+  // target: inside the limits, where the reading-based stop does not take a landing for a
+  // runaway): the motion gate, the end of travel and MOVE:VELocity apply as to any move; STOP
+  // ends it.
+  const InstrumentStatus s = instrument_.status(axis_);
+  const double window_m = instrument_.motion_setting(axis_, MotionSetting::Window);
+  const double target_m = sign > 0 ? s.soft_upper_m - window_m : s.soft_lower_m + window_m;
+  CommandError e = instrument_error(instrument_.move_absolute(axis_, target_m));
+  started_motion(e);
+  return e;
+}
+
 CommandError Session::move_done(const Args&, std::string& reply) {
   reply = instrument_.motion_done(axis_) ? "1" : "0";
   return {};

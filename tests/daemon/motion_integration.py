@@ -123,6 +123,70 @@ def case_window_and_dwell():
               "MOVE:REL is relative to the target when in position")
 
 
+def case_speed_and_jog():
+    """MOVE:VELocity caps the approach's speed (positions sampled while a move runs: a loaded
+    machine can only make it slower); JOG POSitive/NEGative moves to that soft limit at that
+    speed, ends OK there or STOPPED by the client's STOP with no error; out-of-range speeds are
+    refused naming the range, and *RST restores the config's (no limit)."""
+    with Daemon(config()) as d:
+        c = Client(d)
+        check(float(c.ask("MOVE:VEL?")) == 0, "no speed limit by default")
+        c.send("MOVE:VEL 2\n")
+        e = c.error()
+        check(e.startswith("-222,") and "allowed [0, 1] m/s" in e, "2 m/s refused: %s" % e)
+        limit = 4e-4
+        c.send("MOVE:VEL %g\n" % limit)
+        check(float(c.ask("MOVE:VEL?")) == limit, "MOVE:VEL? reads back")
+
+        def sampled_move(command):
+            start = float(c.ask("POS?"))
+            c.send(command + "\n")
+            samples = [(time.time(), start)]
+            while c.ask("MOVE:DONE?") == "0":
+                samples.append((time.time(), float(c.ask("POS?"))))
+                time.sleep(0.02)
+            return samples
+
+        samples = sampled_move("MOVE:REL 1e-3")
+        check(result(c)[0] == "OK", "the limited move arrives: %s" % (result(c),))
+        fastest = 0
+        for i, (t, p) in enumerate(samples):
+            for t2, p2 in samples[i + 1:]:
+                if t2 - t >= 0.25:
+                    fastest = max(fastest, abs(p2 - p) / (t2 - t))
+                    break
+        check(fastest <= 1.3 * limit, "at most the speed limit over any 0.25 s: %g m/s" % fastest)
+        check(samples[-1][0] - samples[0][0] >= 1e-3 / (1.3 * limit), "the move took its time")
+        c.send("MOVE:VEL 0\nLIM -1e-3,1.6e-3\n")
+        check(errors(c) == [], "no errors so far")
+        c.send("JOG POS\n")
+        check(c.ask("*OPC?") == "1", "the jog ends")
+        word, dist = result(c)
+        window = float(c.ask("MOVE:WIND?"))
+        p = float(c.ask("POS?"))
+        check(word == "OK" and 1.6e-3 - 2 * window - COUNT_M <= p <= 1.6e-3,
+              "JOG POS ends at the upper soft limit, inside: %s %r" % (word, p))
+        for _ in range(4):  # a move to the limit itself lands there too (not LIMIT)
+            c.send("MOVE:ABS 1.2e-3\n")
+            check(c.ask("*OPC?") == "1" and result(c)[0] == "OK", "back from the limit")
+            c.send("MOVE:ABS 1.6e-3\n")
+            check(c.ask("*OPC?") == "1", "the move to the limit ends")
+            check(result(c)[0] == "OK", "MOVE:ABS to the limit ends OK: %s at %s" % (result(c), c.ask("POS?")))
+        c.send("MOVE:VEL %g\nJOG NEG\n" % limit)
+        time.sleep(0.5)
+        c.send("STOP\n")
+        check(c.ask("*OPC?") == "1", "the jog stops")
+        p = float(c.ask("POS?"))
+        check(result(c)[0] == "STOPPED" and -1e-3 < p < 1.6e-3 - 1e-5,
+              "JOG NEG stopped on the way: %s at %g" % (result(c), p))
+        check(errors(c) == [], "a STOP the client asked for queues nothing")
+        c.send("JOG UP\n")
+        e = c.error()
+        check(e.startswith("-222,") and "POSitive, NEGative" in e, "JOG UP refused: %s" % e)
+        c.send("*RST\n")
+        check(c.ask("*OPC?") == "1" and float(c.ask("MOVE:VEL?")) == 0, "*RST: the config's (0)")
+
+
 def case_not_arrived():
     move_timeout = ("  max_chunk_s: 0.05\n", "  max_chunk_s: 0.05\n  move_timeout_s: 0.15\n")
     with Daemon(config(edits=[move_timeout])) as d:
@@ -443,6 +507,7 @@ CASES = {
     "bad_settings": case_bad_settings,
     "window_and_dwell": case_window_and_dwell,
     "not_arrived": case_not_arrived,
+    "speed_and_jog": case_speed_and_jog,
     "eot_open_loop": case_eot_open_loop,
     "eot_closed_loop": case_eot_closed_loop,
     "reference": case_reference,
