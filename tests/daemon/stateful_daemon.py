@@ -335,7 +335,8 @@ class Generator:
         header, values = r.choice([("MOVE:WIND", [0, 5e-9, 1e-8, 3e-8, 1e-7, 1e-6, 2e-3]),
                                    ("MOVE:DWEL", [0, 0.005, 0.02, 0.1, 61]),
                                    ("HOLD", [0, -1, 0.1, 0.5, 2]),
-                                   ("HOLD:WIND", [0, 1e-8, 5e-8, 2e-7])])
+                                   ("HOLD:WIND", [0, 1e-8, 5e-8, 2e-7]),
+                                   ("MOVE:VEL", [0, 0, 5e-4, 2e-3, 2])])
         return [dict(op="set", c=c, axis=a, line="%s%s %s" % (self.prefix(a), header, fmt(r.choice(values))))]
 
     def gen_clients(self, c):
