@@ -225,11 +225,11 @@ bool Daemon::wait_at_rest(double timeout_s) {
   return true;
 }
 
-void Daemon::shutdown() {
+void Daemon::shutdown(const std::string& why) {
   if (!started_ || shut_down_) return;
   shut_down_ = true;
+  if (sweeps_) sweeps_->abort(why);  // before the loop stops its trial: the sweep says why
   supervisor_->request_stop_all();
-  if (sweeps_) sweeps_->abort();
   double longest_chunk = 0;
   for (const auto& a : axes_)
     longest_chunk = std::max(longest_chunk, a->control().positioner.max_chunk_s);

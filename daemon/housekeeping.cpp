@@ -45,6 +45,7 @@ void Housekeeping::quit() {
   cv_.notify_all();
   if (thread_.joinable()) thread_.join();
   watch_links();
+  watch_sweep();  // a sweep the shutdown stopped (the runner has ended before this)
   for (std::size_t i = 0; i < axes_.size(); ++i) {
     save_calibration(i, true);
     save_reference(i);
@@ -74,24 +75,28 @@ void Housekeeping::main() {
 
 void Housekeeping::cycle() {
   watch_links();
-  if (const std::string r = sweeps_.report(); r != seen_report_) {
-    seen_report_ = r;
-    const SweepStatus s = sweeps_.status();
-    // Failed trials, or a sweep stopped before its end, are the axis's error (SWEEP? says which);
-    // a stopped sweep's error is dated when the stop came, so the *RST that stopped it clears it.
-    if (s.failed > 0 || s.state == "STOPPED") {
-      if (s.axis >= 0 && static_cast<std::size_t>(s.axis) < axes_.size())
-        set_error(static_cast<std::size_t>(s.axis), r,
-                  s.state == "STOPPED" ? sweeps_.abort_time_s() : drivers::monotonic_s());
-      add_note(s.failed > 0, r);
-    } else {
-      add_note(false, r);
-    }
-  }
+  watch_sweep();
   reload_cycle();
   if (supervisor_.at_rest())
     for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, false);
   for (std::size_t i = 0; i < axes_.size(); ++i) save_reference(i);
+}
+
+void Housekeeping::watch_sweep() {
+  const std::string r = sweeps_.report();
+  if (r == seen_report_) return;
+  seen_report_ = r;
+  const SweepStatus s = sweeps_.status();
+  // Failed trials, or a sweep stopped before its end, are the axis's error (SWEEP? says which);
+  // a stopped sweep's error is dated when the stop came, so the *RST that stopped it clears it.
+  if (s.failed > 0 || s.state == "STOPPED") {
+    if (s.axis >= 0 && static_cast<std::size_t>(s.axis) < axes_.size())
+      set_error(static_cast<std::size_t>(s.axis), r,
+                s.state == "STOPPED" ? sweeps_.abort_time_s() : drivers::monotonic_s());
+    add_note(s.failed > 0, r);
+  } else {
+    add_note(false, r);
+  }
 }
 
 void Housekeeping::request_reload(bool limits_from_file, std::string why) {

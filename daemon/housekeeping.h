@@ -74,6 +74,7 @@ class Housekeeping {
   // A failed save: the axis's error, logged once per distinct failure.
   void save_failed(std::size_t axis, std::string& last, const std::string& text);
   void watch_links();
+  void watch_sweep();  // the sweep runner's report of a sweep that ended, to the log
   void add_note(bool warning, std::string text);
   void set_error(std::size_t axis, const std::string& text, double t_s = -1);
 

@@ -53,14 +53,18 @@ SweepRunner::~SweepRunner() {
   quit();
 }
 
-void SweepRunner::abort() {
-  if (active_.load(std::memory_order_acquire) && !abort_.load(std::memory_order_acquire))
-    abort_time_s_.store(drivers::monotonic_s(), std::memory_order_release);
+void SweepRunner::abort(const std::string& why) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!abort_.load(std::memory_order_acquire)) {
+    abort_why_ = why;
+    if (active_.load(std::memory_order_acquire))
+      abort_time_s_.store(drivers::monotonic_s(), std::memory_order_release);
+  }
   abort_.store(true, std::memory_order_release);
 }
 
 void SweepRunner::quit() {
-  abort();
+  abort("the daemon stopped");
   {
     std::lock_guard<std::mutex> lock(mutex_);
     quit_ = true;
@@ -73,6 +77,7 @@ bool SweepRunner::submit(std::unique_ptr<SweepJob> job) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (active_.load() || pending_) return false;
   abort_.store(false, std::memory_order_release);
+  abort_why_.clear();
   status_ = SweepStatus{};
   status_.state = "RUNNING";
   status_.axis = job->axis;
@@ -154,10 +159,12 @@ void SweepRunner::finish(SweepJob& job, TrialOutcome end, std::string first_erro
   const bool stopped = end == TrialOutcome::Interrupted;
   const bool failed = end == TrialOutcome::EndSweep;
   std::string why;
-  if (stopped)
-    why = abort_.load(std::memory_order_acquire) ? "stopped by a client (STOP or *RST)"
-          : supervisor_.stopping()               ? "the daemon stopped (SIGTERM)"
-                                                 : "stopped";
+  if (stopped) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    why = !abort_why_.empty()      ? abort_why_
+          : supervisor_.stopping() ? "the daemon stopped"
+                                   : "stopped";
+  }
   if (failed) why = first_error;
   try {
     job.writer->finish(failed    ? recording::SweepStatus::Failed
