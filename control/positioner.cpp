@@ -136,6 +136,10 @@ void validate(const PositionerConfig& c, const std::string& where) {
                             model::format_number(c.soft_lower_m) + ", " +
                             model::format_number(c.soft_upper_m) +
                             "] is not an interval, allowed soft_lower_m < soft_upper_m");
+  if (!(c.travel_lower_m < c.travel_upper_m))
+    throw model::InputError(where + ": the travel [" + model::format_number(c.travel_lower_m) +
+                            ", " + model::format_number(c.travel_upper_m) +
+                            "] m is not an interval (stage.travel_m: lower < upper)");
   if (c.hold_s < 0 && c.hold_s != -1)
     throw model::InputError(where + ".hold_s: " + model::format_number(c.hold_s) +
                             " is out of range, allowed -1 (until the next motion) or [0, 86400]");

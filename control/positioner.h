@@ -91,6 +91,12 @@ struct PositionerConfig {
   // command or STOP), correcting whenever a reading leaves hold_window_m (0: the move's window).
   double hold_s = 0.0;
   double hold_window_m = 0.0;
+  // The stage's travel (stage.travel_m; not a key of control:, the daemon fills it in): a
+  // collapse of the step met farther inside it than end_margin_m() from the end it drove toward
+  // is an obstruction (FAULT stall), not the end of travel. Infinite: unknown (every collapse
+  // after stepping that way is the end of travel).
+  double travel_lower_m = -std::numeric_limits<double>::infinity();
+  double travel_upper_m = std::numeric_limits<double>::infinity();
 };
 
 // The keys of PositionerConfig, and the check of values set in code (model::InputError naming the
@@ -256,6 +262,10 @@ class Positioner {
   const PositionerConfig& config() const { return config_; }
   double tolerance_m() const;  // the in-position window
   double landing_m() const;    // what a move aims for inside it
+  // How far inside the travel's end a stop may lie and still be that end: five actuator strokes
+  // (stage.stroke_m; no cycle moves the slider farther than one), so a stop a few cycles' travel
+  // before the end stage.travel_m gives is the end; one farther inside is an obstruction.
+  double end_margin_m() const;
 
   // ---- for tests, tools and benchmarks ----
   const RegionMap& map() const { return map_; }
@@ -392,6 +402,8 @@ class Positioner {
   void finish(double now_s, MoveResult result);
   void arrived(double now_s);
   bool end_of_travel_seen(double moved_m);  // after a chunk: the mean step collapsed
+  // The collapse, met driving toward `sign`: the end of travel (the reference's stop, the mark
+  // search's), or a stall fault when it lies farther inside the travel than end_margin_m().
   void end_of_travel(double now_s, int sign);
   void start_motion(MotionKind kind);
   // A new motion, or a new leg of the mark search: the stall, streak, chunk and end-of-travel
