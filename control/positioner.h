@@ -167,8 +167,12 @@ struct MotionStatus {
   MotionKind kind = MotionKind::None;  // the current/last motion
   MoveResult result = MoveResult::None;  // why the last motion ended (None while one runs)
   double result_distance_m = 0.0;        // target - position when it ended
-  int eot = 0;                           // -1 / +1: stopped at the end of travel that way; 0: not
-  double eot_position_m = 0.0;           // where it met it (motion beyond is refused)
+  // Motions that ended (a result set: a move, STEP or reference, or a hold's correction that did
+  // not arrive) since construction, carried across rebuilds: the daemon logs each that ended
+  // other than OK or STOPPED, once.
+  std::uint64_t motions_ended = 0;
+  int eot = 0;                   // -1 / +1: stopped at the end of travel that way; 0: not
+  double eot_position_m = 0.0;   // where it met it (motion beyond is refused)
   std::uint8_t moved_dirs = 0;   // bit 0 negative, bit 1 positive: the slider has stepped that way
   bool holding = false;          // keeping the last move's target (HOLD)
   bool in_window = false;        // at rest within the window of the target

@@ -32,6 +32,7 @@ void Positioner::finish(double now_s, MoveResult result) {
   status_.last_move_time_s = now_s - move_start_s_;
   status_.result = result;
   status_.result_distance_m = status_.target_m - status_.position_m;
+  ++status_.motions_ended;
   status_.in_window = status_.kind == MotionKind::Move && result == MoveResult::Ok;
   arrived_ = status_.in_window;
   // A mark search is done once the move back onto the mark arrived.

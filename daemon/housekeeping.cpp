@@ -22,6 +22,7 @@ Housekeeping::Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceL
       saved_references_(axes_.size()),
       reference_errors_(axes_.size()),
       reference_reconnects_(axes_.size(), 0),
+      notes_dropped_(axes_.size(), 0),
       errors_(axes_.size()) {
   for (std::size_t i = 0; i < axes_.size(); ++i)
     saved_updates_[i] = axes_[i]->calibration_snapshot().total_updates;
@@ -45,6 +46,7 @@ void Housekeeping::quit() {
   cv_.notify_all();
   if (thread_.joinable()) thread_.join();
   watch_links();
+  watch_motions();
   watch_sweep();  // a sweep the shutdown stopped (the runner has ended before this)
   for (std::size_t i = 0; i < axes_.size(); ++i) {
     save_calibration(i, true);
@@ -75,11 +77,27 @@ void Housekeeping::main() {
 
 void Housekeeping::cycle() {
   watch_links();
+  watch_motions();
   watch_sweep();
   reload_cycle();
   if (supervisor_.at_rest())
     for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, false);
   for (std::size_t i = 0; i < axes_.size(); ++i) save_reference(i);
+}
+
+void Housekeeping::watch_motions() {
+  for (std::size_t i = 0; i < axes_.size(); ++i) {
+    Axis& axis = *axes_[i];
+    MotionNote n;
+    while (axis.take_motion_note(n)) add_note(true, motion_note_text(axis.config().name, n));
+    if (const std::uint64_t dropped = axis.motion_notes_dropped(); dropped != notes_dropped_[i]) {
+      add_note(true, "axis " + axis.config().name + ": " +
+                         std::to_string(dropped - notes_dropped_[i]) +
+                         " faults or failed motions came too fast to be logged");
+      notes_dropped_[i] = dropped;
+    }
+  }
+  for (const std::string& line : sweeps_.take_trial_notes()) add_note(true, line);
 }
 
 void Housekeeping::watch_sweep() {

@@ -6,6 +6,7 @@
 #include <limits>
 #include <sstream>
 #include <thread>
+#include <utility>
 
 #include "drivers/clock.h"
 #include "model/stage.h"
@@ -98,6 +99,11 @@ SweepStatus SweepRunner::status() const {
 std::string SweepRunner::report() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return report_;
+}
+
+std::vector<std::string> SweepRunner::take_trial_notes() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return std::exchange(trial_notes_, {});
 }
 
 void SweepRunner::main() {
@@ -266,13 +272,20 @@ bool SweepRunner::capture_trial(SweepJob& job, const TrialRequest& req, std::uin
 
 SweepRunner::TrialOutcome SweepRunner::run_trial(SweepJob& job, const TrialRequest& req,
                                                  CellRun& cell, std::string& first_error) {
+  const Axis& axis = *axes_[static_cast<std::size_t>(job.axis)];
   auto failed = [&](const std::string& why) {
+    const std::string trial = "trial " + std::to_string(req.index) + " (" +
+                              model::format_number(req.segment.freq_hz) + " Hz, duty " +
+                              model::format_number(req.segment.duty) + ")";
+    const control::MotionStatus m = axis.published().motion;
     std::lock_guard<std::mutex> lock(mutex_);
     ++status_.failed;
-    if (first_error.empty())
-      first_error = "trial " + std::to_string(req.index) + " (" +
-                    model::format_number(req.segment.freq_hz) + " Hz, duty " +
-                    model::format_number(req.segment.duty) + "): " + why;
+    if (first_error.empty()) first_error = trial + ": " + why;
+    if (trial_notes_.size() < 200)
+      trial_notes_.push_back(
+          "axis " + axis.config().name + ": sweep " + job.dir + " " + trial +
+          " ended FAILED: " + why + "; position " +
+          (m.position_valid ? model::format_number(m.position_m) + " m" : std::string("unknown")));
   };
   const auto interrupted = [&] {
     return abort_.load(std::memory_order_acquire) || supervisor_.stopping();

@@ -61,6 +61,9 @@ class SweepRunner {
   SweepStatus status() const;
   // One line on the last finished sweep ("" before any), for the log.
   std::string report() const;
+  // One line per trial that failed since the last call (not the ones a stop interrupted), for
+  // the log: the axis, the sweep, the trial's cell, why, where the slider is.
+  std::vector<std::string> take_trial_notes();
   void quit();
 
  private:
@@ -108,8 +111,9 @@ class SweepRunner {
   std::condition_variable cv_;
   std::unique_ptr<SweepJob> pending_;
   bool quit_ = false;
-  SweepStatus status_;  // mutex_
-  std::string report_;  // mutex_
+  SweepStatus status_;                    // mutex_
+  std::string report_;                    // mutex_
+  std::vector<std::string> trial_notes_;  // mutex_
   std::atomic<bool> active_{false};
   std::atomic<bool> abort_{false};
   std::atomic<double> abort_time_s_{-1};
