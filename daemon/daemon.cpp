@@ -208,8 +208,8 @@ std::string Daemon::start() {
     throw;
   }
   sweeps_ = std::make_unique<SweepRunner>(*supervisor_, axes);
-  housekeeping_ =
-      std::make_unique<Housekeeping>(axes, links, *supervisor_, *sweeps_, control_mutex_, *this);
+  housekeeping_ = std::make_unique<Housekeeping>(axes, links, *supervisor_, *sweeps_,
+                                                 control_mutex_, *this, *loop_);
   housekeeping_->start();
   return warning;
 }

@@ -10,13 +10,14 @@ namespace idm::daemon {
 
 Housekeeping::Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceLink*> links,
                            MotionSupervisor& supervisor, SweepRunner& sweeps,
-                           std::mutex& control_mutex, Reloader& reloader)
+                           std::mutex& control_mutex, Reloader& reloader, const RtLoop& loop)
     : axes_(std::move(axes)),
       links_(std::move(links)),
       supervisor_(supervisor),
       sweeps_(sweeps),
       control_mutex_(control_mutex),
       reloader_(reloader),
+      loop_(loop),
       saved_updates_(axes_.size(), 0),
       save_errors_(axes_.size()),
       saved_references_(axes_.size()),
@@ -79,6 +80,8 @@ void Housekeeping::cycle() {
   watch_links();
   watch_motions();
   watch_sweep();
+  if (std::string w = miss_watch_.update(loop_.stats(), drivers::monotonic_s()); !w.empty())
+    add_note(true, std::move(w));
   reload_cycle();
   if (supervisor_.at_rest())
     for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, false);

@@ -4,11 +4,12 @@
 // its reference_file when it changed (daemon/reference_file.h), watches the device links'
 // health (a device lost or back becomes a log line naming the device, and the axes' error), logs
 // every axis's faults and failed motions (one line each, from the loop's notes) and the sweep's
-// failed trials, hands the sweep runner's report to the log, and carries out the reloads that wait
-// (SIGHUP, and a *RST that came during a sweep): once no sweep runs, it parks the loop without
-// stopping anything (new motions are refused meanwhile) and swaps the settings once every motion in
-// progress has ended, so that a reload never cuts another client's move short. It touches no device
-// and never blocks the loop; idmd's main thread takes its notes.
+// failed trials, warns when the real-time loop misses too many deadlines, hands the sweep
+// runner's report to the log, and carries out the reloads that wait (SIGHUP, and a *RST that
+// came during a sweep): once no sweep runs, it parks the loop without stopping anything (new
+// motions are refused meanwhile) and swaps the settings once every motion in progress has ended,
+// so that a reload never cuts another client's move short. It touches no device and never blocks
+// the loop; idmd's main thread takes its notes.
 #pragma once
 
 #include <atomic>
@@ -21,6 +22,7 @@
 
 #include "daemon/axis.h"
 #include "daemon/reference_file.h"
+#include "daemon/rt_loop.h"
 #include "daemon/supervisor.h"
 #include "daemon/sweep_runner.h"
 #include "drivers/link.h"
@@ -41,9 +43,10 @@ class Reloader {
 class Housekeeping {
  public:
   // `control_mutex`: held by whoever rebuilds an axis's settings (reads of them take it too).
+  // `loop`: its deadline misses are watched (a warning when too many, at most one a minute).
   Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceLink*> links,
                MotionSupervisor& supervisor, SweepRunner& sweeps, std::mutex& control_mutex,
-               Reloader& reloader);
+               Reloader& reloader, const RtLoop& loop);
   ~Housekeeping();  // quit()
   Housekeeping(const Housekeeping&) = delete;
   Housekeeping& operator=(const Housekeeping&) = delete;
@@ -88,6 +91,8 @@ class Housekeeping {
   SweepRunner& sweeps_;
   std::mutex& control_mutex_;
   Reloader& reloader_;
+  const RtLoop& loop_;
+  DeadlineMissWatch miss_watch_;  // housekeeping's thread
   // The pending reload: requested, then parking (the loop waits for the motions to end).
   enum class ReloadPhase : std::uint8_t { Idle, Requested, Parking };
   void reload_cycle();

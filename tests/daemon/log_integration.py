@@ -112,6 +112,22 @@ def case_end_of_travel():
         check(len(motion_lines(d)) == 1, "no line for it: %r" % motion_lines(d)[1:])
 
 
+def case_deadline_misses():
+    """A loop that misses most of its deadlines (a 10 us period without SCHED_FIFO) gets one
+    warning saying the rate and what to do after its first 10 s, not one per miss."""
+    with Daemon(config(edits=[("period_s: 1e-4", "period_s: 1e-5")])) as d:
+        c = Client(d)
+        misses = lambda: [l for l in d.log().splitlines() if "the real-time loop missed" in l]
+        end = time.time() + 60
+        while time.time() < end and not misses():
+            time.sleep(0.2)
+        time.sleep(1)
+        lines = misses()
+        check(len(lines) == 1 and "warn" in lines[0] and "%) in the last 10 s" in lines[0] and
+              "realtime.period_s" in lines[0], "one warning: %r" % lines)
+        check(c.ask("*OPC?") == "1", "idmd serves on")
+
+
 def plan_status(path):
     text = open(os.path.join(path, "plan.yaml")).read()
     return re.search(r"^status: (\w+)", text, re.M).group(1), text
@@ -145,6 +161,7 @@ CASES = {
     "limit": case_limit,
     "end_of_travel": case_end_of_travel,
     "sigterm_mid_sweep": case_sigterm_mid_sweep,
+    "deadline_misses": case_deadline_misses,
 }
 
 if __name__ == "__main__":
