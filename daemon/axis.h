@@ -87,8 +87,8 @@ struct MotionNote {
   int eot = 0;                                          // END_OF_TRAVEL: -1 low, +1 high
 };
 using MotionNotes = SpscRing<MotionNote, 32>;
-// The note as one log line: "axis x: FAULT stall during a MOVE: position ... m, target ... m,
-// distance ... m" / "axis x: MOVE ended LIMIT: position ...".
+// The note as one log line: "axis x: FAULT stall, ending its MOVE: position ... m, target ... m,
+// distance ... m" / "axis x: STEP ended LIMIT: position ...".
 std::string motion_note_text(const std::string& axis, const MotionNote& note);
 
 // A sweep trial: recorder -> loop.

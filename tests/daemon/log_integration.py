@@ -54,6 +54,7 @@ def case_faults():
         check(motion_lines(d) == [], "no line for it: %r" % motion_lines(d))
         c.send("MOVE:REL 3e-3\n")
         time.sleep(0.1)
+        check(c.ask("MOVE:DONE?") == "0", "a long move is on")
         c.send("SIM:FAULT beam_lost,1\n")
         wait_state(c, {"state": "FAULT", "fault": "invalid_sample"})
         lines = new_line(d, 0)
@@ -104,8 +105,9 @@ def case_end_of_travel():
         check(len(lines) == 1 and "axis x: MOVE ended END_OF_TRAVEL (low end): " in lines[0] and
               abs(field(lines[0], "position") + 0.3e-3) < 1e-6 and
               field(lines[0], "target") == -0.34e-3, "one line for the end of travel: %r" % lines)
-        c.send("MOVE:ABS 0.5e-3\n")
+        c.send("MOVE:ABS 3e-3\n")
         time.sleep(0.1)
+        check(c.ask("MOVE:DONE?") == "0", "a long move is on")
         c.send("STOP\n")
         check(c.wait_done(30) and c.ask("MOVE:RES?").startswith("STOPPED"), "a move stopped")
         time.sleep(0.5)
