@@ -169,6 +169,10 @@ void validate(const PositionerConfig& c, const std::string& where) {
                             model::format_number(c.soft_lower_m) + ", " +
                             model::format_number(c.soft_upper_m) +
                             "] is not an interval, allowed soft_lower_m < soft_upper_m");
+  if (!(c.travel_lower_m < c.travel_upper_m))
+    throw model::InputError(where + ": the travel [" + model::format_number(c.travel_lower_m) +
+                            ", " + model::format_number(c.travel_upper_m) +
+                            "] m is not an interval (stage.travel_m: lower < upper)");
   if (!(c.min_step_counts < c.final_step_counts))
     throw model::InputError(where + ".min_step_counts: " + model::format_number(c.min_step_counts) +
                             " must be below final_step_counts (" +

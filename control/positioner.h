@@ -96,6 +96,12 @@ struct PositionerConfig {
   // command or STOP), correcting whenever a reading leaves hold_window_m (0: the move's window).
   double hold_s = 0.0;
   double hold_window_m = 0.0;
+  // The stage's travel (stage.travel_m; not a key of control:, the daemon fills it in): a
+  // collapse of the step met farther inside it than end_margin_m() from the end it drove toward
+  // is an obstruction (FAULT stall), not the end of travel. Infinite: unknown (every collapse
+  // after stepping that way is the end of travel).
+  double travel_lower_m = -std::numeric_limits<double>::infinity();
+  double travel_upper_m = std::numeric_limits<double>::infinity();
 };
 
 // The keys of PositionerConfig, and the check of values set in code (model::InputError naming the
@@ -166,8 +172,12 @@ struct MotionStatus {
   MotionKind kind = MotionKind::None;  // the current/last motion
   MoveResult result = MoveResult::None;  // why the last motion ended (None while one runs)
   double result_distance_m = 0.0;        // target - position when it ended
-  int eot = 0;                           // -1 / +1: stopped at the end of travel that way; 0: not
-  double eot_position_m = 0.0;           // where it met it (motion beyond is refused)
+  // Motions that ended (a result set: a move, STEP or reference, or a hold's correction that did
+  // not arrive) since construction, carried across rebuilds: the daemon logs each that ended
+  // other than OK or STOPPED, once.
+  std::uint64_t motions_ended = 0;
+  int eot = 0;                   // -1 / +1: stopped at the end of travel that way; 0: not
+  double eot_position_m = 0.0;   // where it met it (motion beyond is refused)
   std::uint8_t moved_dirs = 0;   // bit 0 negative, bit 1 positive: the slider has stepped that way
   bool holding = false;          // keeping the last move's target (HOLD)
   bool in_window = false;        // at rest within the window of the target
@@ -264,6 +274,10 @@ class Positioner {
   const PositionerConfig& config() const { return config_; }
   double tolerance_m() const;  // the in-position window
   double landing_m() const;    // what a move aims for inside it
+  // How far inside the travel's end a stop may lie and still be that end: five actuator strokes
+  // (stage.stroke_m; no cycle moves the slider farther than one), so a stop a few cycles' travel
+  // before the end stage.travel_m gives is the end; one farther inside is an obstruction.
+  double end_margin_m() const;
 
   // ---- for tests, tools and benchmarks ----
   const RegionMap& map() const { return map_; }
@@ -400,6 +414,8 @@ class Positioner {
   void finish(double now_s, MoveResult result);
   void arrived(double now_s);
   bool end_of_travel_seen(double moved_m);  // after a chunk: the mean step collapsed
+  // The collapse, met driving toward `sign`: the end of travel (the reference's stop, the mark
+  // search's), or a stall fault when it lies farther inside the travel than end_margin_m().
   void end_of_travel(double now_s, int sign);
   void start_motion(MotionKind kind);
   // A new motion, or a new leg of the mark search: the stall, streak, chunk and end-of-travel

@@ -32,6 +32,7 @@ void Positioner::finish(double now_s, MoveResult result) {
   status_.last_move_time_s = now_s - move_start_s_;
   status_.result = result;
   status_.result_distance_m = status_.target_m - status_.position_m;
+  ++status_.motions_ended;
   status_.in_window = status_.kind == MotionKind::Move && result == MoveResult::Ok;
   arrived_ = status_.in_window;
   // A mark search is done once the move back onto the mark arrived.
@@ -158,10 +159,24 @@ bool Positioner::end_of_travel_seen(double moved_m) {
   return sum / static_cast<double>(cycles) < eot_step;
 }
 
+double Positioner::end_margin_m() const {
+  return 5.0 * map_.config().stage.stroke_m;
+}
+
 void Positioner::end_of_travel(double now_s, int sign) {
+  const double at_m = sign < 0 ? std::min(chunk_lo_m_, status_.position_m)
+                               : std::max(chunk_hi_m_, status_.position_m);
+  // Far from the end it drove toward: the slider is held by something inside the travel (a
+  // collision, debris, a cable): a fault *RST clears, not an end that refuses motion that way
+  // for good. A reference looks for a stop wherever the coordinates put it.
+  const double end_m = sign < 0 ? config_.travel_lower_m : config_.travel_upper_m;
+  if (!referencing_ && mark_search_ == MarkSearch::Off && std::isfinite(end_m) &&
+      (end_m - at_m) * sign > end_margin_m()) {
+    enter_fault(MotionFault::Stall);
+    return;
+  }
   status_.eot = sign;
-  status_.eot_position_m = sign < 0 ? std::min(chunk_lo_m_, status_.position_m)
-                                    : std::max(chunk_hi_m_, status_.position_m);
+  status_.eot_position_m = at_m;
   if (mark_search_ == MarkSearch::Searching) {
     mark_search_end_stop(now_s, sign);
     return;

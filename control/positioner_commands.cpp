@@ -311,6 +311,7 @@ void Positioner::continue_from(const MotionStatus& previous) {
   status_.kind = previous.kind;
   status_.result = previous.result;
   status_.result_distance_m = previous.result_distance_m;
+  status_.motions_ended = previous.motions_ended;
   status_.eot = previous.eot;
   status_.eot_position_m = previous.eot_position_m;
   status_.moved_dirs = previous.moved_dirs;
@@ -343,6 +344,7 @@ void Positioner::enter_fault(MotionFault fault) {
   if (moving || status_.result == MoveResult::None) {
     status_.result = MoveResult::Fault;
     status_.result_distance_m = status_.target_m - status_.position_m;
+    if (moving) ++status_.motions_ended;
   }
 }
 

@@ -7,6 +7,7 @@
 #include <limits>
 
 #include "drivers/position_word.h"
+#include "model/range.h"
 
 namespace idm::daemon {
 
@@ -66,6 +67,41 @@ const char* trial_failure_text(TrialFailure why) {
       return "no valid position to judge it from";
   }
   return "?";
+}
+
+namespace {
+
+const char* motion_word(control::MotionKind kind) {
+  switch (kind) {
+    case control::MotionKind::Move:
+      return "MOVE";
+    case control::MotionKind::Step:
+      return "STEP";
+    case control::MotionKind::Reference:
+      return "REFerence";
+    case control::MotionKind::None:
+      break;
+  }
+  return "motion";
+}
+
+}  // namespace
+
+std::string motion_note_text(const std::string& axis, const MotionNote& n) {
+  std::string text = "axis " + axis + ": ";
+  if (n.kind == MotionNote::Kind::Fault) {
+    text += std::string("FAULT ") + control::motion_fault_name(n.fault) +
+            (n.ended_motion ? std::string(", ending its ") + motion_word(n.motion) : " at rest");
+  } else {
+    text += std::string(motion_word(n.motion)) + " ended " + control::move_result_name(n.result);
+    if (n.result == control::MoveResult::EndOfTravel && n.eot != 0)
+      text += n.eot < 0 ? " (low end)" : " (high end)";
+  }
+  text += ": position " +
+          (n.position_valid ? model::format_number(n.position_m) + " m" : "unknown") + ", target " +
+          model::format_number(n.target_m) + " m";
+  if (n.position_valid) text += ", distance " + model::format_number(n.distance_m) + " m";
+  return text;
 }
 
 Axis::Axis(const AxisConfig& config, drivers::DeviceLink& link, std::size_t link_index)
@@ -348,12 +384,39 @@ void Axis::publish(bool parked) {
   pub_.referenced = referenced_;
   pub_.parked = parked;
   published_.store(pub_);
+  if ((pub_.motion.fault != noted_fault_ && pub_.motion.fault != control::MotionFault::None) ||
+      pub_.motion.motions_ended != noted_ended_)
+    note_motion();
   if (pub_.motion.fault != noted_fault_) note_fault(now_s_);
   // Only when a burst updated it (at most once per chunk): a copy of a few hundred bytes.
   if (calibration_ && calibration_->total_updates() != calibration_published_) {
     calibration_published_ = calibration_->total_updates();
     calibration_snapshot_.store(calibration_->state());
   }
+}
+
+void Axis::note_motion() {
+  const control::MotionStatus& m = pub_.motion;
+  using control::MoveResult;
+  const bool entered = m.fault != control::MotionFault::None && m.fault != noted_fault_;
+  const bool ended = m.motions_ended != noted_ended_;
+  noted_ended_ = m.motions_ended;
+  MotionNote n;
+  n.kind = entered ? MotionNote::Kind::Fault : MotionNote::Kind::Ended;
+  n.fault = m.fault;
+  n.result = m.result;
+  n.motion = m.kind;
+  n.ended_motion = entered && ended && m.result == MoveResult::Fault;
+  n.position_valid = m.position_valid;
+  n.position_m = m.position_m;
+  n.target_m = m.target_m;
+  n.distance_m = ended ? m.result_distance_m : m.target_m - m.position_m;
+  n.eot = m.eot;
+  // A motion that ended OK, or STOPPED as a client (or the daemon stopping) asked, is no news.
+  if (!entered && (m.result == MoveResult::Ok || m.result == MoveResult::Stopped ||
+                   m.result == MoveResult::None))
+    return;
+  if (!motion_notes_.push(n)) motion_notes_dropped_.fetch_add(1, std::memory_order_relaxed);
 }
 
 void Axis::note_fault(double now_s) {

@@ -5,6 +5,7 @@
 // marked so run on other threads while the loop is parked or not yet started.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -72,6 +73,25 @@ struct ErrorNote {
 };
 // Copies text into note (truncated); no allocation.
 void set_note(ErrorNote& note, double t_s, const char* a, const char* b = "", const char* c = "");
+
+// loop -> log (housekeeping): an axis entered FAULT, or a motion (MOVE, STEP, REFerence, a
+// hold's correction) ended other than OK or STOPPED. One per event, never per tick; a motion that
+// ended in a fault is the fault's note (`ended_motion`), not a second one.
+struct MotionNote {
+  enum class Kind : std::uint8_t { Fault, Ended };
+  Kind kind = Kind::Fault;
+  control::MotionFault fault = control::MotionFault::None;
+  control::MoveResult result = control::MoveResult::None;
+  control::MotionKind motion = control::MotionKind::None;  // what the motion was
+  bool ended_motion = false;  // a fault: it ended the motion in progress
+  bool position_valid = false;
+  double position_m = 0, target_m = 0, distance_m = 0;  // distance: target - position
+  int eot = 0;                                          // END_OF_TRAVEL: -1 low, +1 high
+};
+using MotionNotes = SpscRing<MotionNote, 32>;
+// The note as one log line: "axis x: FAULT stall, ending its MOVE: position ... m, target ... m,
+// distance ... m" / "axis x: STEP ended LIMIT: position ...".
+std::string motion_note_text(const std::string& axis, const MotionNote& note);
 
 // A sweep trial: recorder -> loop.
 struct TrialRequest {
@@ -160,6 +180,12 @@ class Axis {
   bool has_reference_mark() const { return has_reference_mark_; }
   // The calibration as the loop last published it (a copy), and its update count.
   control::CalibrationState calibration_snapshot() const { return calibration_snapshot_.load(); }
+  // ---- one consumer thread (housekeeping) ----
+  // The next fault or failed motion to log (false: none); and how many the loop could not queue.
+  bool take_motion_note(MotionNote& out) { return motion_notes_.pop(out); }
+  std::uint64_t motion_notes_dropped() const {
+    return motion_notes_dropped_.load(std::memory_order_relaxed);
+  }
 
  private:
   enum class TrialPhase : std::uint8_t { Idle, Positioning, Starting, Playing };
@@ -167,6 +193,7 @@ class Axis {
   void trial_tick(TrialNotices& notices);
   void fail_trial(TrialFailure why, TrialNotices& notices);
   void note_fault(double now_s);
+  void note_motion();  // a fault entered or a motion ended: a MotionNote for the log
 
   AxisConfig config_;
   drivers::DeviceLink& link_;
@@ -187,6 +214,7 @@ class Axis {
   bool referenced_ = false;
   std::uint64_t references_seen_ = 0;
   control::MotionFault noted_fault_ = control::MotionFault::None;
+  std::uint64_t noted_ended_ = 0;  // the positioner's motions_ended at the last publication
   std::uint64_t calibration_published_ = 0;
   double now_s_ = 0;
   TrialPhase trial_phase_ = TrialPhase::Idle;
@@ -197,6 +225,8 @@ class Axis {
   Seqlock<AxisPublished> published_;
   Seqlock<ErrorNote> fault_note_;
   Seqlock<control::CalibrationState> calibration_snapshot_;
+  MotionNotes motion_notes_;
+  std::atomic<std::uint64_t> motion_notes_dropped_{0};
   AxisPublished pub_;
 };
 

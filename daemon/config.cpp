@@ -149,6 +149,8 @@ ControlConfig parse_control(const Node& node, const std::string& f, const std::s
                                  " must be below soft_upper_m (" +
                                  model::format_number(p.soft_upper_m) + ")"));
   if (stage.has_travel()) {
+    p.travel_lower_m = stage.travel_lower_m;  // where an end of travel may be met
+    p.travel_upper_m = stage.travel_upper_m;
     const std::string travel = "the stage's travel [" + model::format_number(stage.travel_lower_m) +
                                ", " + model::format_number(stage.travel_upper_m) +
                                "] m (stage.travel_m)";

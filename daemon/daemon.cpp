@@ -208,8 +208,8 @@ std::string Daemon::start() {
     throw;
   }
   sweeps_ = std::make_unique<SweepRunner>(*supervisor_, axes);
-  housekeeping_ =
-      std::make_unique<Housekeeping>(axes, links, *supervisor_, *sweeps_, control_mutex_, *this);
+  housekeeping_ = std::make_unique<Housekeeping>(axes, links, *supervisor_, *sweeps_,
+                                                 control_mutex_, *this, *loop_);
   housekeeping_->start();
   return warning;
 }
@@ -225,11 +225,11 @@ bool Daemon::wait_at_rest(double timeout_s) {
   return true;
 }
 
-void Daemon::shutdown() {
+void Daemon::shutdown(const std::string& why) {
   if (!started_ || shut_down_) return;
   shut_down_ = true;
+  if (sweeps_) sweeps_->abort(why);  // before the loop stops its trial: the sweep says why
   supervisor_->request_stop_all();
-  if (sweeps_) sweeps_->abort();
   double longest_chunk = 0;
   for (const auto& a : axes_)
     longest_chunk = std::max(longest_chunk, a->control().positioner.max_chunk_s);

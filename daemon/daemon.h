@@ -63,8 +63,9 @@ class Daemon final : public Instrument, public Reloader {
   // permitted); the calibration notes come through take_notes().
   std::string start();
   // Stops motion and any sweep, waits for rest (bounded), ends the threads, brings every output
-  // to zero, shuts the devices down, saves the calibrations. Idempotent.
-  void shutdown();
+  // to zero, shuts the devices down, saves the calibrations. Idempotent. `why` is what a sweep
+  // it stops says stopped it (its plan.yaml and the log), e.g. "the daemon stopped (SIGTERM)".
+  void shutdown(const std::string& why = "the daemon stopped");
   // *RST (no sweep running): re-read every axis's control: section and rebuild now, the motions
   // stopped at their chunks' ends and the loop parked at rest. The soft limits come from the file
   // (FromFile) or stay (Keep: limits a client set are never wiped by another's reset). false +

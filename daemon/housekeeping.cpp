@@ -10,18 +10,20 @@ namespace idm::daemon {
 
 Housekeeping::Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceLink*> links,
                            MotionSupervisor& supervisor, SweepRunner& sweeps,
-                           std::mutex& control_mutex, Reloader& reloader)
+                           std::mutex& control_mutex, Reloader& reloader, const RtLoop& loop)
     : axes_(std::move(axes)),
       links_(std::move(links)),
       supervisor_(supervisor),
       sweeps_(sweeps),
       control_mutex_(control_mutex),
       reloader_(reloader),
+      loop_(loop),
       saved_updates_(axes_.size(), 0),
       save_errors_(axes_.size()),
       saved_references_(axes_.size()),
       reference_errors_(axes_.size()),
       reference_reconnects_(axes_.size(), 0),
+      notes_dropped_(axes_.size(), 0),
       errors_(axes_.size()) {
   for (std::size_t i = 0; i < axes_.size(); ++i)
     saved_updates_[i] = axes_[i]->calibration_snapshot().total_updates;
@@ -45,6 +47,8 @@ void Housekeeping::quit() {
   cv_.notify_all();
   if (thread_.joinable()) thread_.join();
   watch_links();
+  watch_motions();
+  watch_sweep();  // a sweep the shutdown stopped (the runner has ended before this)
   for (std::size_t i = 0; i < axes_.size(); ++i) {
     save_calibration(i, true);
     save_reference(i);
@@ -74,24 +78,46 @@ void Housekeeping::main() {
 
 void Housekeeping::cycle() {
   watch_links();
-  if (const std::string r = sweeps_.report(); r != seen_report_) {
-    seen_report_ = r;
-    const SweepStatus s = sweeps_.status();
-    // Failed trials, or a sweep stopped before its end, are the axis's error (SWEEP? says which);
-    // a stopped sweep's error is dated when the stop came, so the *RST that stopped it clears it.
-    if (s.failed > 0 || s.state == "STOPPED") {
-      if (s.axis >= 0 && static_cast<std::size_t>(s.axis) < axes_.size())
-        set_error(static_cast<std::size_t>(s.axis), r,
-                  s.state == "STOPPED" ? sweeps_.abort_time_s() : drivers::monotonic_s());
-      add_note(s.failed > 0, r);
-    } else {
-      add_note(false, r);
-    }
-  }
+  watch_motions();
+  watch_sweep();
+  if (std::string w = miss_watch_.update(loop_.stats(), drivers::monotonic_s()); !w.empty())
+    add_note(true, std::move(w));
   reload_cycle();
   if (supervisor_.at_rest())
     for (std::size_t i = 0; i < axes_.size(); ++i) save_calibration(i, false);
   for (std::size_t i = 0; i < axes_.size(); ++i) save_reference(i);
+}
+
+void Housekeeping::watch_motions() {
+  for (std::size_t i = 0; i < axes_.size(); ++i) {
+    Axis& axis = *axes_[i];
+    MotionNote n;
+    while (axis.take_motion_note(n)) add_note(true, motion_note_text(axis.config().name, n));
+    if (const std::uint64_t dropped = axis.motion_notes_dropped(); dropped != notes_dropped_[i]) {
+      add_note(true, "axis " + axis.config().name + ": " +
+                         std::to_string(dropped - notes_dropped_[i]) +
+                         " faults or failed motions came too fast to be logged");
+      notes_dropped_[i] = dropped;
+    }
+  }
+  for (const std::string& line : sweeps_.take_trial_notes()) add_note(true, line);
+}
+
+void Housekeeping::watch_sweep() {
+  const std::string r = sweeps_.report();
+  if (r == seen_report_) return;
+  seen_report_ = r;
+  const SweepStatus s = sweeps_.status();
+  // Failed trials, or a sweep stopped before its end, are the axis's error (SWEEP? says which);
+  // a stopped sweep's error is dated when the stop came, so the *RST that stopped it clears it.
+  if (s.failed > 0 || s.state == "STOPPED") {
+    if (s.axis >= 0 && static_cast<std::size_t>(s.axis) < axes_.size())
+      set_error(static_cast<std::size_t>(s.axis), r,
+                s.state == "STOPPED" ? sweeps_.abort_time_s() : drivers::monotonic_s());
+    add_note(s.failed > 0, r);
+  } else {
+    add_note(false, r);
+  }
 }
 
 void Housekeeping::request_reload(bool limits_from_file, std::string why) {

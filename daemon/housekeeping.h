@@ -2,9 +2,11 @@
 // motion that changed it is done (crash-safe, control::Calibration::save; a failure is logged
 // once per distinct failure and kept as the axis's daemon error), saves each axis's reference to
 // its reference_file when it changed (daemon/reference_file.h), watches the device links'
-// health (a device lost or back becomes a log line naming the device, and the axes' error), hands
-// the sweep runner's report to the log, and carries out the reloads that wait (SIGHUP, and a *RST
-// that came during a sweep): once no sweep runs, it parks the loop without stopping anything (new
+// health (a device lost or back becomes a log line naming the device, and the axes' error), logs
+// every axis's faults and failed motions (one line each, from the loop's notes) and the sweep's
+// failed trials, warns when the real-time loop misses too many deadlines, hands the sweep
+// runner's report to the log, and carries out the reloads that wait (SIGHUP, and a *RST that
+// came during a sweep): once no sweep runs, it parks the loop without stopping anything (new
 // motions are refused meanwhile) and swaps the settings once every motion in progress has ended,
 // so that a reload never cuts another client's move short. It touches no device and never blocks
 // the loop; idmd's main thread takes its notes.
@@ -20,6 +22,7 @@
 
 #include "daemon/axis.h"
 #include "daemon/reference_file.h"
+#include "daemon/rt_loop.h"
 #include "daemon/supervisor.h"
 #include "daemon/sweep_runner.h"
 #include "drivers/link.h"
@@ -40,9 +43,10 @@ class Reloader {
 class Housekeeping {
  public:
   // `control_mutex`: held by whoever rebuilds an axis's settings (reads of them take it too).
+  // `loop`: its deadline misses are watched (a warning when too many, at most one a minute).
   Housekeeping(std::vector<Axis*> axes, std::vector<drivers::DeviceLink*> links,
                MotionSupervisor& supervisor, SweepRunner& sweeps, std::mutex& control_mutex,
-               Reloader& reloader);
+               Reloader& reloader, const RtLoop& loop);
   ~Housekeeping();  // quit()
   Housekeeping(const Housekeeping&) = delete;
   Housekeeping& operator=(const Housekeeping&) = delete;
@@ -74,6 +78,10 @@ class Housekeeping {
   // A failed save: the axis's error, logged once per distinct failure.
   void save_failed(std::size_t axis, std::string& last, const std::string& text);
   void watch_links();
+  void watch_sweep();  // the sweep runner's report of a sweep that ended, to the log
+  // Every axis's faults and failed motions (Axis::take_motion_note) and the sweep's failed
+  // trials, one log line each.
+  void watch_motions();
   void add_note(bool warning, std::string text);
   void set_error(std::size_t axis, const std::string& text, double t_s = -1);
 
@@ -83,6 +91,8 @@ class Housekeeping {
   SweepRunner& sweeps_;
   std::mutex& control_mutex_;
   Reloader& reloader_;
+  const RtLoop& loop_;
+  DeadlineMissWatch miss_watch_;  // housekeeping's thread
   // The pending reload: requested, then parking (the loop waits for the motions to end).
   enum class ReloadPhase : std::uint8_t { Idle, Requested, Parking };
   void reload_cycle();
@@ -94,6 +104,7 @@ class Housekeeping {
   std::vector<std::optional<SavedReference>> saved_references_;  // nullopt: not written yet
   std::vector<std::string> reference_errors_;
   std::vector<std::uint32_t> reference_reconnects_;  // the link's reconnects at the last look
+  std::vector<std::uint64_t> notes_dropped_;         // Axis::motion_notes_dropped at the last look
   std::vector<drivers::LinkHealth> seen_health_;
   std::string seen_report_;
   std::atomic<bool> reload_pending_{false};

@@ -217,9 +217,9 @@ int signal_fd() {
 }
 
 // Serves until SIGTERM or SIGINT (SIGHUP reloads the control settings) or the loop ends; returns
-// the exit code.
+// the exit code, and in `why` what stopped the daemon (what a sweep it stops says).
 int serve_until_signal(int sfd, Daemon& daemon, Notifier& notifier, const std::string& config_path,
-                       const std::string& where) {
+                       const std::string& where, std::string& why) {
   bool reloading = false;  // a SIGHUP's reload on its way (housekeeping logs how it ended)
   for (;;) {
     pollfd pfd{sfd, POLLIN, 0};
@@ -235,14 +235,16 @@ int serve_until_signal(int sfd, Daemon& daemon, Notifier& notifier, const std::s
     }
     if (!daemon.loop_running()) {
       spdlog::error("the real-time loop has ended");
+      why = "the daemon stopped (the real-time loop ended)";
       return exit_code::kRuntimeError;
     }
     if (r <= 0 || !(pfd.revents & POLLIN)) continue;
     signalfd_siginfo si{};
     if (read(sfd, &si, sizeof si) != static_cast<ssize_t>(sizeof si)) continue;
     if (si.ssi_signo != SIGHUP) {
-      spdlog::info("{}: stopping motion and shutting down",
-                   si.ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT");
+      const char* name = si.ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT";
+      spdlog::info("{}: stopping motion and shutting down", name);
+      why = std::string("the daemon stopped (") + name + ")";
       return exit_code::kOk;
     }
     spdlog::info(
@@ -335,11 +337,12 @@ int run(const DaemonConfig& config, const std::string& config_path, const std::s
     spdlog::info("watchdog: every {} s while the real-time loop advances",
                  idm::model::format_number(wd / 4));
 
-  const int exit_status = serve_until_signal(sfd, daemon, notifier, config_path, where);
+  std::string why = "the daemon stopped";
+  const int exit_status = serve_until_signal(sfd, daemon, notifier, config_path, where, why);
   notifier.stopping("Stopping: bringing the actuator to rest");
   notifier.stop_watchdog();
   server.stop();
-  daemon.shutdown();
+  daemon.shutdown(why);
   log_notes(daemon);
   log_stopped(daemon);
   return exit_status;

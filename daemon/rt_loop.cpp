@@ -8,7 +8,10 @@
 
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
+
+#include "model/range.h"
 
 namespace idm::daemon {
 
@@ -156,6 +159,45 @@ void RtLoop::run() {
   }
   publish_stats();
   if (hook_) hook_(false);
+}
+
+std::string DeadlineMissWatch::update(const LoopStats& stats, double now_s) {
+  if (!started_ || stats.wakeups < window_wakeups_) {  // the first look, or a new loop
+    started_ = true;
+    window_start_s_ = now_s;
+    window_wakeups_ = stats.wakeups;
+    window_misses_ = stats.deadline_misses;
+    return {};
+  }
+  if (now_s - window_start_s_ < window_s_) return {};
+  const std::uint64_t ticks = stats.wakeups - window_wakeups_;
+  const std::uint64_t missed = stats.deadline_misses - window_misses_;
+  const double seconds = now_s - window_start_s_;
+  window_start_s_ = now_s;
+  window_wakeups_ = stats.wakeups;
+  window_misses_ = stats.deadline_misses;
+  // Every deadline was either met by a tick or skipped as missed.
+  const double deadlines = static_cast<double>(ticks + missed);
+  if (deadlines <= 0 || static_cast<double>(missed) <= max_fraction_ * deadlines) return {};
+  ++windows_over_;
+  if (warned_ && now_s - last_warning_s_ < interval_s_) return {};
+  warned_ = true;
+  last_warning_s_ = now_s;
+  char rate[32];
+  std::snprintf(rate, sizeof rate, "%.3g %%", 100.0 * static_cast<double>(missed) / deadlines);
+  std::string text = "the real-time loop missed " + std::to_string(missed) + " of " +
+                     std::to_string(ticks + missed) + " deadlines (" + rate + ") in the last " +
+                     model::format_number(seconds, 3) + " s (period " +
+                     model::format_number(stats.period_s, 3) + " s, worst wake-up " +
+                     model::format_number(stats.latency_max_s, 3) +
+                     " s late): readings, chunks and STOP are handled late";
+  if (windows_over_ > 1)
+    text += " (" + std::to_string(windows_over_ - 1) + " more such windows since the last warning)";
+  windows_over_ = 0;
+  return text +
+         "; give idmd SCHED_FIFO (realtime.sched_fifo with CAP_SYS_NICE, as the systemd unit "
+         "does), a CPU of its own (realtime.cpu, isolcpus) and locked memory, take load off the "
+         "machine, or lengthen realtime.period_s (SYST:LOOP? shows the latencies)";
 }
 
 }  // namespace idm::daemon

@@ -82,4 +82,26 @@ class RtLoop {
   Seqlock<LoopStats> stats_;
 };
 
+// Tells when the loop misses too many deadlines (housekeeping asks it every cycle with the loop's
+// published statistics): more than `max_fraction` of the deadlines of a window of `window_s`
+// missed gives a warning saying the rate and what to do, at most one every `interval_s`. Not
+// thread-safe (one caller); no clock of its own (the caller's now_s).
+class DeadlineMissWatch {
+ public:
+  explicit DeadlineMissWatch(double max_fraction = 0.01, double window_s = 10,
+                             double interval_s = 60)
+      : max_fraction_(max_fraction), window_s_(window_s), interval_s_(interval_s) {}
+  // "" or the warning.
+  std::string update(const LoopStats& stats, double now_s);
+
+ private:
+  double max_fraction_, window_s_, interval_s_;
+  bool started_ = false;
+  double window_start_s_ = 0;
+  std::uint64_t window_wakeups_ = 0, window_misses_ = 0;  // at the window's start
+  double last_warning_s_ = 0;
+  bool warned_ = false;
+  std::uint64_t windows_over_ = 0;  // windows over the limit since the last warning
+};
+
 }  // namespace idm::daemon

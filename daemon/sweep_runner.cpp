@@ -6,6 +6,7 @@
 #include <limits>
 #include <sstream>
 #include <thread>
+#include <utility>
 
 #include "drivers/clock.h"
 #include "model/stage.h"
@@ -53,14 +54,18 @@ SweepRunner::~SweepRunner() {
   quit();
 }
 
-void SweepRunner::abort() {
-  if (active_.load(std::memory_order_acquire) && !abort_.load(std::memory_order_acquire))
-    abort_time_s_.store(drivers::monotonic_s(), std::memory_order_release);
+void SweepRunner::abort(const std::string& why) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!abort_.load(std::memory_order_acquire)) {
+    abort_why_ = why;
+    if (active_.load(std::memory_order_acquire))
+      abort_time_s_.store(drivers::monotonic_s(), std::memory_order_release);
+  }
   abort_.store(true, std::memory_order_release);
 }
 
 void SweepRunner::quit() {
-  abort();
+  abort("the daemon stopped");
   {
     std::lock_guard<std::mutex> lock(mutex_);
     quit_ = true;
@@ -73,6 +78,7 @@ bool SweepRunner::submit(std::unique_ptr<SweepJob> job) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (active_.load() || pending_) return false;
   abort_.store(false, std::memory_order_release);
+  abort_why_.clear();
   status_ = SweepStatus{};
   status_.state = "RUNNING";
   status_.axis = job->axis;
@@ -93,6 +99,11 @@ SweepStatus SweepRunner::status() const {
 std::string SweepRunner::report() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return report_;
+}
+
+std::vector<std::string> SweepRunner::take_trial_notes() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return std::exchange(trial_notes_, {});
 }
 
 void SweepRunner::main() {
@@ -154,10 +165,12 @@ void SweepRunner::finish(SweepJob& job, TrialOutcome end, std::string first_erro
   const bool stopped = end == TrialOutcome::Interrupted;
   const bool failed = end == TrialOutcome::EndSweep;
   std::string why;
-  if (stopped)
-    why = abort_.load(std::memory_order_acquire) ? "stopped by a client (STOP or *RST)"
-          : supervisor_.stopping()               ? "the daemon stopped (SIGTERM)"
-                                                 : "stopped";
+  if (stopped) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    why = !abort_why_.empty()      ? abort_why_
+          : supervisor_.stopping() ? "the daemon stopped"
+                                   : "stopped";
+  }
   if (failed) why = first_error;
   try {
     job.writer->finish(failed    ? recording::SweepStatus::Failed
@@ -259,13 +272,20 @@ bool SweepRunner::capture_trial(SweepJob& job, const TrialRequest& req, std::uin
 
 SweepRunner::TrialOutcome SweepRunner::run_trial(SweepJob& job, const TrialRequest& req,
                                                  CellRun& cell, std::string& first_error) {
+  const Axis& axis = *axes_[static_cast<std::size_t>(job.axis)];
   auto failed = [&](const std::string& why) {
+    const std::string trial = "trial " + std::to_string(req.index) + " (" +
+                              model::format_number(req.segment.freq_hz) + " Hz, duty " +
+                              model::format_number(req.segment.duty) + ")";
+    const control::MotionStatus m = axis.published().motion;
     std::lock_guard<std::mutex> lock(mutex_);
     ++status_.failed;
-    if (first_error.empty())
-      first_error = "trial " + std::to_string(req.index) + " (" +
-                    model::format_number(req.segment.freq_hz) + " Hz, duty " +
-                    model::format_number(req.segment.duty) + "): " + why;
+    if (first_error.empty()) first_error = trial + ": " + why;
+    if (trial_notes_.size() < 200)
+      trial_notes_.push_back(
+          "axis " + axis.config().name + ": sweep " + job.dir + " " + trial +
+          " ended FAILED: " + why + "; position " +
+          (m.position_valid ? model::format_number(m.position_m) + " m" : std::string("unknown")));
   };
   const auto interrupted = [&] {
     return abort_.load(std::memory_order_acquire) || supervisor_.stopping();

@@ -51,8 +51,9 @@ class SweepRunner {
   // Starts the job on the runner's thread; false when one is running.
   bool submit(std::unique_ptr<SweepJob> job);
   // Stops the running sweep (the playing trial is stopped by the loop; a trial being written
-  // finishes first). Any thread.
-  void abort();
+  // finishes first). `why` is what its dataset (plan.yaml) and the log say stopped it; the first
+  // abort of a sweep names it. Any thread.
+  void abort(const std::string& why = "stopped by a client (STOP or *RST)");
   // When the last abort() came (CLOCK_MONOTONIC), -1 never: a stopped sweep's error is dated
   // then, so that the *RST that stopped it also clears it.
   double abort_time_s() const { return abort_time_s_.load(std::memory_order_acquire); }
@@ -60,6 +61,9 @@ class SweepRunner {
   SweepStatus status() const;
   // One line on the last finished sweep ("" before any), for the log.
   std::string report() const;
+  // One line per trial that failed since the last call (not the ones a stop interrupted), for
+  // the log: the axis, the sweep, the trial's cell, why, where the slider is.
+  std::vector<std::string> take_trial_notes();
   void quit();
 
  private:
@@ -107,11 +111,13 @@ class SweepRunner {
   std::condition_variable cv_;
   std::unique_ptr<SweepJob> pending_;
   bool quit_ = false;
-  SweepStatus status_;  // mutex_
-  std::string report_;  // mutex_
+  SweepStatus status_;                    // mutex_
+  std::string report_;                    // mutex_
+  std::vector<std::string> trial_notes_;  // mutex_
   std::atomic<bool> active_{false};
   std::atomic<bool> abort_{false};
   std::atomic<double> abort_time_s_{-1};
+  std::string abort_why_;       // mutex_: what the first abort() of the sweep said
   std::uint32_t next_seq_ = 0;  // trial numbers across sweeps (runner thread)
   drivers::StackThread thread_;
 };

@@ -18,6 +18,9 @@ harness.setup("idmd-motion-")
 COUNT_M = 632.991e-9 / 64
 # A stage whose zero lies off-centre: the low end stop comes before the soft limit (-5 mm).
 STOPS = ("  noise_m: 1e-9\n", "  noise_m: 1e-9\n  end_stops_m: [-0.3e-3, 5e-3]\n")
+# The same stop with the travel's low end 50 um beyond it (the soft limit there): a stop near the
+# travel's end is its end of travel (one 4.7 mm inside, as with STOPS alone, is an obstruction).
+NEAR_END = [STOPS, ("travel_m: [-5e-3, 5e-3]", "travel_m: [-0.35e-3, 5e-3]")]
 
 
 def oper(c, axis=""):
@@ -208,22 +211,25 @@ def case_not_arrived():
 
 
 def case_eot_open_loop():
-    with Daemon(config(edits=[STOPS])) as d:
+    with Daemon(config(edits=NEAR_END)) as d:
         c = Client(d)
+        # 21 um a STEP (0.53 um a cycle), short enough for the soft limit 50 um past the stop.
+        e = []
         for _ in range(40):
-            c.send("STEP -200\n")
-            check(c.ask("*OPC?") == "1", "STEP -200 done")
+            c.send("STEP 40,0.1,1000,2e-6\n")
+            check(c.ask("*OPC?") == "1", "STEP 40,0.1,1000,2e-6 done")
+            e = errors(c)
             if result(c)[0] != "OK":
                 break
+            check(e == [], "not refused: %s" % e)
         check(result(c)[0] == "END_OF_TRAVEL", "MOVE:RES? END_OF_TRAVEL")
         st = c.status()
         check(st["eot"] == "low" and st["state"] == "IDLE", "STAT? eot=low, IDLE: %s" % st["eot"])
         check(float(st["position"]) > -0.3e-3 - 2 * COUNT_M, "the slider is at the stop, not past it")
         check(oper(c) & (1 << 6), "bit 6: end of travel")
         check(bursts_stay(c), "the output is at rest")
-        e = errors(c)
         check(any(x.startswith("112,") for x in e), "112 queued: %s" % e)
-        c.send("STEP -50\n")
+        c.send("STEP 5,0.1,1000,2e-6\n")
         check(c.error().startswith("-221,"), "a STEP further into the stop is refused")
         c.send("STEP 100\n")
         check(c.ask("*OPC?") == "1" and result(c)[0] == "OK", "a STEP away is allowed")
@@ -231,23 +237,50 @@ def case_eot_open_loop():
 
 
 def case_eot_closed_loop():
-    with Daemon(config(edits=[STOPS])) as d:
+    with Daemon(config(edits=NEAR_END)) as d:
         c = Client(d)
-        c.send("MOVE:ABS -1e-3\n")
+        c.send("MOVE:ABS -0.35e-3\n")
         check(c.ask("*OPC?") == "1", "the move into the stop ends")
         word, dist = result(c)
-        check(word == "END_OF_TRAVEL" and dist < -1e-4, "MOVE:RES? END_OF_TRAVEL (%g m)" % dist)
+        check(word == "END_OF_TRAVEL" and dist < -4e-5, "MOVE:RES? END_OF_TRAVEL (%g m)" % dist)
         check(c.status()["eot"] == "low", "eot=low")
         check(bursts_stay(c), "the output is at rest")
         check(any(x.startswith("112,") for x in errors(c)), "112 queued for the mover")
-        c.send("MOVE:ABS -0.5e-3\n")
+        c.send("MOVE:ABS -0.32e-3\n")
         e = c.error()
         check(e.startswith("-221,") and "end of travel" in e, "a move beyond the stop is refused: %s" % e)
+        c.send("*RST\n")
+        check(c.ask("*OPC?") == "1" and c.status()["eot"] == "low", "*RST keeps the end of travel")
         c.send("MOVE:ABS 1e-4\n")
         check(c.ask("*OPC?") == "1", "a move away is allowed")
         word, dist = result(c)
         check(word == "OK" and abs(dist) <= COUNT_M, "and arrives (%g m)" % dist)
         check(abs(c.mean_position() - 1e-4) <= COUNT_M, "at the target by a fresh reading")
+
+
+def case_obstruction():
+    """The slider held 4.7 mm before the end of its travel (the simulated stop at -0.3 mm, the
+    travel from -5 mm): a stall fault, not END_OF_TRAVEL (which only a move away cleared, and
+    *RST did not); *RST clears it; moves either way are allowed again."""
+    with Daemon(config(edits=[STOPS])) as d:
+        c = Client(d)
+        c.send("MOVE:ABS -1e-3\n")
+        check(c.ask("*OPC?") == "1", "the move into the stop ends")
+        st = c.status()
+        check(st["state"] == "FAULT" and st["fault"] == "stall" and st["eot"] == "none",
+              "FAULT stall, eot=none: %s %s %s" % (st["state"], st["fault"], st["eot"]))
+        check(result(c)[0] == "FAULT" and abs(float(st["position"]) + 0.3e-3) < 1e-6,
+              "MOVE:RES? FAULT, at the stop (%s)" % st["position"])
+        check(any(x.startswith("102,") for x in errors(c)), "102 (stall) queued for the mover")
+        c.send("*RST\n")
+        check(c.ask("*OPC?") == "1", "*RST")
+        st = wait_state(c, {"state": "IDLE"})
+        check(st["fault"] == "none" and st["eot"] == "none", "*RST cleared it")
+        c.send("MOVE:ABS -0.2e-3\n")
+        check(c.ask("*OPC?") == "1" and result(c)[0] == "OK", "a move away arrives")
+        c.send("MOVE:ABS -0.25e-3\n")
+        check(c.ask("*OPC?") == "1" and result(c)[0] == "OK" and errors(c) == [],
+              "a move toward the stop is not refused as an end of travel")
 
 
 def case_reference():
@@ -510,6 +543,7 @@ CASES = {
     "speed_and_jog": case_speed_and_jog,
     "eot_open_loop": case_eot_open_loop,
     "eot_closed_loop": case_eot_closed_loop,
+    "obstruction": case_obstruction,
     "reference": case_reference,
     "reference_positive": case_reference_positive,
     "reference_mark": case_reference_mark,

@@ -334,7 +334,7 @@ def case_sweep_end_stop_unknown():
     """The end stop nearer than stage.travel_m says (a config that is wrong): a cell whose first
     trial moved clearly moves almost nothing on a later trial: the sweep stops there, FAILED,
     saying the end of travel, and that trial is not written (14 of 20 trials hammered the stop,
-    each recorded as valid, SWEEP? DONE)."""
+    each recorded as valid, SWEEP? DONE); the log has one warning for that trial."""
     cfg = config(edits=[("  noise_m: 1e-9", "  noise_m: 1e-9\n  end_stops_m: [-5e-3, 0.3e-3]")],
                  out="stop.yaml")
     with Daemon(cfg) as d:
@@ -353,6 +353,11 @@ def case_sweep_end_stop_unknown():
         check(status == "failed" and "end of travel" in text, "plan.yaml says so")
         rows = open(os.path.join(harness.TMP, "data", "stop", "sweep.csv")).read().splitlines()
         check(len(rows) == written + 1, "only the trials that moved are in sweep.csv")
+        time.sleep(0.5)
+        lines = [l for l in d.log().splitlines() if "axis x: sweep" in l]
+        check(len(lines) == 1 and "data/stop trial %d (300" % written in lines[0] and
+              "ended FAILED: the end of travel" in lines[0] and "warn" in lines[0],
+              "one log line for the trial: %r" % lines)
 
 
 def case_sweep_full_disk():

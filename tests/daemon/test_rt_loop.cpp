@@ -129,3 +129,46 @@ TEST(RtLoop, RealtimeRefusalIsOneWarningThatSaysWhy) {
 }
 
 }  // namespace
+
+// Deadline misses: one warning saying the rate and what to do once a window of 10 s missed more
+// than 1 % of its deadlines, then at most one a minute however long it lasts (saying how many
+// windows it left out); nothing for a rate under the limit. The statistics and the clock are
+// made up: no timing.
+TEST(DeadlineMissWatch, ARateAboveTheLimitWarnsAtMostOnceAMinute) {
+  DeadlineMissWatch watch(0.01, 10, 60);
+  LoopStats s;
+  s.period_s = 1e-4;
+  double t = 100;
+  // Every 50 ms (housekeeping's cycle) 500 deadlines pass, `missed` of them missed.
+  std::vector<std::string> warnings;
+  std::vector<double> when;
+  const auto run = [&](double seconds, std::uint64_t missed) {
+    for (int k = 0; k < static_cast<int>(seconds / 0.05); ++k) {
+      t += 0.05;
+      s.wakeups += 500 - missed;
+      s.deadline_misses += missed;
+      if (std::string w = watch.update(s, t); !w.empty()) {
+        warnings.push_back(w);
+        when.push_back(t);
+      }
+    }
+  };
+  run(60, 4);  // 0.8 %
+  EXPECT_TRUE(warnings.empty()) << warnings.front();
+  run(180, 25);  // 5 %
+  ASSERT_EQ(warnings.size(), 3u);
+  // After the first whole window over the limit; then a minute apart, not every window.
+  EXPECT_GT(when[0], 170 - 0.1);
+  EXPECT_LT(when[0], 180 + 0.1);
+  EXPECT_GE(when[1] - when[0], 60 - 0.1);
+  EXPECT_LT(when[1] - when[0], 70 + 0.1);
+  EXPECT_NE(warnings[0].find("missed 5000 of 100000 deadlines (5 %) in the last 10 s"),
+            std::string::npos)
+      << warnings[0];
+  EXPECT_NE(warnings[0].find("realtime.sched_fifo"), std::string::npos) << warnings[0];
+  EXPECT_NE(warnings[0].find("realtime.period_s"), std::string::npos) << warnings[0];
+  EXPECT_NE(warnings[1].find("5 more such windows since the last warning"), std::string::npos)
+      << warnings[1];
+  run(120, 0);
+  EXPECT_EQ(warnings.size(), 3u) << "nothing once the loop keeps up";
+}
