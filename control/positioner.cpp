@@ -15,6 +15,7 @@ namespace {
 using model::integer;
 using model::real;
 using model::with_default;
+using model::with_relation;
 using P = PositionerConfig;
 
 // The window, the corrections, the stall, the chunks, the readings and the soft limits.
@@ -46,16 +47,24 @@ std::vector<model::Param<P>> move_params() {
           "latch_words", "count", 1, RestMean::kMaxWords,
           "readings averaged for a position at rest (the landing's, and the one shown)",
           [](auto& c) -> auto& { return c.latch_words; }),
-      with_default(real<P>(
-                       "soft_lower_m", "m", {-10, 10},
-                       "soft limit (LLM): a move or STEP ending below is refused",
-                       [](auto& c) -> auto& { return c.soft_lower_m; }),
-                   "stage.travel_m"),
-      with_default(real<P>(
-                       "soft_upper_m", "m", {-10, 10},
-                       "soft limit (HLM): a move or STEP ending above is refused",
-                       [](auto& c) -> auto& { return c.soft_upper_m; }),
-                   "stage.travel_m"),
+      with_relation(with_default(real<P>(
+                                     "soft_lower_m", "m", {-10, 10},
+                                     "soft limit (LLM): a move or STEP ending below is refused",
+                                     [](auto& c) -> auto& { return c.soft_lower_m; }),
+                                 "stage.travel_m"),
+                    "< soft_upper_m",
+                    [](const P& c) {
+                      return model::Range{-1e300, c.soft_upper_m, false, true};
+                    }),
+      with_relation(with_default(real<P>(
+                                     "soft_upper_m", "m", {-10, 10},
+                                     "soft limit (HLM): a move or STEP ending above is refused",
+                                     [](auto& c) -> auto& { return c.soft_upper_m; }),
+                                 "stage.travel_m"),
+                    "> soft_lower_m",
+                    [](const P& c) {
+                      return model::Range{c.soft_lower_m, 1e300, true, false};
+                    }),
   };
 }
 
@@ -109,10 +118,14 @@ std::vector<model::Param<P>> ladder_and_end_params() {
           "final_step_counts", "count", {0.5, 1000},
           "the last chunks use a rung of at most this step",
           [](auto& c) -> auto& { return c.final_step_counts; }),
-      real<P>(
-          "min_step_counts", "count", {0, 1000, false, true},
-          "a rung stepping less per cycle is taken as not moving (< final_step_counts)",
-          [](auto& c) -> auto& { return c.min_step_counts; }),
+      with_relation(real<P>(
+                        "min_step_counts", "count", {0, 1000, false, true},
+                        "a rung stepping less per cycle is taken as not moving",
+                        [](auto& c) -> auto& { return c.min_step_counts; }),
+                    "< final_step_counts",
+                    [](const P& c) {
+                      return model::Range{-1e300, c.final_step_counts, false, true};
+                    }),
       integer<P>(
           "dead_rung_moves", "count", 1, 1000000,
           "a rung judged not to move is left out for this many moves",
@@ -158,25 +171,17 @@ const model::ParamTable<PositionerConfig>& positioner_params() {
 }
 
 void validate(const PositionerConfig& c, const std::string& where) {
-  // Infinite soft limits are allowed in code (no limit); files always give finite ones.
+  // Infinite soft limits are allowed in code (no limit), as the ends of the range on their side;
+  // files always give finite ones. The table checks the ranges and the relations (lower < upper,
+  // min_step_counts < final_step_counts).
   PositionerConfig finite = c;
-  if (std::isinf(finite.soft_lower_m)) finite.soft_lower_m = -10;
-  if (std::isinf(finite.soft_upper_m)) finite.soft_upper_m = 10;
+  if (std::isinf(finite.soft_lower_m)) finite.soft_lower_m = std::copysign(10.0, c.soft_lower_m);
+  if (std::isinf(finite.soft_upper_m)) finite.soft_upper_m = std::copysign(10.0, c.soft_upper_m);
   positioner_params().validate(finite, where);
-  if (std::isnan(c.soft_lower_m) || std::isnan(c.soft_upper_m) ||
-      !(c.soft_lower_m < c.soft_upper_m))
-    throw model::InputError(where + ".soft_lower_m/soft_upper_m: [" +
-                            model::format_number(c.soft_lower_m) + ", " +
-                            model::format_number(c.soft_upper_m) +
-                            "] is not an interval, allowed soft_lower_m < soft_upper_m");
   if (!(c.travel_lower_m < c.travel_upper_m))
     throw model::InputError(where + ": the travel [" + model::format_number(c.travel_lower_m) +
                             ", " + model::format_number(c.travel_upper_m) +
                             "] m is not an interval (stage.travel_m: lower < upper)");
-  if (!(c.min_step_counts < c.final_step_counts))
-    throw model::InputError(where + ".min_step_counts: " + model::format_number(c.min_step_counts) +
-                            " must be below final_step_counts (" +
-                            model::format_number(c.final_step_counts) + ")");
 }
 
 const char* motion_state_name(MotionState s) {

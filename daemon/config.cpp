@@ -28,7 +28,6 @@ using model::with_default;
 
 namespace {
 
-constexpr double kInf = std::numeric_limits<double>::infinity();
 using Node = YAML::Node;
 
 bool present(const Node& n) {
@@ -120,47 +119,30 @@ bool single_axis_key(const std::string& name) {
   return false;
 }
 
-void check_range_order(double lo, double hi, const std::string& f, const Node& node,
-                       const std::string& key, const std::string& other) {
-  if (lo > hi)
-    throw InputError(located(f, node, key,
-                             model::format_number(lo) + " must not exceed " + other + " (" +
-                                 model::format_number(hi) + ")"));
-}
-
+// An axis's control: read through its table, the soft limits defaulted to the stage's travel, then
+// every relation between keys checked (control_params(): against the other keys, the stage, one
+// count and the output `caps` the device's section describes).
 ControlConfig parse_control(const Node& node, const std::string& f, const std::string& key,
-                            const model::StageFile& stage) {
+                            const model::StageFile& stage,
+                            const drivers::OutputCapabilities& caps) {
   ControlConfig c;
   c.planner.resolution_m = stage.interferometer.resolution_m;
   control_params().read(node, f, key, c);
   auto& p = c.positioner;
-  check_range_order(c.min_freq_hz, c.max_freq_hz, f, node, key + ".min_freq_hz", "max_freq_hz");
-  if (c.max_stroke_m > 0)
-    check_range_order(c.min_stroke_m, c.max_stroke_m, f, node, key + ".min_stroke_m",
-                      "max_stroke_m");
-  // Soft limits: default to the stage's travel, and never outside it.
-  const bool has_lower = present(child(node, "soft_lower_m")),
-             has_upper = present(child(node, "soft_upper_m"));
-  if (!has_lower) p.soft_lower_m = stage.has_travel() ? stage.travel_lower_m : -kInf;
-  if (!has_upper) p.soft_upper_m = stage.has_travel() ? stage.travel_upper_m : kInf;
-  if (!(p.soft_lower_m < p.soft_upper_m))
-    throw InputError(located(f, node, key + ".soft_lower_m",
-                             model::format_number(p.soft_lower_m) +
-                                 " must be below soft_upper_m (" +
-                                 model::format_number(p.soft_upper_m) + ")"));
+  // Without a travel (an error parse_axis reports after this section's) the range's ends.
+  if (!present(child(node, "soft_lower_m")))
+    p.soft_lower_m = stage.has_travel() ? stage.travel_lower_m : -10;
+  if (!present(child(node, "soft_upper_m")))
+    p.soft_upper_m = stage.has_travel() ? stage.travel_upper_m : 10;
+  c.axis.stage_stroke_m = stage.stage.stroke_m;
   if (stage.has_travel()) {
     p.travel_lower_m = stage.travel_lower_m;  // where an end of travel may be met
     p.travel_upper_m = stage.travel_upper_m;
-    const std::string travel = "the stage's travel [" + model::format_number(stage.travel_lower_m) +
-                               ", " + model::format_number(stage.travel_upper_m) +
-                               "] m (stage.travel_m)";
-    if (p.soft_lower_m < stage.travel_lower_m)
-      throw InputError(located(f, child(node, "soft_lower_m"), key + ".soft_lower_m",
-                               model::format_number(p.soft_lower_m) + " lies outside " + travel));
-    if (p.soft_upper_m > stage.travel_upper_m)
-      throw InputError(located(f, child(node, "soft_upper_m"), key + ".soft_upper_m",
-                               model::format_number(p.soft_upper_m) + " lies outside " + travel));
+    c.axis.travel_lower_m = stage.travel_lower_m;
+    c.axis.travel_upper_m = stage.travel_upper_m;
   }
+  c.axis.output = caps;
+  control_params().check_relations(c, node, f, key);
   try {
     control::validate(c.planner, key);
     control::validate(c.positioner, key);
@@ -177,6 +159,7 @@ DeviceConfig parse_device(const Node& node, const std::string& f, const std::str
   DeviceConfig d;
   d.name = name;
   device_params().read(node, f, key, d);
+  device_params().check_relations(d, node, f, key);
   bool known = false;
   for (const drivers::BackendEntry& e : drivers::backend_table())
     known = known || d.driver == e.name;
@@ -245,9 +228,11 @@ AxisConfig parse_axis(const AxisSections& a, const std::string& name, std::size_
     axis.sim.end_stop_low_m = axis.stage.travel_lower_m;
     axis.sim.end_stop_high_m = axis.stage.travel_upper_m;
   }
-  // The backend's own parser checks the device's section for this axis (no I/O).
-  (void)drivers::make_backend(c.devices[device].driver, axis.document, f);
-  axis.control = parse_control(a.control, f, prefix + "control", axis.stage);
+  // The backend's own parser checks the device's section for this axis (no I/O); its output's
+  // capabilities bound the map's strokes and frequencies.
+  const drivers::Device backend = drivers::make_backend(c.devices[device].driver, axis.document, f);
+  axis.control =
+      parse_control(a.control, f, prefix + "control", axis.stage, backend.output->capabilities());
   // Last, so that a typo elsewhere is reported first.
   if (!axis.stage.has_travel())
     throw InputError(
@@ -495,6 +480,18 @@ std::string config_reference() {
 
 // ---- the map's limits ----
 
+double largest_stroke_m(const ControlConfig& c, double stage_stroke_m,
+                        const drivers::OutputCapabilities& caps) {
+  return std::min(c.max_stroke_m > 0 ? c.max_stroke_m : stage_stroke_m, caps.max_elongation_m());
+}
+
+double highest_freq_hz(const ControlConfig& c, const drivers::OutputCapabilities& caps) {
+  // A buffered output needs at least a few samples per period.
+  if (caps.mode == drivers::OutputMode::BufferedSamples)
+    return std::min(c.max_freq_hz, std::min(c.output_sample_rate_hz, caps.max_sample_rate_hz) / 4);
+  return std::min(c.max_freq_hz, caps.max_freq_hz);
+}
+
 control::DeviceLimits device_limits(const ControlConfig& c, const model::StageParams& stage,
                                     const drivers::OutputCapabilities& caps) {
   control::DeviceLimits lim;
@@ -502,15 +499,10 @@ control::DeviceLimits device_limits(const ControlConfig& c, const model::StagePa
   lim.output_sample_rate_hz =
       buffered ? std::min(c.output_sample_rate_hz, caps.max_sample_rate_hz) : 0.0;
   lim.min_freq_hz = c.min_freq_hz;
-  double fmax = c.max_freq_hz;
-  // A buffered output needs at least a few samples per period.
-  if (buffered)
-    fmax = std::min(fmax, lim.output_sample_rate_hz / 4.0);
-  else
-    fmax = std::min(fmax, caps.max_freq_hz);
-  lim.max_freq_hz = std::max(fmax, lim.min_freq_hz);
-  double smax = c.max_stroke_m > 0 ? c.max_stroke_m : stage.stroke_m;
-  smax = std::min(smax, caps.max_elongation_m());
+  // The config's relations keep min_freq_hz and min_stroke_m within these for the output the
+  // device's section describes; a device that narrows its clock when opened may still shrink them.
+  lim.max_freq_hz = std::max(highest_freq_hz(c, caps), lim.min_freq_hz);
+  const double smax = largest_stroke_m(c, stage.stroke_m, caps);
   lim.max_stroke_m = smax;
   lim.min_stroke_m = std::min(c.min_stroke_m, smax);
   lim.max_burst_cycles = buffered ? 1000000 : caps.max_cycles;

@@ -65,7 +65,21 @@ struct ControlConfig {
   control::PositionerConfig positioner;
   control::CalibrationConfig calibration;
   std::string calibration_file;  // "" = no saved calibration
+  // What the axis's other sections fix, put here by the parser before the relations between keys
+  // are checked (control_params()): the stage's nominal stroke and travel, and the output as the
+  // device's section describes it (its voltage range and volts per metre; a device may narrow its
+  // clock further when opened). One count is planner.resolution_m.
+  struct AxisFacts {
+    double stage_stroke_m = model::StageParams{}.stroke_m;
+    double travel_lower_m = -std::numeric_limits<double>::infinity();
+    double travel_upper_m = std::numeric_limits<double>::infinity();
+    drivers::OutputCapabilities output;
+  } axis;
 };
+// The keys of control: and their relations: min_freq_hz <= the highest frequency, min_stroke_m <=
+// the largest stroke, the soft limits within the travel and lower < upper, tolerance_m (0 or) at
+// least one count, hold_window_m (0 or) at least the move window, eot_step_m (0 or) above one count
+// over eot_cycles cycles, min_step_counts < final_step_counts.
 const model::ParamTable<ControlConfig>& control_params();
 
 // `server:`: where the command protocol listens.
@@ -179,6 +193,15 @@ std::vector<ControlConfig> reload_control_configs(const YAML::Node& root, const 
 
 // config/README.md's generated tables (idmd --config-reference), one per section.
 std::string config_reference();
+
+// The largest stroke of the map: max_stroke_m (0: the stage's nominal stroke), capped by what the
+// output's voltage range reaches.
+double largest_stroke_m(const ControlConfig& control, double stage_stroke_m,
+                        const drivers::OutputCapabilities& caps);
+// The highest frequency of the map: max_freq_hz narrowed by the output (a buffered output plays at
+// least four samples a period of its clock, output_sample_rate_hz capped by the device's; a
+// function generator its max_freq_hz).
+double highest_freq_hz(const ControlConfig& control, const drivers::OutputCapabilities& caps);
 
 // The device limits the region map uses: the configured ranges narrowed by the output's
 // capabilities (read after configure: some devices report them only then).

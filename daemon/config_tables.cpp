@@ -3,6 +3,7 @@
 // config/README.md's rows all come from them; the document's shape is read in config.cpp.
 #include <limits>
 #include <string>
+#include <vector>
 
 #include "daemon/config.h"
 #include "model/yaml_util.h"
@@ -21,56 +22,114 @@ using model::text;
 using model::with_default;
 using Node = YAML::Node;
 
+namespace {
+
+using model::Range;
+constexpr double kNoBound = 1e300;  // model::Range's unbounded end
+
+// The relations of control: keys to each other and to what the axis's other sections fix
+// (ControlConfig::axis, planner.resolution_m: one count). The soft limits' order and
+// min_step_counts < final_step_counts come with the positioner's table.
+void relate_control(std::vector<model::Param<ControlConfig>>& params) {
+  using C = ControlConfig;
+  model::relate(params, "min_freq_hz", "<= max_freq_hz, narrowed by the output", [](const C& c) {
+    return Range{-kNoBound, highest_freq_hz(c, c.axis.output)};
+  });
+  model::relate(
+      params, "min_stroke_m",
+      "<= the largest stroke: max_stroke_m (0: stage.stroke_m), capped by the output's reach "
+      "(max_voltage_v / volts_per_m)",
+      [](const C& c) {
+        return Range{-kNoBound, largest_stroke_m(c, c.axis.stage_stroke_m, c.axis.output)};
+      });
+  model::relate(params, "soft_lower_m", "within stage.travel_m", [](const C& c) {
+    return Range{c.axis.travel_lower_m, c.axis.travel_upper_m};
+  });
+  model::relate(params, "soft_upper_m", "within stage.travel_m", [](const C& c) {
+    return Range{c.axis.travel_lower_m, c.axis.travel_upper_m};
+  });
+  // A reading is a whole count: within a window of up to one count a move lands on the reading
+  // nearest the target and says OK half a count away, so a narrower window is not what it keeps.
+  model::relate(
+      params, "tolerance_m", ">= one count (interferometer resolution_m)",
+      [](const C& c) {
+        return Range{c.planner.resolution_m, kNoBound};
+      },
+      true);
+  // A hold window narrower than the moves' window corrects every landing again.
+  model::relate(
+      params, "hold_window_m", ">= the move window (tolerance_m; 0: one count)",
+      [](const C& c) {
+        const double t = c.positioner.tolerance_m;
+        return Range{t > 0 ? t : c.planner.resolution_m, kNoBound};
+      },
+      true);
+  // At an end stop the mean step over eot_cycles cycles is a count of noise at most: a threshold
+  // below that never sees the stop (REFerence then ends in a stall).
+  model::relate(
+      params, "eot_step_m", "> one count / eot_cycles",
+      [](const C& c) {
+        return Range{c.planner.resolution_m / c.positioner.eot_cycles, kNoBound, true, false};
+      },
+      true);
+}
+
+}  // namespace
+
 const model::ParamTable<ControlConfig>& control_params() {
   using C = ControlConfig;
-  static const model::ParamTable<C> table(model::join<C>({
-      {
-          real<C>(
-              "freq_step_hz", "Hz", {0, 1e5, true}, "region map grid: frequency step",
-              [](auto& c) -> auto& { return c.freq_step_hz; }),
-          real<C>(
-              "duty_step", "1", {0, 0.25, true}, "region map grid: duty step",
-              [](auto& c) -> auto& { return c.duty_step; }),
-          integer<C>(
-              "stroke_count", "count", 1, 64, "region map grid: strokes",
-              [](auto& c) -> auto& { return c.stroke_count; }),
-          real<C>(
-              "min_freq_hz", "Hz", recording::kFreqRangeHz,
-              "lowest frequency (narrowed by the device)",
-              [](auto& c) -> auto& { return c.min_freq_hz; }),
-          real<C>(
-              "max_freq_hz", "Hz", recording::kFreqRangeHz,
-              "highest frequency (narrowed by the device)",
-              [](auto& c) -> auto& { return c.max_freq_hz; }),
-          real<C>(
-              "min_stroke_m", "m", {0, 1e-3, true}, "smallest stroke of the map",
-              [](auto& c) -> auto& { return c.min_stroke_m; }),
-          with_default(real<C>(
-                           "max_stroke_m", "m", {0, 1e-3},
-                           "largest stroke; 0: the stage's (capped by the output)",
-                           [](auto& c) -> auto& { return c.max_stroke_m; }),
-                       "0 (stage.stroke_m)"),
-          real<C>(
-              "output_sample_rate_hz", "Hz", {0, 1e8, true},
-              "buffered outputs: the DAC clock (capped by the device)",
-              [](auto& c) -> auto& { return c.output_sample_rate_hz; }),
-          real<C>(
-              "friction_uncertainty", "1", {0, 0.45},
-              "relative uncertainty of mu the map keeps a margin for",
-              [](auto& c) -> auto& { return c.friction_uncertainty; }),
-          text<C>(
-              "calibration_file",
-              "the learned step model: loaded at start, saved after moves; \"\": none",
-              [](auto& c) -> auto& { return c.calibration_file; }, "a path"),
-          model::nested<C>(
-              "calibration", "online calibration (control.calibration.KEY below)",
-              control::calibration_params(), [](auto& c) -> auto& { return c.calibration; }),
-      },
-      model::lifted<C>(control::planner_params(), [](auto& c) -> auto& { return c.planner; },
-                       {"max_bursts"}),
-      model::lifted<C>(
-          control::positioner_params(), [](auto& c) -> auto& { return c.positioner; }),
-  }));
+  static const model::ParamTable<C> table([] {
+    std::vector<model::Param<C>> params = model::join<C>({
+        {
+            real<C>(
+                "freq_step_hz", "Hz", {0, 1e5, true}, "region map grid: frequency step",
+                [](auto& c) -> auto& { return c.freq_step_hz; }),
+            real<C>(
+                "duty_step", "1", {0, 0.25, true}, "region map grid: duty step",
+                [](auto& c) -> auto& { return c.duty_step; }),
+            integer<C>(
+                "stroke_count", "count", 1, 64, "region map grid: strokes",
+                [](auto& c) -> auto& { return c.stroke_count; }),
+            real<C>(
+                "min_freq_hz", "Hz", recording::kFreqRangeHz,
+                "lowest frequency (narrowed by the device)",
+                [](auto& c) -> auto& { return c.min_freq_hz; }),
+            real<C>(
+                "max_freq_hz", "Hz", recording::kFreqRangeHz,
+                "highest frequency (narrowed by the device)",
+                [](auto& c) -> auto& { return c.max_freq_hz; }),
+            real<C>(
+                "min_stroke_m", "m", {0, 1e-3, true}, "smallest stroke of the map",
+                [](auto& c) -> auto& { return c.min_stroke_m; }),
+            with_default(real<C>(
+                             "max_stroke_m", "m", {0, 1e-3},
+                             "largest stroke; 0: the stage's (capped by the output)",
+                             [](auto& c) -> auto& { return c.max_stroke_m; }),
+                         "0 (stage.stroke_m)"),
+            real<C>(
+                "output_sample_rate_hz", "Hz", {0, 1e8, true},
+                "buffered outputs: the DAC clock (capped by the device)",
+                [](auto& c) -> auto& { return c.output_sample_rate_hz; }),
+            real<C>(
+                "friction_uncertainty", "1", {0, 0.45},
+                "relative uncertainty of mu the map keeps a margin for",
+                [](auto& c) -> auto& { return c.friction_uncertainty; }),
+            text<C>(
+                "calibration_file",
+                "the learned step model: loaded at start, saved after moves; \"\": none",
+                [](auto& c) -> auto& { return c.calibration_file; }, "a path"),
+            model::nested<C>(
+                "calibration", "online calibration (control.calibration.KEY below)",
+                control::calibration_params(), [](auto& c) -> auto& { return c.calibration; }),
+        },
+        model::lifted<C>(control::planner_params(), [](auto& c) -> auto& { return c.planner; },
+                         {"max_bursts"}),
+        model::lifted<C>(
+            control::positioner_params(), [](auto& c) -> auto& { return c.positioner; }),
+    });
+    relate_control(params);
+    return params;
+  }());
   return table;
 }
 
@@ -208,9 +267,13 @@ const model::ParamTable<DeviceConfig>& device_params() {
           "reconnect_min_s", "s", {1e-3, 60},
           "first retry after the device is lost (then doubling)",
           [](auto& d) -> auto& { return d.link.reconnect_min_s; }),
-      real<D>(
-          "reconnect_max_s", "s", {1e-3, 3600}, "longest wait between retries",
-          [](auto& d) -> auto& { return d.link.reconnect_max_s; }),
+      model::with_relation(real<D>(
+                               "reconnect_max_s", "s", {1e-3, 3600}, "longest wait between retries",
+                               [](auto& d) -> auto& { return d.link.reconnect_max_s; }),
+                           ">= reconnect_min_s",
+                           [](const D& d) {
+                             return model::Range{d.link.reconnect_min_s, 1e300};
+                           }),
       real<D>(
           "crosstalk_fraction", "1", {-1, 1},
           "sim: a step of one axis moves the device's other axes by this share of it",

@@ -1,6 +1,7 @@
 #include "daemon/file_checks.h"
 
 #include <fcntl.h>
+#include <pwd.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -91,6 +92,14 @@ void check_permissions(const std::string& what, const std::string& path, FileFin
                            ", not to root or to idmd's user: they can change its mode");
 }
 
+// "user idmd (uid 998)": the user whose permissions access() checks.
+std::string this_user() {
+  const uid_t uid = ::getuid();
+  const passwd* pw = ::getpwuid(uid);
+  return "user " + (pw != nullptr ? std::string(pw->pw_name) + " " : std::string()) + "(uid " +
+         std::to_string(uid) + ")";
+}
+
 std::string parent_of(const std::string& file) {
   const std::string dir = std::filesystem::path(file).parent_path().string();
   return dir.empty() ? "." : dir;
@@ -105,9 +114,10 @@ void check_axis_file(const std::string& key, const std::string& file, Reads&& re
   const std::string dir = parent_of(file);
   check_permissions(key + "'s directory", dir, out);
   if (::access(dir.c_str(), W_OK | X_OK) != 0) {
-    out.errors.push_back(key + ": the directory " + dir + " " +
-                         (errno == ENOENT ? "does not exist" : "is not writable by this user") +
-                         ": what the axis learns could not be saved");
+    out.errors.push_back(
+        key + ": the directory " + dir + " " +
+        (errno == ENOENT ? "does not exist" : "is not writable by " + this_user()) +
+        ": what the axis learns could not be saved");
     return;
   }
   struct stat st {};
@@ -124,21 +134,35 @@ void check_axis_file(const std::string& key, const std::string& file, Reads&& re
                          "away");
 }
 
+// recording.data_dir: a directory this user can write in, or one it can make (a note: idmd makes
+// it at start); else SWEEP fails (a warning: motion does not need it).
+void check_data_dir(const std::string& data, FileFindings& out) {
+  check_permissions("recording.data_dir", data, out);
+  const std::string what = "recording.data_dir " + data + ": ";
+  std::error_code ec;
+  if (std::filesystem::exists(data, ec) && !std::filesystem::is_directory(data, ec)) {
+    out.warnings.push_back(what + "not a directory: SWEEP will fail");
+    return;
+  }
+  std::filesystem::path existing = std::filesystem::absolute(data);
+  while (!existing.empty() && !std::filesystem::exists(existing, ec))
+    existing = existing.parent_path();
+  const bool missing = existing != std::filesystem::absolute(data);
+  if (::access(existing.c_str(), W_OK | X_OK) != 0)
+    out.warnings.push_back(what + (missing ? "does not exist, and " : "") + existing.string() +
+                           " is not writable by " + this_user() + ": SWEEP will fail");
+  else if (missing)
+    out.notes.push_back(what + "does not exist yet: idmd makes it at start (below " +
+                        existing.string() + ")");
+}
+
 }  // namespace
 
 FileFindings check_config_files(const DaemonConfig& c) {
   FileFindings out;
   check_permissions("the configuration file", c.file, out);
   check_permissions("the configuration's directory", parent_of(c.file), out);
-  const std::string& data = c.recording.data_dir;
-  check_permissions("recording.data_dir", data, out);
-  std::filesystem::path existing = std::filesystem::absolute(data);
-  std::error_code ec;
-  while (!existing.empty() && !std::filesystem::exists(existing, ec))
-    existing = existing.parent_path();
-  if (::access(existing.c_str(), W_OK | X_OK) != 0)
-    out.warnings.push_back("recording.data_dir " + data + ": " + existing.string() +
-                           " is not writable by this user: SWEEP will fail");
+  check_data_dir(c.recording.data_dir, out);
   for (const AxisConfig& a : c.axes) {
     const std::string prefix = c.axes.size() > 1 ? "axes." + a.name + "." : "";
     check_axis_file(

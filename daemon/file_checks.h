@@ -25,13 +25,15 @@ std::string octal_mode(unsigned mode);
 //    reference_file: writable by every user (a directory without its sticky bit) is an error,
 //    writable by a group or owned by another user (not root, not idmd's) a warning;
 //  * the directory of a calibration_file or reference_file must exist and be writable by this
-//    user (else the axis would lose what it learns); recording.data_dir missing and not creatable
-//    is a warning (SWEEP would fail);
+//    user (else the axis would lose what it learns); recording.data_dir not a directory, or not
+//    writable (or, missing, not creatable) by this user is a warning (SWEEP would fail), missing
+//    but creatable a note (idmd makes it at start). "This user" is the real user: idmd's own at
+//    start; --check-config --user NAME takes NAME's permissions first (idmd_main.cpp);
 //  * a calibration_file or reference_file that is there must be a regular file that reads as one
 //    (idmd never overwrites a file it did not write: one that does not parse is an error naming
 //    it, line and key).
 struct FileFindings {
-  std::vector<std::string> errors, warnings;
+  std::vector<std::string> errors, warnings, notes;
 };
 FileFindings check_config_files(const DaemonConfig& config);
 

@@ -1,7 +1,9 @@
 // idmd: the daemon. `idmd --config FILE [--port N] [--unix PATH]`, `idmd --check-config FILE`.
 // Exit codes: daemon/README.md (0 ok, 1 runtime error, 2 bad usage or config, 3 hardware not
 // available, 4 cannot listen).
+#include <grp.h>
 #include <poll.h>
+#include <pwd.h>
 #include <signal.h>
 #include <spdlog/pattern_formatter.h>
 #include <spdlog/sinks/stdout_sinks.h>
@@ -41,13 +43,15 @@ constexpr const char* kDefaultConfig = IDMD_DEFAULT_CONFIG;
 void usage(std::FILE* to) {
   std::fprintf(to,
                "usage: idmd [--config FILE] [--port N] [--unix PATH]\n"
-               "       idmd --check-config FILE\n"
+               "       idmd --check-config FILE [--user NAME]\n"
                "       idmd --version\n"
                "       idmd --config-reference   (the generated key tables of config/README.md)\n"
                "  --config FILE        configuration (default %s)\n"
                "  --port N             TCP port of the command protocol (0: any free port)\n"
                "  --unix PATH          Unix socket of the command protocol (\"\": none)\n"
                "  --check-config FILE  check a configuration and exit (0 ok, 2 bad)\n"
+               "  --user NAME          with --check-config: check as the user the service runs as\n"
+               "                       (its files and directories with NAME's permissions; root)\n"
                "exit codes: 0 ok, 1 runtime error, 2 bad usage or configuration,\n"
                "            3 hardware not available, 4 cannot listen\n",
                kDefaultConfig);
@@ -127,6 +131,7 @@ bool parse_int(const std::string& text, long lo, long hi, int& out) {
 struct Options {
   std::string config_path = kDefaultConfig;
   std::string check_path;
+  std::string check_user;  // --user: --check-config with this user's permissions
   bool have_port = false, have_unix = false;
   int port = 0;
   std::string unix_path;
@@ -151,6 +156,9 @@ std::optional<int> parse_arguments(int argc, char** argv, Options& o) {
     } else if (a == "--check-config") {
       if (!(v = value("--check-config"))) return exit_code::kBadConfig;
       o.check_path = *v;
+    } else if (a == "--user") {
+      if (!(v = value("--user"))) return exit_code::kBadConfig;
+      o.check_user = *v;
     } else if (a == "--port") {
       if (!(v = value("--port"))) return exit_code::kBadConfig;
       if (!parse_int(*v, 0, 65535, o.port)) {
@@ -177,10 +185,37 @@ std::optional<int> parse_arguments(int argc, char** argv, Options& o) {
       return exit_code::kBadConfig;
     }
   }
+  if (!o.check_user.empty() && o.check_path.empty()) {
+    std::fprintf(stderr,
+                 "idmd: --user is for --check-config (the service's unit sets the user idmd runs "
+                 "as: User=)\n");
+    return exit_code::kBadConfig;
+  }
   return std::nullopt;
 }
 
-int check_config(const std::string& path) {
+// --check-config --user NAME: this process takes NAME's user, group and supplementary groups for
+// good (it exits after the check), so that every file check below (access(), reading the config,
+// the token, the calibrations) is NAME's. "" or why not.
+std::string become_user(const std::string& name) {
+  const passwd* pw = ::getpwnam(name.c_str());
+  if (pw == nullptr) return "no user '" + name + "' on this machine";
+  const uid_t uid = pw->pw_uid;
+  const gid_t gid = pw->pw_gid;
+  if (uid == ::getuid() && uid == ::geteuid()) return {};
+  if (::initgroups(name.c_str(), gid) != 0 || ::setgid(gid) != 0 || ::setuid(uid) != 0)
+    return std::string("cannot take its permissions (") + std::strerror(errno) +
+           "): run the check as root (sudo)";
+  return {};
+}
+
+int check_config(const std::string& path, const std::string& user) {
+  if (!user.empty()) {
+    if (const std::string why = become_user(user); !why.empty()) {
+      std::fprintf(stderr, "idmd: --user %s: %s\n", user.c_str(), why.c_str());
+      return exit_code::kBadConfig;
+    }
+  }
   try {
     const DaemonConfig c = load_daemon_config(path);
     if (!c.server.auth_token_file.empty()) (void)read_token_file(c.server.auth_token_file);
@@ -189,6 +224,8 @@ int check_config(const std::string& path) {
     warnings.insert(warnings.end(), files.warnings.begin(), files.warnings.end());
     for (const std::string& w : warnings)
       std::fprintf(stderr, "idmd: %s: warning: %s\n", path.c_str(), w.c_str());
+    for (const std::string& n : files.notes)
+      std::fprintf(stderr, "idmd: %s: note: %s\n", path.c_str(), n.c_str());
     for (const std::string& e : files.errors)
       std::fprintf(stderr, "idmd: %s: %s\n", path.c_str(), e.c_str());
     if (!files.errors.empty()) return exit_code::kBadConfig;
@@ -353,7 +390,7 @@ int run(const DaemonConfig& config, const std::string& config_path, const std::s
 int main(int argc, char** argv) {
   Options o;
   if (const std::optional<int> done = parse_arguments(argc, argv, o)) return *done;
-  if (!o.check_path.empty()) return check_config(o.check_path);
+  if (!o.check_path.empty()) return check_config(o.check_path, o.check_user);
   DaemonConfig config;
   std::string token;
   FileFindings file_findings;
@@ -377,6 +414,7 @@ int main(int argc, char** argv) {
   const int sfd = signal_fd();
   if (sfd < 0) return exit_code::kRuntimeError;
   for (const std::string& w : file_findings.warnings) spdlog::warn("{}", w);
+  for (const std::string& n : file_findings.notes) spdlog::info("{}", n);
   const int exit_status = run(config, o.config_path, token, sfd);
   close(sfd);
   return exit_status;

@@ -10,6 +10,12 @@
 //   kTable.read(node, file, "realtime", config);  // unknown keys, types, ranges: InputError
 //   kTable.validate(config, "realtime");          // values set in code
 //   kTable.markdown();                            // | key | unit | default | range | meaning |
+//
+// A key whose allowed values depend on other values (min_freq_hz <= max_freq_hz, a soft limit
+// within the stage's travel) carries Relations: each gives the values allowed given the others,
+// and says which in words. check_relations() (after a section is read, and any value it depends on
+// is in the struct) and validate() check them; the message names the key, its value and the range
+// left by its own range and its relations, and the README's range column lists them.
 #pragma once
 
 #include <yaml-cpp/yaml.h>
@@ -18,6 +24,7 @@
 #include <cmath>
 #include <cstdint>
 #include <functional>
+#include <stdexcept>
 #include <string>
 #include <type_traits>
 #include <utility>
@@ -28,6 +35,18 @@
 #include "model/yaml_util.h"
 
 namespace idm::model {
+
+// A bound on a number that depends on other values of the struct (another key, or what the rest
+// of the document fixes and the parser put into the struct): `bound` gives the values allowed,
+// which the key's own range narrows further; `text` says which ("<= max_freq_hz"), in the README's
+// range column and in the message. zero_exempt: 0 is the key's "off" or "the default" and is
+// allowed whatever the bound.
+template <typename S>
+struct Relation {
+  std::string text;
+  std::function<Range(const S&)> bound;
+  bool zero_exempt = false;
+};
 
 template <typename S>
 struct Param {
@@ -42,6 +61,39 @@ struct Param {
   // same range check as a file's; InputError naming `key` otherwise.
   std::function<void(S&, double, const std::string& key)> assign;
   std::function<std::string(const S&)> show;
+  // Numbers (real, integer): the key's own range and its value, which relations compare.
+  Range limits;
+  std::function<double(const S&)> number;
+  std::vector<Relation<S>> relations;
+
+  // The range column: the own range and every relation ("(0, 0.001]; <= max_stroke_m", "[0,
+  // 0.001]; 0 or >= one count").
+  std::string range_text() const {
+    std::string out = range;
+    for (const Relation<S>& r : relations) out += (r.zero_exempt ? "; 0 or " : "; ") + r.text;
+    return out;
+  }
+  // "" when the value of `s` satisfies every relation, else why not: "VALUE is out of range,
+  // allowed RANGE (RELATIONS)", RANGE the own range narrowed by every relation.
+  std::string relation_error(const S& s) const {
+    if (relations.empty() || !number) return {};
+    const double v = number(s);
+    Range allowed = limits;
+    bool broken = false, zero_exempt = true;
+    std::string why;
+    for (const Relation<S>& r : relations) {
+      const Range b = r.bound(s);
+      allowed = allowed.intersect(b);
+      why += (why.empty() ? "" : "; ") + r.text;
+      zero_exempt = zero_exempt && r.zero_exempt;
+      broken = broken || !b.contains(v);
+    }
+    if (!broken || (zero_exempt && v == 0)) return {};
+    const bool empty = allowed.lo > allowed.hi ||
+                       (allowed.lo == allowed.hi && (allowed.lo_open || allowed.hi_open));
+    return format_number(v) + " is out of range, allowed " + (zero_exempt ? "0 or " : "") +
+           (empty ? "nothing other" : allowed.text()) + " (" + why + ")";
+  }
 };
 
 template <typename S>
@@ -72,6 +124,25 @@ class ParamTable {
   void validate(const S& s, const std::string& section) const {
     for (const Param<S>& p : params_)
       if (p.check) p.check(s, section.empty() ? p.name : section + "." + p.name);
+    check_relations(s, YAML::Node(YAML::NodeType::Undefined), "", section);
+  }
+  // Checks every key's relations (model::Relation) in `s`, read from the map `node` of `file`:
+  // the first one broken throws InputError "FILE:LINE: SECTION.KEY: VALUE is out of range, allowed
+  // RANGE (RELATIONS)", the line the key's in `node` (the section's when the key is not given).
+  // Without a file (values set in code): "SECTION.KEY: ...".
+  void check_relations(const S& s, const YAML::Node& node, const std::string& file,
+                       const std::string& section) const {
+    for (const Param<S>& p : params_) {
+      const std::string why = p.relation_error(s);
+      if (why.empty()) continue;
+      const std::string key = section.empty() ? p.name : section + "." + p.name;
+      if (file.empty()) throw InputError(key + ": " + why);
+      YAML::Node at = node;
+      if (node.IsDefined() && node.IsMap())
+        for (const auto& kv : node)
+          if (kv.first.IsScalar() && kv.first.Scalar() == p.name) at = kv.second;
+      throw InputError(located(file, at, key, why));
+    }
   }
   // The README rows: "| key | unit | default | range | meaning |", keys prefixed with `prefix`.
   std::string markdown(const std::string& prefix = "") const {
@@ -79,8 +150,8 @@ class ParamTable {
     std::string out;
     for (const Param<S>& p : params_) {
       const std::string def = p.default_text.empty() ? p.show(defaults) : p.default_text;
-      out += "| " + prefix + p.name + " | " + p.unit + " | " + def + " | " + p.range + " | " +
-             p.doc + " |\n";
+      out += "| " + prefix + p.name + " | " + p.unit + " | " + def + " | " + p.range_text() +
+             " | " + p.doc + " |\n";
     }
     return out;
   }
@@ -144,6 +215,8 @@ Param<S> real(const char* name, const char* unit, Range range, const char* doc, 
     get(s) = x;
   };
   p.show = [get](const S& s) { return format_number(get(s)); };
+  p.limits = range;
+  p.number = [get](const S& s) { return static_cast<double>(get(s)); };
   return p;
 }
 
@@ -173,6 +246,8 @@ Param<S> integer(const char* name, const char* unit, long lo, long hi, const cha
     get(s) = static_cast<T>(x);
   };
   p.show = [get](const S& s) { return std::to_string(get(s)); };
+  p.limits = Range{static_cast<double>(lo), static_cast<double>(hi)};
+  p.number = [get](const S& s) { return static_cast<double>(get(s)); };
   return p;
 }
 
@@ -260,6 +335,27 @@ Param<S> with_default(Param<S> p, const char* default_text) {
   return p;
 }
 
+// A relation for a number: `bound` (a callable S -> Range) gives the values allowed given the
+// others; `text` says which.
+template <typename S, typename Bound>
+Param<S> with_relation(Param<S> p, const char* text, Bound bound, bool zero_exempt = false) {
+  p.relations.push_back(Relation<S>{text, bound, zero_exempt});
+  return p;
+}
+
+// The same for the key `name` among `params` (one lifted from a member's table); throws
+// std::logic_error when there is none.
+template <typename S, typename Bound>
+void relate(std::vector<Param<S>>& params, const std::string& name, const char* text, Bound bound,
+            bool zero_exempt = false) {
+  for (Param<S>& p : params)
+    if (p.name == name) {
+      p.relations.push_back(Relation<S>{text, bound, zero_exempt});
+      return;
+    }
+  throw std::logic_error("relate: no key " + name);
+}
+
 // The keys of a member struct's table as keys of the outer struct (flattened: control's
 // max_retries is PositionerConfig's). `names`: only these (empty: all); `get` returns the member.
 template <typename S, typename Sub, typename Get>
@@ -279,6 +375,11 @@ std::vector<Param<S>> lifted(const ParamTable<Sub>& sub, Get get,
                                const std::string& k) { r(get(s), v, f, k); };
     if (q.check) p.check = [c = q.check, get](const S& s, const std::string& k) { c(get(s), k); };
     p.show = [sh = q.show, get](const S& s) { return sh(get(s)); };
+    p.limits = q.limits;
+    if (q.number) p.number = [n = q.number, get](const S& s) { return n(get(s)); };
+    for (const Relation<Sub>& r : q.relations)
+      p.relations.push_back(
+          Relation<S>{r.text, [b = r.bound, get](const S& s) { return b(get(s)); }, r.zero_exempt});
     out.push_back(std::move(p));
   }
   return out;

@@ -34,6 +34,19 @@ struct Range {
     return std::isfinite(v) && (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
   }
   std::string text() const;  // "[0, 1000]", "(0, 0.001]", ">= 0", "any number"
+  // The values both ranges allow (lo > hi, or an open end at lo == hi: none).
+  Range intersect(const Range& o) const {
+    Range r = *this;
+    if (o.lo > r.lo || (o.lo == r.lo && o.lo_open)) {
+      r.lo = o.lo;
+      r.lo_open = o.lo_open || (o.lo == lo && lo_open);
+    }
+    if (o.hi < r.hi || (o.hi == r.hi && o.hi_open)) {
+      r.hi = o.hi;
+      r.hi_open = o.hi_open || (o.hi == hi && hi_open);
+    }
+    return r;
+  }
 };
 
 // "WHERE.KEY" ("KEY" when where is empty).

@@ -7,9 +7,12 @@ usage: safety_integration.py BUILD_DIR SOURCE_DIR CASE
 """
 import http.client
 import os
+import pwd
 import re
+import shutil
 import signal
 import subprocess
+import tempfile
 import time
 
 import script_harness as harness
@@ -555,6 +558,63 @@ def case_writable_by_others():
     check(code == 2 and "does not exist" in err, "a missing calibration directory: %s" % err)
 
 
+def case_check_as_the_service_user():
+    """--check-config says when recording.data_dir or a calibration directory does not exist or
+    is not writable by the user idmd runs as: the caller's (at start, idmd's own), or with
+    --user NAME (as root) NAME's, the service's `idmd` on a lab PC (`nobody` here). Root, who can
+    write anywhere, saw no problem with directories the service's user cannot write in."""
+    if os.geteuid() != 0:
+        fail("this case takes another user's permissions: run it as root")
+    base = tempfile.mkdtemp(prefix="idmd-service-user-")
+    try:
+        os.chmod(base, 0o755)
+        cal, data = os.path.join(base, "cal"), os.path.join(base, "data")
+        os.mkdir(cal, 0o755)
+        made = config(edits=[("calibration_file: %s/calibration.txt" % harness.TMP,
+                              "calibration_file: %s/calibration.txt" % cal),
+                             ("data_dir: %s/data" % harness.TMP, "data_dir: %s" % data)],
+                      out="service.yaml")
+        cfg = os.path.join(base, "idmd.yaml")
+        shutil.copyfile(made, cfg)
+        os.chmod(cfg, 0o644)
+        code, _, err, _ = check_config(cfg)
+        check(code == 0 and "note: recording.data_dir %s: does not exist yet" % data in err,
+              "a data_dir that is not there yet is said: %s" % err)
+
+        def as_nobody():
+            r = subprocess.run([harness.IDMD, "--check-config", cfg, "--user", "nobody"],
+                               capture_output=True, text=True, timeout=60)
+            return r.returncode, r.stderr
+
+        code, err = as_nobody()
+        check(code == 2 and "control.calibration_file: the directory %s is not writable by user "
+              "nobody" % cal in err, "a calibration directory nobody cannot write: %s" % err)
+        check("warning: recording.data_dir %s: does not exist, and %s is not writable by user "
+              "nobody" % (data, base) in err, "nor make data_dir in: %s" % err)
+        os.mkdir(data, 0o755)
+        code, err = as_nobody()
+        check(code == 2 and "recording.data_dir %s: %s is not writable by user nobody" % (data, data)
+              in err, "a data_dir nobody cannot write in: %s" % err)
+        nobody = pwd.getpwnam("nobody")
+        for d in (cal, data):
+            os.chown(d, nobody.pw_uid, nobody.pw_gid)
+        code, err = as_nobody()
+        check(code == 0 and err == "", "both nobody's: clean: %s" % err)
+        shutil.rmtree(cal)
+        code, err = as_nobody()
+        check(code == 2 and "the directory %s does not exist" % cal in err,
+              "a calibration directory that is not there: %s" % err)
+        r = subprocess.run([harness.IDMD, "--check-config", cfg, "--user", "no-such-user-idm"],
+                           capture_output=True, text=True, timeout=60)
+        check(r.returncode == 2 and "no-such-user-idm" in r.stderr, "an unknown user: " + r.stderr)
+        r = subprocess.run([harness.IDMD, "--config", cfg, "--user", "nobody"],
+                           capture_output=True, text=True, timeout=60)
+        check(r.returncode == 2 and "--user is for --check-config" in r.stderr,
+              "--user only with --check-config: " + r.stderr)
+    finally:
+        shutil.rmtree(base, ignore_errors=True)
+
+
 def case_dataset_swapped_for_a_link():
     """Another user who can write in data_dir swaps a running sweep's dataset directory for a
     symlink to a directory of theirs (or any file's): the recorder writes on into the directory it
@@ -582,6 +642,7 @@ cases = {
     "shared_calibration_file": case_shared_calibration_file,
     "unreadable_files_kept": case_unreadable_files_kept,
     "writable_by_others": case_writable_by_others,
+    "check_as_the_service_user": case_check_as_the_service_user,
     "dataset_swapped_for_a_link": case_dataset_swapped_for_a_link,
     "sighup_waits_for_a_move": case_sighup_waits_for_a_move,
     "rst_during_a_sweep": case_rst_during_a_sweep,

@@ -3,7 +3,9 @@
 
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <string>
+#include <vector>
 
 #include "daemon/config.h"
 #include "daemon/daemon.h"
@@ -102,7 +104,7 @@ TEST(DaemonConfig, OutOfRangeNamesKeyLineAndRange) {
   expect_config_error("\n\nrealtime:\n  period_s: 1\n", {"t.yaml:4", "realtime.period_s"});
   expect_config_error("logging:\n  level: loud\n", {"t.yaml:2", "logging.level", "allowed"});
   expect_config_error("control:\n  min_freq_hz: 500\n  max_freq_hz: 100\n",
-                      {"control.min_freq_hz"});
+                      {"t.yaml:2", "control.min_freq_hz: 500 is out of range, allowed (0, 100]"});
 }
 
 TEST(DaemonConfig, TheTravelIsRequiredAndBoundsTheSoftLimits) {
@@ -112,14 +114,131 @@ TEST(DaemonConfig, TheTravelIsRequiredAndBoundsTheSoftLimits) {
                       {"t.yaml:2", "stage.travel_m", "lower must be below upper"});
   expect_config_error("stage:\n  travel_m: 5e-3\n",
                       {"t.yaml:2", "stage.travel_m", "[lower, upper]"});
-  expect_config_error(
-      "stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_upper_m: 2e-3\n",
-      {"t.yaml:4", "control.soft_upper_m", "outside the stage's travel [-0.001, 0.001]"});
+  expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_upper_m: 2e-3\n",
+                      {"t.yaml:4",
+                       "control.soft_upper_m: 0.002 is out of range, allowed "
+                       "(-0.001, 0.001] (> soft_lower_m; within stage.travel_m)"});
   expect_config_error("stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: -2e-3\n",
-                      {"control.soft_lower_m", "outside"});
+                      {"t.yaml:4",
+                       "control.soft_lower_m: -0.002 is out of range, allowed "
+                       "[-0.001, 0.001) (< soft_upper_m; within stage.travel_m)"});
   expect_config_error(
       "stage:\n  travel_m: [-1e-3, 1e-3]\ncontrol:\n  soft_lower_m: 5e-4\n  soft_upper_m: 5e-4\n",
-      {"control.soft_lower_m", "must be below soft_upper_m"});
+      {"t.yaml:4", "control.soft_lower_m: 0.0005 is out of range, allowed [-0.001, 0.0005)"});
+}
+
+// Keys whose allowed values depend on other values (the relations of control_params() and
+// device_params()): each broken relation is one error naming the file, the line, the key, its
+// value and the range the others leave it; the same file with the value at the edge of that range
+// is accepted. One count here: 632.991e-9 m / 64 = 9.89048437e-9 m.
+TEST(DaemonConfig, RelationsBetweenKeysNameTheKeyItsValueAndTheAllowedRange) {
+  struct Case {
+    const char* what;
+    std::string bad, good;
+    std::vector<std::string> parts;
+  };
+  const std::string stage = "stage:\n  travel_m: [-1e-3, 1e-3]\n  stroke_m: 2e-5\n";
+  const std::string control = stage + "control:\n";
+  const std::vector<Case> cases = {
+      {"min_stroke_m above the stage's stroke",
+       control + "  min_stroke_m: 3e-5\n",
+       control + "  min_stroke_m: 2e-5\n",
+       {"t.yaml:5: control.min_stroke_m: 3e-5 is out of range, allowed (0, 2e-5] (<= the "
+        "largest stroke: max_stroke_m (0: stage.stroke_m), capped by the output's reach"}},
+      {"min_stroke_m above max_stroke_m",
+       control + "  max_stroke_m: 4e-6\n  min_stroke_m: 5e-6\n",
+       control + "  max_stroke_m: 4e-6\n  min_stroke_m: 4e-6\n",
+       {"t.yaml:6: control.min_stroke_m: 5e-6 is out of range, allowed (0, 4e-6]"}},
+      {"min_stroke_m beyond the output's reach",
+       stage + "daq:\n  sim:\n    max_voltage_v: 2\ncontrol:\n  min_stroke_m: 1e-5\n",
+       stage + "daq:\n  sim:\n    max_voltage_v: 2\ncontrol:\n  min_stroke_m: 8e-6\n",
+       {"t.yaml:8: control.min_stroke_m: 1e-5 is out of range, allowed (0, 8e-6]"}},
+      {"min_freq_hz above max_freq_hz",
+       control + "  max_freq_hz: 100\n  min_freq_hz: 500\n",
+       control + "  max_freq_hz: 100\n  min_freq_hz: 100\n",
+       {"t.yaml:6: control.min_freq_hz: 500 is out of range, allowed (0, 100] (<= max_freq_hz, "
+        "narrowed by the output)"}},
+      {"min_freq_hz above what the output plays (a quarter of its clock)",
+       control + "  output_sample_rate_hz: 4000\n  min_freq_hz: 1500\n",
+       control + "  output_sample_rate_hz: 4000\n  min_freq_hz: 1000\n",
+       {"control.min_freq_hz: 1500 is out of range, allowed (0, 1000]"}},
+      {"a window below one count",
+       control + "  tolerance_m: 5e-9\n",
+       control + "  tolerance_m: 9.9e-9\n",
+       {"t.yaml:5: control.tolerance_m: 5e-9 is out of range, allowed 0 or [9.89048437e-9, "
+        "0.001] (>= one count"}},
+      {"a hold window below the move window",
+       control + "  tolerance_m: 5e-8\n  hold_window_m: 3e-8\n",
+       control + "  tolerance_m: 5e-8\n  hold_window_m: 5e-8\n",
+       {"t.yaml:6: control.hold_window_m: 3e-8 is out of range, allowed 0 or [5e-8, 0.001]"}},
+      {"a hold window below one count (the move window)",
+       control + "  hold_window_m: 5e-9\n",
+       control + "  hold_window_m: 0\n",
+       {"control.hold_window_m: 5e-9 is out of range, allowed 0 or [9.89048437e-9, 0.001]"}},
+      {"an end-of-travel step below one count over its cycles",
+       control + "  eot_cycles: 10\n  eot_step_m: 9e-10\n",
+       control + "  eot_cycles: 10\n  eot_step_m: 1e-9\n",
+       {"t.yaml:6: control.eot_step_m: 9e-10 is out of range, allowed 0 or (9.89048437e-10, "
+        "0.001] (> one count / eot_cycles)"}},
+      {"min_step_counts not below final_step_counts",
+       control + "  final_step_counts: 1\n  min_step_counts: 1\n",
+       control + "  final_step_counts: 1\n  min_step_counts: 0.99\n",
+       {"t.yaml:6: control.min_step_counts: 1 is out of range, allowed [0, 1) (< "
+        "final_step_counts)"}},
+      {"the longest reconnect wait below the first",
+       stage + "daq:\n  reconnect_min_s: 1\n  reconnect_max_s: 0.5\n",
+       stage + "daq:\n  reconnect_min_s: 1\n  reconnect_max_s: 1\n",
+       {"t.yaml:6: daq.reconnect_max_s: 0.5 is out of range, allowed [1, 3600] (>= "
+        "reconnect_min_s)"}},
+      {"an axis of several",
+       "devices:\n  card:\n    driver: sim\naxes:\n  x:\n    stage: {travel_m: [-1e-3, 1e-3]}\n"
+       "  y:\n    stage: {travel_m: [-1e-3, 1e-3], stroke_m: 1e-5}\n    control:\n"
+       "      min_stroke_m: 2e-5\n",
+       "devices:\n  card:\n    driver: sim\naxes:\n  x:\n    stage: {travel_m: [-1e-3, 1e-3]}\n"
+       "  y:\n    stage: {travel_m: [-1e-3, 1e-3], stroke_m: 1e-5}\n    control:\n"
+       "      min_stroke_m: 1e-5\n",
+       {"t.yaml:10: axes.y.control.min_stroke_m: 2e-5 is out of range, allowed (0, 1e-5]"}},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.what);
+    try {
+      parse_daemon_config(yaml(c.bad), "t.yaml");
+      ADD_FAILURE() << "accepted:\n" << c.bad;
+    } catch (const InputError& e) {
+      for (const std::string& part : c.parts)
+        EXPECT_NE(std::string(e.what()).find(part), std::string::npos) << e.what();
+    }
+    EXPECT_NO_THROW(parse_daemon_config(yaml(c.good), "t.yaml")) << c.good;
+  }
+}
+
+// The relations hold for values set in code too (ParamTable::validate): control's and the
+// positioner's (whose pair checks moved into its table).
+TEST(DaemonConfig, RelationsAreCheckedForValuesSetInCode) {
+  ControlConfig c;
+  c.planner.resolution_m = 1e-8;
+  c.positioner.soft_lower_m = -1e-3;
+  c.positioner.soft_upper_m = 1e-3;
+  EXPECT_NO_THROW(control_params().validate(c, "control"));
+  c.positioner.tolerance_m = 5e-9;
+  try {
+    control_params().validate(c, "control");
+    ADD_FAILURE() << "a window of half a count was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "control.tolerance_m: 5e-9 is out of range, allowed 0 or [1e-8, 0.001] (>= one "
+              "count (interferometer resolution_m))");
+  }
+
+  idm::control::PositionerConfig p;
+  p.min_step_counts = 3;
+  p.final_step_counts = 2;
+  EXPECT_THROW(idm::control::validate(p), InputError);
+  p.min_step_counts = 1;
+  p.soft_lower_m = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(idm::control::validate(p), InputError);  // +inf as the lower limit: no interval
+  p.soft_lower_m = -std::numeric_limits<double>::infinity();
+  EXPECT_NO_THROW(idm::control::validate(p));
 }
 
 TEST(DaemonConfig, ADuplicateKeyIsRefusedNamingBothLines) {
