@@ -144,7 +144,7 @@ def check_refusal(r, path, bad):
     key, value = m.group(1), float(m.group(2))
     assert key in bad, (lines[0], bad)
     assert abs(value - bad[key]) <= 1e-8 * abs(bad[key]), (lines[0], bad)
-    assert re.search(r"[\[(]", m.group(3)) or "nothing" in m.group(3), lines[0]
+    assert re.search(r"^(0 or )?[\[(<>]|^none \(|^0 only \(", m.group(3)), lines[0]
 
 
 @settings(max_examples=int(os.environ.get("IDM_RELATION_EXAMPLES", "150")), deadline=None,
