@@ -18,8 +18,10 @@ The relations are restated here from config/README.md, independently of the code
 
 pytest with hypothesis; argv-free: IDMD (the binary) in the environment. CTest: daemon.config_relations.
 """
+import atexit
 import os
 import re
+import shutil
 import subprocess
 import tempfile
 
@@ -33,6 +35,7 @@ VOLTS_PER_M = 2.5e5
 
 TMP = tempfile.mkdtemp(prefix="idmd-relations-")
 os.mkdir(os.path.join(TMP, "data"))
+atexit.register(shutil.rmtree, TMP, True)
 
 
 def log_uniform(lo, hi):
