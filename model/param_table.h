@@ -91,8 +91,10 @@ struct Param {
     if (!broken || (zero_exempt && v == 0)) return {};
     const bool empty = allowed.lo > allowed.hi ||
                        (allowed.lo == allowed.hi && (allowed.lo_open || allowed.hi_open));
-    return format_number(v) + " is out of range, allowed " + (zero_exempt ? "0 or " : "") +
-           (empty ? "nothing other" : allowed.text()) + " (" + why + ")";
+    const std::string allowed_text = empty         ? std::string(zero_exempt ? "0 only" : "none")
+                                     : zero_exempt ? "0 or " + allowed.text()
+                                                   : allowed.text();
+    return format_number(v) + " is out of range, allowed " + allowed_text + " (" + why + ")";
   }
 };
 
@@ -127,22 +129,28 @@ class ParamTable {
     check_relations(s, YAML::Node(YAML::NodeType::Undefined), "", section);
   }
   // Checks every key's relations (model::Relation) in `s`, read from the map `node` of `file`:
-  // the first one broken throws InputError "FILE:LINE: SECTION.KEY: VALUE is out of range, allowed
-  // RANGE (RELATIONS)", the line the key's in `node` (the section's when the key is not given).
+  // one broken throws InputError "FILE:LINE: SECTION.KEY: VALUE is out of range, allowed RANGE
+  // (RELATIONS)", a key the file gives first (at its line; soft_upper_m: -2e-3 is named, not the
+  // soft_lower_m it leaves no room for), else the first in the table (at the section's line).
   // Without a file (values set in code): "SECTION.KEY: ...".
   void check_relations(const S& s, const YAML::Node& node, const std::string& file,
                        const std::string& section) const {
-    for (const Param<S>& p : params_) {
-      const std::string why = p.relation_error(s);
-      if (why.empty()) continue;
-      const std::string key = section.empty() ? p.name : section + "." + p.name;
-      if (file.empty()) throw InputError(key + ": " + why);
-      YAML::Node at = node;
+    const auto given = [&node](const std::string& name) {
       if (node.IsDefined() && node.IsMap())
         for (const auto& kv : node)
-          if (kv.first.IsScalar() && kv.first.Scalar() == p.name) at = kv.second;
-      throw InputError(located(file, at, key, why));
-    }
+          if (kv.first.IsScalar() && kv.first.Scalar() == name) return kv.second;
+      return YAML::Node(YAML::NodeType::Undefined);
+    };
+    for (const bool in_file : {true, false})
+      for (const Param<S>& p : params_) {
+        const YAML::Node at = given(p.name);
+        if (in_file && !at.IsDefined()) continue;
+        const std::string why = p.relation_error(s);
+        if (why.empty()) continue;
+        const std::string key = section.empty() ? p.name : section + "." + p.name;
+        if (file.empty()) throw InputError(key + ": " + why);
+        throw InputError(located(file, at.IsDefined() ? at : node, key, why));
+      }
   }
   // The README rows: "| key | unit | default | range | meaning |", keys prefixed with `prefix`.
   std::string markdown(const std::string& prefix = "") const {

@@ -180,6 +180,15 @@ TEST(DaemonConfig, RelationsBetweenKeysNameTheKeyItsValueAndTheAllowedRange) {
        control + "  eot_cycles: 10\n  eot_step_m: 1e-9\n",
        {"t.yaml:6: control.eot_step_m: 9e-10 is out of range, allowed 0 or (9.89048437e-10, "
         "0.001] (> one count / eot_cycles)"}},
+      {"a soft limit beyond the other end of the travel: the key given is named",
+       control + "  soft_upper_m: -2e-3\n",
+       control + "  soft_upper_m: -0.9e-3\n",
+       {"t.yaml:5: control.soft_upper_m: -0.002 is out of range, allowed (-0.001, 0.001]"}},
+      {"no value left to a soft limit: 'none'",
+       control + "  soft_lower_m: -1e-3\n  soft_upper_m: -2e-3\n",
+       control + "  soft_lower_m: -1e-3\n  soft_upper_m: -0.5e-3\n",
+       {"t.yaml:5: control.soft_lower_m: -0.001 is out of range, allowed none (< soft_upper_m; "
+        "within stage.travel_m)"}},
       {"min_step_counts not below final_step_counts",
        control + "  final_step_counts: 1\n  min_step_counts: 1\n",
        control + "  final_step_counts: 1\n  min_step_counts: 0.99\n",
