@@ -573,11 +573,14 @@ void Positioner::after_chunk(double now_s, double position) {
     return;
   }
   // A closed-loop move may land on a target at a limit up to its window and a final step past
-  // it (a final chunk may pass the target by most of a step): a landing, not a runaway.
-  const double landing_m =
-      status_.closed_loop ? tolerance_m() + finest_live_step_m(chunk_.direction) : tolerance_m();
-  if (!referencing_ && !reading_allowed(position, motion_start_m_, config_.soft_lower_m,
-                                        config_.soft_upper_m, landing_m)) {
+  // it (a final chunk may pass the target by most of a step): a landing, not a runaway. The
+  // ladder is looked at only for a reading already past the window (not on every tick).
+  const auto allowed = [&](double tolerance) {
+    return reading_allowed(position, motion_start_m_, config_.soft_lower_m, config_.soft_upper_m,
+                           tolerance);
+  };
+  if (!referencing_ && !allowed(tolerance_m()) &&
+      !(status_.closed_loop && allowed(tolerance_m() + finest_live_step_m(chunk_.direction)))) {
     finish(now_s, MoveResult::Limit);  // outside the soft limits: nothing more is played
     return;
   }

@@ -6,6 +6,7 @@ seconds and a STOP lands in the middle of it."""
 import json
 import os
 import re
+import socket
 import sys
 import time
 import urllib.error
@@ -58,6 +59,20 @@ class Web(fixtures.ChildProcess):
         assert status == 200
         assert headers["Content-Type"].startswith("text/plain; version=0.0.4")
         return body.decode()
+
+
+def read_reply(s):
+    """Everything a socket receives until the server closes (or resets) the connection."""
+    out = b""
+    while True:
+        try:
+            chunk = s.recv(65536)
+        except (ConnectionResetError, socket.timeout):
+            break
+        if not chunk:
+            break
+        out += chunk
+    return out
 
 
 def wait_for(what, predicate, timeout=30, period=0.05):

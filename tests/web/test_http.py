@@ -18,7 +18,7 @@ import time
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from conftest import Web, ask, fixtures, mean_position, send, wait_done, wait_for
+from conftest import Web, ask, fixtures, mean_position, read_reply, send, wait_done, wait_for
 
 SAMPLE = re.compile(r'^([a-zA-Z_:][a-zA-Z0-9_:]*)(\{(.*)\})? (\S+)$')
 LABEL = re.compile(r'([a-zA-Z_][a-zA-Z0-9_]*)="((?:[^"\\]|\\.)*)"')
@@ -250,16 +250,7 @@ def raw_http(port, data, read=True):
         if not read:
             return b""
         s.shutdown(socket.SHUT_WR)
-        out = b""
-        while True:
-            try:
-                chunk = s.recv(65536)
-            except (ConnectionResetError, socket.timeout):
-                break
-            if not chunk:
-                break
-            out += chunk
-        return out
+        return read_reply(s)
     except (BrokenPipeError, ConnectionResetError):
         return b""
     finally:

@@ -12,7 +12,8 @@ import time
 
 import pytest
 
-from conftest import SLOW, Web, ask, fixtures, mean_position, send, wait_done, wait_for
+from conftest import (SLOW, Web, ask, fixtures, mean_position, read_reply, send, wait_done,
+                      wait_for)
 
 FIELDS, HEADER_BYTES, LINE_BYTES = 100, 16384, 8192  # web/http_server.h's HttpLimits
 CONTROL = {"X-Idm-Control": "1"}
@@ -35,20 +36,6 @@ def web(daemon):
 
 def connect(port, timeout=30):
     return socket.create_connection(("127.0.0.1", port), timeout=timeout)
-
-
-def read_reply(s):
-    """Everything until the server closes (or resets) the connection."""
-    out = b""
-    while True:
-        try:
-            chunk = s.recv(65536)
-        except (ConnectionResetError, socket.timeout):
-            break
-        if not chunk:
-            break
-        out += chunk
-    return out
 
 
 class SlowClients:
