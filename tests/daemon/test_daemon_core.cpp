@@ -569,9 +569,10 @@ TEST_F(DaemonSim, EverySettingACommandChangesIsCheckedByTheConfigsOwnRange) {
         // 0 reads back as what it stands for (one count, the move window).
         const bool stands_for_another =
             v == 0 && (s.which == MotionSetting::Window || s.which == MotionSetting::HoldWindow);
-        if (!stands_for_another)
+        if (!stands_for_another) {
           EXPECT_TRUE(wait_for([&] { return d->motion_setting(0, s.which) == v; }, 5))
               << s.key << " = " << v << " reads back " << d->motion_setting(0, s.which);
+        }
       } else {
         ++refused;
         EXPECT_EQ(e.code, error_code::kDataOutOfRange) << e.text;
