@@ -82,12 +82,11 @@ model::Param<P> hold_param() {
   const auto refuse = [range = p.range](double x) {
     return model::format_number(x) + " is out of range, allowed " + range;
   };
-  p.read = [read = p.read, ok, refuse, get](P& c, const YAML::Node& v, const std::string& file,
-                                            const std::string& key) {
-    P t = c;
-    read(t, v, file, key);
-    if (!ok(t.hold_s)) throw model::InputError(model::located(file, v, key, refuse(t.hold_s)));
-    get(c) = t.hold_s;
+  p.read = [ok, refuse, get](P& c, const YAML::Node& v, const std::string& file,
+                             const std::string& key) {
+    const double x = model::read_double(v, file, key, -1e308, 1e308);
+    if (!ok(x)) throw model::InputError(model::located(file, v, key, refuse(x)));
+    get(c) = x;
   };
   p.check = [ok, refuse](const P& c, const std::string& key) {
     if (!ok(c.hold_s)) throw model::InputError(key + ": " + refuse(c.hold_s));

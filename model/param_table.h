@@ -216,10 +216,12 @@ Param<S> real(const char* name, const char* unit, Range range, const char* doc, 
   p.check = [range, get](const S& s, const std::string& key) {
     check_range("", key, get(s), range);
   };
+  // The file's words for the same value, and the unit (a command's name does not carry it as a
+  // key's does).
   p.assign = [range, get, unit = std::string(unit)](S& s, double x, const std::string& key) {
     if (!range.contains(x))
       throw InputError(key + ": " + format_number(x) + " is out of range, allowed " + range.text() +
-                       " " + unit);
+                       (unit == "1" || unit.empty() ? "" : " " + unit));
     get(s) = x;
   };
   p.show = [get](const S& s) { return format_number(get(s)); };
@@ -246,11 +248,13 @@ Param<S> integer(const char* name, const char* unit, long lo, long hi, const cha
       throw InputError(key + ": " + std::to_string(x) + " is out of range, allowed [" +
                        std::to_string(lo) + ", " + std::to_string(hi) + "]");
   };
-  p.assign = [lo, hi, get, unit = std::string(unit)](S& s, double x, const std::string& key) {
+  p.assign = [lo, hi, get](S& s, double x, const std::string& key) {
     using T = std::remove_reference_t<decltype(get(s))>;
-    if (!(x >= static_cast<double>(lo) && x <= static_cast<double>(hi)) || x != std::floor(x))
-      throw InputError(key + ": " + format_number(x) + " is out of range, allowed [" +
-                       std::to_string(lo) + ", " + std::to_string(hi) + "] (an integer) " + unit);
+    const std::string range = "[" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+    if (x != std::floor(x))
+      throw InputError(key + ": " + format_number(x) + " is not an integer, allowed " + range);
+    if (!(x >= static_cast<double>(lo) && x <= static_cast<double>(hi)))
+      throw InputError(key + ": " + format_number(x) + " is out of range, allowed " + range);
     get(s) = static_cast<T>(x);
   };
   p.show = [get](const S& s) { return std::to_string(get(s)); };
@@ -382,6 +386,8 @@ std::vector<Param<S>> lifted(const ParamTable<Sub>& sub, Get get,
     p.read = [r = q.read, get](S& s, const YAML::Node& v, const std::string& f,
                                const std::string& k) { r(get(s), v, f, k); };
     if (q.check) p.check = [c = q.check, get](const S& s, const std::string& k) { c(get(s), k); };
+    if (q.assign)
+      p.assign = [a = q.assign, get](S& s, double v, const std::string& k) { a(get(s), v, k); };
     p.show = [sh = q.show, get](const S& s) { return sh(get(s)); };
     p.limits = q.limits;
     if (q.number) p.number = [n = q.number, get](const S& s) { return n(get(s)); };

@@ -504,85 +504,101 @@ TEST_F(DaemonSim, ResetDuringASweepLetsTheSweepWindDownInTheBackground) {
   std::filesystem::remove_all(dir);
 }
 
-// A setting a command changes (MOVE:WINDow, MOVE:DWELl, EOT:STEP, EOT:CYCLes, HOLD, HOLD:WINDow)
-// is accepted exactly when the config file's reader accepts the same value for its key, and a
-// refusal shows the key's range as config/README.md does: one range from file to protocol (the
-// protocol had copies of them, and HOLD's gap between -1 and 0 in a third place). Values drawn at
-// random around and across each range's ends.
-TEST_F(DaemonSim, EverySettingACommandChangesIsCheckedByTheConfigsOwnRange) {
-  auto d = make(sim_config("wall", ""));
+// A setting a command changes (MOVE:WINDow, MOVE:DWELl, EOT:STEP, EOT:CYCLes, HOLD, HOLD:WINDow,
+// MOVE:VELocity) is accepted exactly when the config file's reader accepts the axis's settings
+// as they stand with that value in them: the key's own range and every relation between keys (a
+// window of at least one count, a hold window no smaller than the move window, an end-of-travel
+// step above one count per cycle). A refusal shows what the file's reader shows ("allowed ...").
+// One mixed sequence of settings drawn at random, around and across each range's ends and around
+// one count, so a value can break a relation with one set earlier.
+TEST_F(DaemonSim, EverySettingACommandChangesIsCheckedByTheConfigsOwnRangeAndRelations) {
+  const std::string text = sim_config("wall", "");
+  auto d = make(text);
   d->start();
   ASSERT_TRUE(wait_for([&] { return d->status(0).position_valid; }, 10));
   const struct {
     MotionSetting which;
     const char* key;
-  } kSettings[] = {
-      {MotionSetting::Window, "tolerance_m"}, {MotionSetting::Dwell, "dwell_s"},
-      {MotionSetting::EotStep, "eot_step_m"}, {MotionSetting::EotCycles, "eot_cycles"},
-      {MotionSetting::Hold, "hold_s"},        {MotionSetting::HoldWindow, "hold_window_m"}};
-  std::mt19937_64 rng(31);
-  const auto& table = idm::control::positioner_params();
+  } kSettings[] = {{MotionSetting::Window, "tolerance_m"},   {MotionSetting::Dwell, "dwell_s"},
+                   {MotionSetting::EotStep, "eot_step_m"},   {MotionSetting::EotCycles, "eot_cycles"},
+                   {MotionSetting::Hold, "hold_s"},          {MotionSetting::HoldWindow, "hold_window_m"},
+                   {MotionSetting::MaxSpeed, "max_speed_m_s"}};
+  // The oracle: the whole config file with the settings set so far and the new value in control:
+  // "" when it loads, else the reader's message.
+  std::vector<std::pair<std::string, double>> set_so_far;
+  const auto file_error = [&](const std::string& key, double v) -> std::string {
+    YAML::Node root = YAML::Load(text);
+    for (const auto& [k, x] : set_so_far) root["control"][k] = idm::model::format_number(x, 17);
+    root["control"][key] = idm::model::format_number(v, 17);
+    try {
+      (void)parse_daemon_config(YAML::Load(YAML::Dump(root)), "t.yaml");
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    return {};
+  };
+  // The scale of each key's values, from what the file reader takes alone.
+  std::vector<double> scale;
   for (const auto& s : kSettings) {
-    const auto* param = table.find(s.key);
-    ASSERT_NE(param, nullptr) << s.key;
-    // The scale of the key's values, from what the file reader takes.
-    double scale = 0;
-    for (double probe = 1e-9; probe <= 1e6; probe *= 10) {
-      idm::control::PositionerConfig c;
-      try {
-        table.read(YAML::Load(std::string(s.key) + ": " + idm::model::format_number(probe)),
-                   "t.yaml", "control", c);
-        scale = probe;
-      } catch (const InputError&) {
-      }
-    }
-    ASSERT_GT(scale, 0) << s.key;
-    int accepted = 0, refused = 0;
-    for (int k = 0; k < 120; ++k) {
-      double v = std::uniform_real_distribution<double>(-1.5, 1.5)(rng) * scale;
-      switch (rng() % 5) {
-        case 0:
-        case 3:
-          v = std::round(v);
-          break;
-        case 1:
-          v = -1;
-          break;
-        case 2:
-          v = std::nextafter(scale * (rng() % 2 ? 1 : 0), rng() % 2 ? 1e300 : -1e300);
-          break;
-        default:
-          break;
-      }
-      idm::control::PositionerConfig c;
-      bool file_takes = true;
-      try {
-        table.read(YAML::Load(std::string(s.key) + ": " + idm::model::format_number(v, 17)),
-                   "t.yaml", "control", c);
-      } catch (const InputError&) {
-        file_takes = false;
-      }
-      const CommandError e = d->set_motion_setting(0, s.which, v);
-      EXPECT_EQ(e.ok(), file_takes) << s.key << " = " << v << ": " << e.text;
-      if (e.ok()) {
-        ++accepted;
-        // 0 reads back as what it stands for (one count, the move window).
-        const bool stands_for_another =
-            v == 0 && (s.which == MotionSetting::Window || s.which == MotionSetting::HoldWindow);
-        if (!stands_for_another) {
-          EXPECT_TRUE(wait_for([&] { return d->motion_setting(0, s.which) == v; }, 5))
-              << s.key << " = " << v << " reads back " << d->motion_setting(0, s.which);
-        }
-      } else {
-        ++refused;
-        EXPECT_EQ(e.code, error_code::kDataOutOfRange) << e.text;
-        EXPECT_NE(e.text.find("allowed " + param->range), std::string::npos)
-            << e.text << " (the config's range: " << param->range << ")";
-      }
-    }
-    EXPECT_GT(accepted, 5) << s.key;
-    EXPECT_GT(refused, 5) << s.key;
+    double top = 0;
+    for (double probe = 1e-9; probe <= 1e6; probe *= 10)
+      if (file_error(s.key, probe).empty()) top = probe;
+    ASSERT_GT(top, 0) << s.key;
+    scale.push_back(top);
   }
+  std::mt19937_64 rng(31);
+  std::vector<int> accepted(std::size(kSettings)), refused(std::size(kSettings));
+  int relation_refusals = 0;
+  for (int k = 0; k < 900; ++k) {
+    const std::size_t i = rng() % std::size(kSettings);
+    const auto& s = kSettings[i];
+    double v = std::uniform_real_distribution<double>(-1.5, 1.5)(rng) * scale[i];
+    switch (rng() % 6) {
+      case 0:
+        v = std::round(v);
+        break;
+      case 1:
+        v = rng() % 3 == 0 ? -1 : 0;
+        break;
+      case 2:
+        v = std::nextafter(scale[i] * (rng() % 2 ? 1 : 0), rng() % 2 ? 1e300 : -1e300);
+        break;
+      case 3:  // log-uniform down to a fraction of a count (lambda/64 is ~1e-8 m)
+        v = std::pow(10.0, std::uniform_real_distribution<double>(-10, std::log10(scale[i]))(rng));
+        break;
+      default:
+        break;
+    }
+    const std::string why = file_error(s.key, v);
+    const bool file_takes = why.empty();
+    const CommandError e = d->set_motion_setting(0, s.which, v);
+    ASSERT_EQ(e.ok(), file_takes) << s.key << " = " << v << ": protocol: " << e.text
+                                  << "; file: " << why;
+    if (e.ok()) {
+      ++accepted[i];
+      set_so_far.emplace_back(s.key, v);
+      // 0 reads back as what it stands for (one count, the move window).
+      const bool stands_for_another =
+          v == 0 && (s.which == MotionSetting::Window || s.which == MotionSetting::HoldWindow);
+      if (!stands_for_another) {
+        EXPECT_EQ(d->motion_setting(0, s.which), v) << s.key;
+      }
+    } else {
+      ++refused[i];
+      EXPECT_EQ(e.code, error_code::kDataOutOfRange) << e.text;
+      // The file's words past the key (its own refusal of a non-integer quotes the text).
+      const std::size_t at = why.find("allowed ");
+      const std::string said = at != std::string::npos ? why.substr(at) : "is not an integer";
+      EXPECT_NE(e.text.find(said), std::string::npos)
+          << "protocol: " << e.text << "\nfile:     " << why;
+      relation_refusals += why.find("(") != std::string::npos ? 1 : 0;
+    }
+  }
+  for (std::size_t i = 0; i < std::size(kSettings); ++i) {
+    EXPECT_GT(accepted[i], 5) << kSettings[i].key;
+    EXPECT_GT(refused[i], 5) << kSettings[i].key;
+  }
+  EXPECT_GT(relation_refusals, 5);
   d->shutdown();
 }
 
