@@ -45,31 +45,6 @@ double uncertainty() {
   return g_uncertainty;
 }
 
-struct StepMeasurement {
-  double positive_m = 0, negative_m = 0;
-};
-
-StepMeasurement measure_steps(std::uint64_t seed) {
-  drivers::Device dev = drivers::sim::make_sim_device(realistic_device(seed));
-  drivers::sim::SimBackend& sim = *dev.sim;
-  dev.configure();
-  dev.activate();
-  StepMeasurement m;
-  for (double duty : {0.9, 0.1}) {
-    const double before = sim.true_position_m();
-    const model::TriangleWave wave{200, duty, 20.35e-6, 200};
-    std::vector<double> xi;
-    model::sample(wave, 1e5, 0.0, 100001, xi);
-    xi.back() = 0;
-    dev.output->write_burst(xi.data(), xi.size(), 1e5);
-    dev.output->start();
-    sim.advance_s(0.01);
-    (duty > 0.5 ? m.positive_m : m.negative_m) = std::fabs(sim.true_position_m() - before) / 200;
-  }
-  dev.shutdown();
-  return m;
-}
-
 // The stage as configured for the positioner: Table 1, with alpha set from the one measurement
 // (eq 22 at the baseline's cell); calibration refines it from there.
 RegionMapConfig map_config(const StepMeasurement& m) {
@@ -98,16 +73,8 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
   final_step_bound_m = std::max(p.finest_live_step_m(1), p.finest_live_step_m(-1));
   const auto w0 = std::chrono::steady_clock::now();
   for (double target : targets) {
-    if (p.status().state == MotionState::Fault) {
-      p.reset_fault();
-      rig.tick();
-    }
     const double start = rig.sim->true_position_m();
-    MoveOutcome r = run_move(rig, start, target, [&] { p.move_absolute(target); });
-    r.corrections = p.status().corrections;
-    r.step_m = std::max(p.count_m(), std::fabs(p.last_plan().final_step_m));
-    if (!r.faulted) r.time_s = p.status().last_move_time_s;
-    finish(r, rig, target);
+    MoveOutcome r = run_closed_loop_move(rig, target);
     if (g_trace)
       std::printf(
           "move %3zu  %+11.4g um  %-8s %-12s %-10s err %+7.2f fresh %+7.2f true %+7.2f counts  "
@@ -121,20 +88,7 @@ Summary run_ours(const std::vector<double>& targets, std::uint64_t seed, const R
     s.moves.push_back(r);
   }
   s.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
-  if (g_trace) {
-    for (int dir : {-1, 1}) {
-      for (std::size_t i = 0; i < p.rung_count(dir); ++i) {
-        const Positioner::RungInfo r = p.rung(dir, i);
-        const RegionCell& c = map.cells()[r.cell];
-        std::printf(
-            "rung %+d %2zu  %6.0f Hz d %.3f S %6.3f um  model %8.2f nm  learned %8.2f nm + %8.2f  "
-            "%s%s chunks %llu\n",
-            dir, i, c.freq_hz, c.duty, c.stroke_m * 1e6, std::fabs(c.step_m) * 1e9,
-            r.estimate.step_m * 1e9, r.estimate.offset_m * 1e9, r.dead ? "DEAD " : "",
-            r.proven ? "proven" : "", static_cast<unsigned long long>(r.chunks));
-      }
-    }
-  }
+  if (g_trace) print_ladder(p, map);
   return s;
 }
 
@@ -324,7 +278,7 @@ int main(int argc, char** argv) {
     x += d;
     targets.push_back(x);
   }
-  const StepMeasurement measured = measure_steps(seed);
+  const StepMeasurement measured = measure_steps(realistic_device(seed), 20.35e-6);
   const RegionMap map(map_config(measured));
   if (!settling_svg.empty()) {
     settling_study(targets, seed, map, settling_svg);
@@ -336,8 +290,8 @@ int main(int argc, char** argv) {
   Calibration cal(map.config().stage);
   double final_step_bound = 0;
   const Summary ours = run_ours(targets, seed, map, cal, final_step_bound);
-  const Summary base = run_baseline(targets, seed, map);
-  const Summary vendor = run_vendor(targets, seed, map);
+  const Summary base = run_baseline(targets, realistic_device(seed), map);
+  const Summary vendor = run_vendor(targets, realistic_device(seed), map);
   std::printf(
       "positioning: %d seeded moves (seed %llu), 10 nm .. 5 mm log-uniform, both directions\n",
       moves, static_cast<unsigned long long>(seed));

@@ -18,10 +18,10 @@ namespace {
 
 // A peer's rig: whole bursts (max_chunk_s 10: 2,000 cycles at most, the sim's 2^20 samples), and a
 // capture that holds a whole 10 s burst.
-std::unique_ptr<daemon::SimAxis> peer_rig(std::uint64_t seed, const RegionMap& map) {
+std::unique_ptr<daemon::SimAxis> peer_rig(drivers::sim::SimDeviceConfig device,
+                                          const RegionMap& map) {
   PositionerConfig pc;
   pc.max_chunk_s = 10.0;
-  drivers::sim::SimDeviceConfig device = realistic_device(seed);
   device.stream_capacity = std::size_t{1} << 21;
   return std::make_unique<daemon::SimAxis>(map, device, pc);
 }
@@ -86,10 +86,11 @@ Summary run_peer(daemon::SimAxis& rig, const std::vector<double>& targets, doubl
 // measured once (a 200-cycle burst each way, as one sets the motor record's MRES); a move asks
 // for round(error / step) steps, reads the encoder and retries while outside the deadband (one
 // count), up to 10 retries; it gives up when the error rounds to zero steps.
-Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map) {
-  const std::unique_ptr<daemon::SimAxis> rig = peer_rig(seed, map);
+Summary run_baseline(const std::vector<double>& targets,
+                     const drivers::sim::SimDeviceConfig& device, const RegionMap& map) {
+  const std::unique_ptr<daemon::SimAxis> rig = peer_rig(device, map);
   Positioner& p = *rig->positioner;
-  const double freq = 200, duty_positive = 0.9, stroke = 20.35e-6;
+  const double freq = 200, duty_positive = 0.9, stroke = map.config().limits.max_stroke_m;
   double step_m[2] = {0, 0};  // [0] negative, [1] positive, measured
   for (int dir : {1, -1})
     step_m[dir > 0 ? 1 : 0] = measured_step_m(*rig, dir, freq, duty_positive, stroke);
@@ -121,10 +122,11 @@ Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed, con
 // at a time with the amplitude lowered as the error falls: stroke = S_cut + error / slope, from
 // the step measured at full and at half stroke (the step is linear in the stroke above the
 // cut-off stroke S_cut, eq 22). Done within one count; at most 200 cycles of fine approach.
-Summary run_vendor(const std::vector<double>& targets, std::uint64_t seed, const RegionMap& map) {
-  const std::unique_ptr<daemon::SimAxis> rig = peer_rig(seed, map);
+Summary run_vendor(const std::vector<double>& targets, const drivers::sim::SimDeviceConfig& device,
+                   const RegionMap& map) {
+  const std::unique_ptr<daemon::SimAxis> rig = peer_rig(device, map);
   Positioner& p = *rig->positioner;
-  const double freq = 200, duty_positive = 0.9, full = 20.35e-6;
+  const double freq = 200, duty_positive = 0.9, full = map.config().limits.max_stroke_m;
   const double min_stroke = map.config().limits.min_stroke_m;
   double step_full[2] = {0, 0}, step_half[2] = {0, 0};
   for (int dir : {1, -1}) {

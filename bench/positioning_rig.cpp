@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "model/impulse_model.h"
 #include "model/simulation.h"
 
 namespace idm::bench {
@@ -45,9 +46,16 @@ MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m,
   std::uint64_t chunk_cycles = 0, bursts_seen = bursts0, cycles_seen = cycles0;
   double chunk_planned_step_m = 0;
   const double count_m = p.count_m();
+  std::string chunk_text;
   auto close_chunk = [&](double x_end) {
     if (chunk_cycles == 0) return;
     const double moved = x_end - chunk_x0;
+    if (g_trace) {
+      char line[96];
+      std::snprintf(line, sizeof line, " moved %+9.2f nm, error after %+8.2f nm", moved * 1e9,
+                    (x_end - target_m) * 1e9);
+      r.chunk_log.push_back(chunk_text + line);
+    }
     const double dir = moved >= 0 ? 1.0 : -1.0;
     const double mean_step =
         std::max(count_m, std::fabs(moved) / static_cast<double>(chunk_cycles));
@@ -75,6 +83,17 @@ MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m,
       chunk_planned_step_m = p.status().closed_loop && !p.last_plan().bursts.empty()
                                  ? std::fabs(p.last_plan().bursts.front().step_m)
                                  : 0.0;
+      if (g_trace && !p.last_plan().bursts.empty()) {
+        const control::Burst& b = p.last_plan().bursts.front();
+        char line[160];
+        std::snprintf(
+            line, sizeof line,
+            "    %5.0f Hz d %.3f S %6.3f um x %5llu of %5llu (step %7.2f nm, predicted "
+            "%+9.2f nm)",
+            b.freq_hz, b.duty, b.stroke_m * 1e6, static_cast<unsigned long long>(chunk_cycles),
+            static_cast<unsigned long long>(b.cycles), b.step_m * 1e9, b.displacement_m * 1e9);
+        chunk_text = line;
+      }
       bursts_seen = p.status().bursts;
       cycles_seen = p.status().cycles;
     }
@@ -113,6 +132,57 @@ void finish(MoveOutcome& r, daemon::SimAxis& rig, double target_m) {
       p.status().position_valid && std::fabs(p.status().position_m - target_m) <= p.count_m();
   r.within_count_fresh_true = std::fabs(sim.true_position_m() - target_m) <= p.count_m();
   r.fresh_error_m = p.status().position_m - target_m;
+}
+
+StepMeasurement measure_steps(const drivers::sim::SimDeviceConfig& device, double stroke_m) {
+  drivers::Device dev = drivers::sim::make_sim_device(device);
+  drivers::sim::SimBackend& sim = *dev.sim;
+  dev.configure();
+  dev.activate();
+  StepMeasurement m;
+  for (double duty : {0.9, 0.1}) {
+    const double before = sim.true_position_m();
+    const model::TriangleWave wave{200, duty, stroke_m, 200};
+    std::vector<double> xi;
+    model::sample(wave, 1e5, 0.0, 100001, xi);
+    xi.back() = 0;
+    dev.output->write_burst(xi.data(), xi.size(), 1e5);
+    dev.output->start();
+    sim.advance_s(0.01);
+    (duty > 0.5 ? m.positive_m : m.negative_m) = std::fabs(sim.true_position_m() - before) / 200;
+  }
+  dev.shutdown();
+  return m;
+}
+
+MoveOutcome run_closed_loop_move(daemon::SimAxis& rig, double target_m) {
+  Positioner& p = *rig.positioner;
+  if (p.status().state == MotionState::Fault) {
+    p.reset_fault();
+    rig.tick();
+  }
+  const double start = rig.sim->true_position_m();
+  MoveOutcome r = run_move(rig, start, target_m, [&] { p.move_absolute(target_m); });
+  r.corrections = p.status().corrections;
+  r.step_m = std::max(p.count_m(), std::fabs(p.last_plan().final_step_m));
+  if (!r.faulted) r.time_s = p.status().last_move_time_s;
+  finish(r, rig, target_m);
+  return r;
+}
+
+void print_ladder(const Positioner& p, const control::RegionMap& map) {
+  for (int dir : {-1, 1}) {
+    for (std::size_t i = 0; i < p.rung_count(dir); ++i) {
+      const Positioner::RungInfo r = p.rung(dir, i);
+      const control::RegionCell& c = map.cells()[r.cell];
+      std::printf(
+          "rung %+d %2zu  %6.0f Hz d %.3f S %6.3f um  model %8.2f nm  learned %8.2f nm + %8.2f  "
+          "%s%s chunks %llu\n",
+          dir, i, c.freq_hz, c.duty, c.stroke_m * 1e6, std::fabs(c.step_m) * 1e9,
+          r.estimate.step_m * 1e9, r.estimate.offset_m * 1e9, r.dead ? "DEAD " : "",
+          r.proven ? "proven" : "", static_cast<unsigned long long>(r.chunks));
+    }
+  }
 }
 
 }  // namespace idm::bench

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <string>
 #include <vector>
 
 #include "control/positioner.h"
@@ -46,6 +47,7 @@ struct MoveOutcome {
   double worst_pass_in_steps = 0;  // the largest pass past the target, in steps of the chunk
   control::MotionFault fault = control::MotionFault::None;
   bool left_soft_limits = false;
+  std::vector<std::string> chunk_log;  // --trace: one line per chunk (its burst, what it moved)
 };
 
 struct Summary {
@@ -61,11 +63,26 @@ MoveOutcome run_move(daemon::SimAxis& axis, double start_m, double target_m,
 // Judges a move at rest by the reading and the true position, then a fresh reading 5 ms later.
 void finish(MoveOutcome& r, daemon::SimAxis& rig, double target_m);
 
+// The operator's one measurement of a stage: the mean step per cycle of a 200-cycle burst each way
+// at 200 Hz, duty 0.9 / 0.1 and `stroke_m`, on a fresh device of `device`.
+struct StepMeasurement {
+  double positive_m = 0, negative_m = 0;
+};
+StepMeasurement measure_steps(const drivers::sim::SimDeviceConfig& device, double stroke_m);
+
+// Ours: one MOVE:ABS of the rig's positioner (a FAULT left by the move before reset first), run
+// to rest and judged.
+MoveOutcome run_closed_loop_move(daemon::SimAxis& rig, double target_m);
+
+// --trace: the positioner's step ladder each way (cell, the model's and the learned step).
+void print_ladder(const control::Positioner& p, const control::RegionMap& map);
+
 // The peers (positioning_peers.cpp): the motor record's fixed steps with retries, and a
 // vendor-style loop that lowers the amplitude as the error falls.
-Summary run_baseline(const std::vector<double>& targets, std::uint64_t seed,
-                     const control::RegionMap& map);
-Summary run_vendor(const std::vector<double>& targets, std::uint64_t seed,
+// `device`: the stage they drive (the same plant and seed as ours); the full stroke is the map's.
+Summary run_baseline(const std::vector<double>& targets,
+                     const drivers::sim::SimDeviceConfig& device, const control::RegionMap& map);
+Summary run_vendor(const std::vector<double>& targets, const drivers::sim::SimDeviceConfig& device,
                    const control::RegionMap& map);
 
 }  // namespace idm::bench

@@ -397,6 +397,12 @@ class Positioner {
                 bool& capped) const;
   void play_rung(const std::vector<Rung>& ladder, int chosen, int sign, std::uint64_t cycles,
                  bool final_chunk, bool capped, double b_final, double error);
+  // Backs away from the target (toward -sign) to a distance a rung toward it lands from within
+  // the window; false when no rung that way can (or none plays the way back).
+  bool back_off(int sign, std::vector<Rung>& toward, double distance, double error);
+  // The live rung and cycles whose chunk is expected to end nearest `distance` (-1: none).
+  int nearest_landing(const std::vector<Rung>& ladder, double distance,
+                      std::uint64_t& cycles) const;
   void next_open_loop_chunk(double now_s);
   // The references: the open-loop drive toward `sign` (false: no cell moves that way), the start
   // of both kinds, and the mark search's steps (the mark found; an end stop met while searching).

@@ -248,8 +248,104 @@ void Positioner::plan_next_chunk(double now_s) {
   if (chosen < 0) {
     final_chunk = true;
     chosen = final_try(ladder, fin, distance, cycles, capped);
+    // A chunk expected to end no nearer the target than the slider is now (the rung's shortest
+    // chunk, its first cycle's offset and a step, is longer than twice the error) cannot land
+    // from here: back off to where a rung lands within the window, and come back.
+    const double landing_error =
+        std::fabs(distance - ladder[static_cast<std::size_t>(chosen)].est.predict_m(cycles));
+    if (landing_error >= distance) {
+      // Another live rung that way may land nearer: the one whose chunk ends nearest the target.
+      std::uint64_t n_near = 0;
+      const int nearest = nearest_landing(ladder, distance, n_near);
+      if (nearest >= 0 &&
+          std::fabs(distance - ladder[static_cast<std::size_t>(nearest)].est.predict_m(n_near)) <
+              distance) {
+        play_rung(ladder, nearest, sign, n_near, true, false, b_final, error);
+        return;
+      }
+      if (static_cast<int>(status_.corrections) >= config_.max_retries) {
+        enter_fault(MotionFault::RetryLimit);
+        return;
+      }
+      if (back_off(sign, ladder, distance, error)) {
+        ++status_.corrections;
+        return;
+      }
+    }
   }
   play_rung(ladder, chosen, sign, cycles, final_chunk, capped, b_final, error);
+}
+
+int Positioner::nearest_landing(const std::vector<Rung>& ladder, double distance,
+                                std::uint64_t& cycles) const {
+  int chosen = -1;
+  double best = 0;
+  for (std::size_t i = 0; i < ladder.size(); ++i) {
+    const Rung& r = ladder[i];
+    const double a = r.est.offset_m, b = r.est.step_m;
+    if (r.dead || !r.proven || !(b >= config_.min_step_counts * count_m_)) continue;
+    const std::uint64_t max_cycles = map_.cells()[r.cell].max_cycles;
+    const double n_real = std::clamp(std::round((distance - a) / b), 1.0, 1e6);
+    for (double n : {n_real - 1, n_real, n_real + 1}) {
+      if (n < 1 || (max_cycles > 0 && n > static_cast<double>(max_cycles))) continue;
+      const auto cyc = static_cast<std::uint64_t>(n);
+      const double miss = std::fabs(distance - r.est.predict_m(cyc));
+      if (chosen < 0 || miss < best) {
+        chosen = static_cast<int>(i);
+        cycles = cyc;
+        best = miss;
+      }
+    }
+  }
+  return chosen;
+}
+
+bool Positioner::back_off(int sign, std::vector<Rung>& toward, double distance, double error) {
+  // A rung toward the target lands within the window from a distance D when its chunks can be
+  // placed that finely: its step (a chunk of n cycles moves offset + n steps) within the window's
+  // width, from D at least its shortest moving chunk. The rung needing the least way back.
+  const double width = 2.0 * landing_m();
+  double from = 0;
+  for (Rung& r : toward) {
+    if (!rung_live(r) || !r.proven) continue;
+    const double a = r.est.offset_m, b = r.est.step_m;
+    if (!(b > 0) || b > width) continue;
+    const double n_moving = std::max(1.0, std::ceil((0.5 * b - a) / b));
+    const double shortest = a + n_moving * b;
+    if (!(shortest > 0)) continue;
+    const double d = shortest + 0.5 * b;
+    if (from == 0 || d < from) from = d;
+  }
+  const double away = from - distance;
+  if (!(from > 0) || !(away > 0)) return false;
+  // Away: the live rung whose chunk covers `away` with the least to spare (going farther only
+  // costs the way back).
+  std::vector<Rung>& other = ladder_[direction_index(-sign)];
+  int chosen = -1;
+  std::uint64_t cycles = 0;
+  double best = 0;
+  for (std::size_t i = 0; i < other.size(); ++i) {
+    Rung& r = other[i];
+    if (!rung_live(r)) continue;
+    const double a = r.est.offset_m, b = r.est.step_m;
+    if (!(b > 0)) continue;
+    const double n_real = std::max(1.0, std::ceil((away - a) / b));
+    if (!(n_real < 1e6)) continue;
+    const auto n = static_cast<std::uint64_t>(n_real);
+    const RegionCell& cell = map_.cells()[r.cell];
+    if (cell.max_cycles > 0 && n > cell.max_cycles) continue;
+    const double moved = r.est.predict_m(n);
+    if (!(moved >= away)) continue;
+    if (chosen < 0 || moved < best) {
+      chosen = static_cast<int>(i);
+      cycles = n;
+      best = moved;
+    }
+  }
+  if (chosen < 0) return false;
+  play_rung(other, chosen, -sign, cycles, false, false,
+            other[static_cast<std::size_t>(chosen)].est.step_m, error);
+  return true;
 }
 
 // The final rung: the live rung of the final class (learned step <= final_step_counts) with the
@@ -365,7 +461,12 @@ void Positioner::play_rung(const std::vector<Rung>& ladder, int chosen, int sign
   chunk_.rung = chosen;
   const std::uint64_t limit = chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles);
   chunk_.cycles = std::min(cycles, limit);
-  chunk_.completes_last_burst = final_chunk && !capped && chunk_.cycles == cycles;
+  // A try at the target: the whole final burst, expected to end within the window. A final
+  // chunk expected to end short of it (a rung whose chunks cannot be placed finer, creeping in)
+  // is progress, not a try: it counts toward max_chunks_per_move, not max_retries.
+  chunk_.completes_last_burst =
+      final_chunk && !capped && chunk_.cycles == cycles &&
+      std::fabs(std::fabs(error) - r.est.predict_m(cycles)) <= tolerance_m();
   chunk_.predicted_along_m = r.est.predict_m(chunk_.cycles);
   chunk_.predicted_m = 0;  // closed loop: judged per rung (judge_and_learn)
   // The plan of this chunk: one burst of the rung (its planned cycles, before cutting).

@@ -200,6 +200,40 @@ CommandError Daemon::set_soft_limits(int axis, double lower_m, double upper_m) {
   return submit(c);
 }
 
+// The value against the key's own range, then the axis's config as it stands now (the file's,
+// with the settings commands have changed) with the value in it against every relation the file
+// is checked against (a window of at least one count, a hold window no smaller than the move
+// window, ...): what the file would refuse, the protocol refuses, naming the key it breaks.
+CommandError Daemon::check_setting(int axis, const MotionSettings& now, const char* command,
+                                   const char* key, double value) {
+  ControlConfig probe;
+  {
+    std::lock_guard<std::mutex> lock(control_mutex_);
+    probe = axes_.at(static_cast<std::size_t>(axis))->control();
+  }
+  control::PositionerConfig& pc = probe.positioner;
+  pc.tolerance_m = now.window_m;
+  pc.dwell_s = now.dwell_s;
+  pc.max_speed_m_s = now.max_speed_m_s;
+  pc.eot_step_m = now.eot_step_m;
+  pc.eot_cycles = now.eot_cycles;
+  pc.hold_s = now.hold_s;
+  pc.hold_window_m = now.hold_window_set_m;
+  try {
+    control_params().set(probe, key, value, command);
+  } catch (const model::InputError& e) {
+    return {error_code::kDataOutOfRange, e.what()};
+  }
+  try {
+    control_params().check_relations(probe, YAML::Node(YAML::NodeType::Undefined), "", "control");
+  } catch (const model::InputError& e) {
+    return {error_code::kDataOutOfRange,
+            std::string(command) + " " + model::format_number(value) +
+                " breaks a relation of the axis's settings: " + e.what()};
+  }
+  return {};
+}
+
 CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double value) {
   // The command's name and the config key (control.*) whose table checks the value: one range
   // for the file, the protocol and the positioner.
@@ -217,35 +251,7 @@ CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double va
   if (!std::isfinite(value))
     return {error_code::kNumericDataError, std::string(r.command) + ": not a finite number"};
   const AxisPublished p = axes_.at(static_cast<std::size_t>(axis))->published();
-  // The value against the key's own range, then the axis's config as it stands now (the file's,
-  // with the settings commands have changed) with the value in it against every relation the file
-  // is checked against (a window of at least one count, a hold window no smaller than the move
-  // window, ...): what the file would refuse, the protocol refuses, naming the key it breaks.
-  ControlConfig probe;
-  {
-    std::lock_guard<std::mutex> lock(control_mutex_);
-    probe = axes_.at(static_cast<std::size_t>(axis))->control();
-  }
-  control::PositionerConfig& now = probe.positioner;
-  now.tolerance_m = p.settings.window_m;
-  now.dwell_s = p.settings.dwell_s;
-  now.max_speed_m_s = p.settings.max_speed_m_s;
-  now.eot_step_m = p.settings.eot_step_m;
-  now.eot_cycles = p.settings.eot_cycles;
-  now.hold_s = p.settings.hold_s;
-  now.hold_window_m = p.settings.hold_window_set_m;
-  try {
-    control_params().set(probe, r.key, value, r.command);
-  } catch (const model::InputError& e) {
-    return {error_code::kDataOutOfRange, e.what()};
-  }
-  try {
-    control_params().check_relations(probe, YAML::Node(YAML::NodeType::Undefined), "", "control");
-  } catch (const model::InputError& e) {
-    return {error_code::kDataOutOfRange, std::string(r.command) + " " + model::format_number(value) +
-                                             " breaks a relation of the axis's settings: " +
-                                             e.what()};
-  }
+  if (CommandError e = check_setting(axis, p.settings, r.command, r.key, value); !e.ok()) return e;
   AxisCommand c;
   c.axis = axis;
   switch (which) {

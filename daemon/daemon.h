@@ -138,6 +138,10 @@ class Daemon final : public Instrument, public Reloader {
                              AxisCommand::Kind kind);
   CommandError fault_error(control::MotionFault fault);
   bool wait_at_rest(double timeout_s);
+  // A setting a command changes, checked as the config file's reader checks it
+  // (set_motion_setting).
+  CommandError check_setting(int axis, const MotionSettings& now, const char* command,
+                             const char* key, double value);
   CommandError check_sweep(int axis, const std::vector<double>& freqs_hz,
                            const std::vector<double>& duties, int trials, int cycles);
   // -250 when recording.data_dir has too little room for the sweep's dataset.

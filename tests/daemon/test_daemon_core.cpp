@@ -519,10 +519,11 @@ TEST_F(DaemonSim, EverySettingACommandChangesIsCheckedByTheConfigsOwnRangeAndRel
   const struct {
     MotionSetting which;
     const char* key;
-  } kSettings[] = {{MotionSetting::Window, "tolerance_m"},   {MotionSetting::Dwell, "dwell_s"},
-                   {MotionSetting::EotStep, "eot_step_m"},   {MotionSetting::EotCycles, "eot_cycles"},
-                   {MotionSetting::Hold, "hold_s"},          {MotionSetting::HoldWindow, "hold_window_m"},
-                   {MotionSetting::MaxSpeed, "max_speed_m_s"}};
+  } kSettings[] = {
+      {MotionSetting::Window, "tolerance_m"},    {MotionSetting::Dwell, "dwell_s"},
+      {MotionSetting::EotStep, "eot_step_m"},    {MotionSetting::EotCycles, "eot_cycles"},
+      {MotionSetting::Hold, "hold_s"},           {MotionSetting::HoldWindow, "hold_window_m"},
+      {MotionSetting::MaxSpeed, "max_speed_m_s"}};
   // The oracle: the whole config file with the settings set so far and the new value in control:
   // "" when it loads, else the reader's message.
   std::vector<std::pair<std::string, double>> set_so_far;
