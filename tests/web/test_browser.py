@@ -160,6 +160,8 @@ def test_jog_buttons_jog_while_pressed(lab, restore, browser):
     daemon, _, web = lab
     browser.get(web.url + "/")
     wait_for("the jog buttons", lambda: browser.find_elements(By.ID, "jog-pos-1"), 30)
+    send(daemon, "MOVE:ABS 0")  # well inside the travel, wherever an earlier test left it
+    wait_done(daemon)
     start = mean_position(daemon)
     lower, upper = start - 1e-3, start + 1e-3
     send(daemon, "LIM %.12g,%.12g" % (lower, upper))

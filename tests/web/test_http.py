@@ -267,6 +267,8 @@ def test_control_jogs_and_sets_the_speed_limit(lab, restore):
         status, _, body = web.request("/api/velocity", "POST", b"axis=9&speed=0", hdr)
         assert status == 422 and json.loads(body)["error"].startswith("-114,")
 
+        send(daemon, "MOVE:ABS 0")  # well inside the travel, wherever an earlier test left it
+        wait_done(daemon)
         start = mean_position(daemon)
         send(daemon, "LIM %.12g,%.12g" % (start - 0.5e-3, start + 0.5e-3))
         status, _, body = web.request("/api/jog", "POST", b"axis=1&direction=negative", hdr)
