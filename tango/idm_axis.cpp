@@ -379,6 +379,14 @@ void IdmAxis::write_Hold(Tango::WAttribute& att) {
   write_setting(att, "HOLD", "IdmAxis::write_Hold");
 }
 
+void IdmAxis::read_Velocity(Tango::Attribute& att) {
+  read_setting(att, "MOVE:VEL", velocity_, "IdmAxis::read_Velocity");
+}
+
+void IdmAxis::write_Velocity(Tango::WAttribute& att) {
+  write_setting(att, "MOVE:VEL", "IdmAxis::write_Velocity");
+}
+
 void IdmAxis::read_StatusBits(Tango::Attribute& att) {
   const std::uint64_t bits =
       client::parse_reply_count(query("STAT:OPER?", "IdmAxis::read_StatusBits"));
@@ -403,6 +411,14 @@ void IdmAxis::reference() {
 // n is sent as given, sign and all: idmd picks the direction from it.
 void IdmAxis::step(Tango::DevLong cycles) {
   command("STEP " + std::to_string(cycles), "IdmAxis::Step");
+  refresh();
+  apply_status();
+  publish();
+}
+
+void IdmAxis::jog(bool positive) {
+  command(positive ? "JOG POS" : "JOG NEG",
+          positive ? "IdmAxis::JogPositive" : "IdmAxis::JogNegative");
   refresh();
   apply_status();
   publish();
@@ -475,6 +491,23 @@ class StepCmd : public Tango::Command {
   bool is_allowed(Tango::DeviceImpl*, const CORBA::Any&) override { return true; }
 };
 
+// JogPositive / JogNegative: a continuous move toward that soft limit, ended by Stop.
+class JogCmd : public Tango::Command {
+ public:
+  explicit JogCmd(bool positive)
+      : Command(positive ? "JogPositive" : "JogNegative", Tango::DEV_VOID, Tango::DEV_VOID, "", "",
+                Tango::OPERATOR),
+        positive_(positive) {}
+  CORBA::Any* execute(Tango::DeviceImpl* d, const CORBA::Any&) override {
+    axis_of(d)->jog(positive_);
+    return new CORBA::Any();
+  }
+  bool is_allowed(Tango::DeviceImpl*, const CORBA::Any&) override { return true; }
+
+ private:
+  bool positive_;
+};
+
 Tango::Attr* with_properties(Tango::Attr* attr, const char* unit, const char* description,
                              const char* format) {
   Tango::UserDefaultAttrProp p;
@@ -511,6 +544,8 @@ void IdmAxisClass::command_factory() {
   command_list.push_back(new StopCmd());
   command_list.push_back(new ReferenceCmd());
   command_list.push_back(new StepCmd());
+  command_list.push_back(new JogCmd(true));
+  command_list.push_back(new JogCmd(false));
 }
 
 void IdmAxisClass::attribute_factory(std::vector<Tango::Attr*>& attrs) {
@@ -533,6 +568,12 @@ void IdmAxisClass::attribute_factory(std::vector<Tango::Attr*>& attrs) {
       "Hold after the moves that follow (HOLD; 0 none, -1 until "
       "the next motion)",
       "%.3f"));
+  attrs.push_back(with_properties(new AxisAttr("Velocity", Tango::DEV_DOUBLE,
+                                               &IdmAxis::read_Velocity, &IdmAxis::write_Velocity),
+                                  "m/s",
+                                  "Speed limit of the moves and jogs that follow (MOVE:VELocity; 0 "
+                                  "no limit)",
+                                  "%.3e"));
   attrs.push_back(
       with_properties(new AxisAttr("StatusBits", Tango::DEV_LONG, &IdmAxis::read_StatusBits), "",
                       "STATus:OPERation?: 0 moving, 1 in position, 2 holding, 3 "

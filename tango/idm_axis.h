@@ -1,7 +1,7 @@
 // The Tango device class IdmAxis: one device per idmd axis, a client of idmd's socket (README.md
 // here). Attributes Position (r/w, m, min/max from the soft limits), Target, Referenced, Window,
-// Hold, StatusBits; State ON/MOVING/FAULT/ALARM/DISABLE; commands Stop, Reference, Step; change
-// events on Position and State, pushed while the axis moves.
+// Hold, Velocity, StatusBits; State ON/MOVING/FAULT/ALARM/DISABLE; commands Stop, Reference, Step,
+// JogPositive, JogNegative; change events on Position and State, pushed while the axis moves.
 #pragma once
 
 #include <tango.h>
@@ -40,11 +40,15 @@ class IdmAxis : public TANGO_BASE_CLASS {
   void write_Window(Tango::WAttribute& att);
   void read_Hold(Tango::Attribute& att);
   void write_Hold(Tango::WAttribute& att);
+  void read_Velocity(Tango::Attribute& att);
+  void write_Velocity(Tango::WAttribute& att);
   void read_StatusBits(Tango::Attribute& att);
 
   void stop();
   void reference();
   void step(Tango::DevLong cycles);
+  // JOG POSitive (positive) or JOG NEGative: toward that soft limit at the speed limit.
+  void jog(bool positive);
 
  private:
   // With a database: the properties IdmdSocket or IdmdAddress (idmd's address, both set is an
@@ -79,7 +83,7 @@ class IdmAxis : public TANGO_BASE_CLASS {
   std::string status_error_;
 
   // Tango's buffers for the attributes (set_value keeps a pointer until the reply is sent).
-  Tango::DevDouble position_ = 0, target_ = 0, window_ = 0, hold_ = 0;
+  Tango::DevDouble position_ = 0, target_ = 0, window_ = 0, hold_ = 0, velocity_ = 0;
   Tango::DevDouble event_position_ = 0;
   Tango::DevBoolean referenced_ = false;
   Tango::DevLong status_bits_ = 0;

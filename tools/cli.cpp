@@ -172,6 +172,46 @@ double parse_length(const std::string& text, const std::string& what, const Leng
   return value / unit->per_metre;
 }
 
+std::string speed_unit_names() {
+  std::string names;
+  for (const LengthUnit& u : kLengthUnits)
+    names += (names.empty() ? "" : ", ") + std::string(u.name) + "/s";
+  return names;
+}
+
+double parse_speed(const std::string& text, const std::string& what, const LengthUnit* bare) {
+  const std::string accepted =
+      "a number and a unit, one of " + speed_unit_names() + " (e.g. 400um/s, 0.5mm/s)";
+  if (text.find("\xC2\xB5") != std::string::npos || text.find("\xCE\xBC") != std::string::npos)
+    throw InputError(what + ": '" + text + "': write um/s for micrometres per second; " + accepted);
+  const bool per_second = text.size() > 2 && text.compare(text.size() - 2, 2, "/s") == 0;
+  const std::string length = per_second ? text.substr(0, text.size() - 2) : text;
+  std::size_t end = length.size();
+  while (end > 0 && is_letter(length[end - 1])) --end;
+  const std::string number = length.substr(0, end), suffix = length.substr(end);
+  if (number.empty() || number.find_first_not_of("0123456789.eE+-") != std::string::npos)
+    throw InputError(what + ": '" + text + "' is not a speed: " + accepted);
+  if (!per_second && !suffix.empty())
+    throw InputError(what + ": '" + text + "' is a length, not a speed: write " + text + "/s (" +
+                     accepted + ")");
+  if (per_second && suffix.empty())
+    throw InputError(what + ": '" + text + "' has no unit before /s: " + accepted);
+  const LengthUnit* unit = suffix.empty() ? bare : find_length_unit(suffix);
+  if (suffix.empty() && !unit)
+    throw InputError(what + ": '" + text + "' has no unit: write " + text + "um/s, " + text +
+                     "m/s, ... (a bare number is m/s only without --unit or with --unit m)");
+  if (!unit)
+    throw InputError(what + ": '" + text + "': unknown unit '" + suffix + "/s', accepted " +
+                     speed_unit_names() + " (case matters; a bare number is m/s)");
+  double value = 0;
+  try {
+    value = parse_number(number, what);
+  } catch (const InputError&) {
+    throw InputError(what + ": '" + text + "' is not a speed: " + accepted);
+  }
+  return value / unit->per_metre;
+}
+
 std::string format_length(double metres, const LengthUnit& unit) {
   return model::format_number(metres * unit.per_metre, 12);
 }

@@ -51,6 +51,12 @@ std::string length_unit_names();
 double parse_length(const std::string& text, const std::string& what, const LengthUnit* bare);
 // `metres` in `unit`, 12 significant digits (1e-6 m in nm: "1000").
 std::string format_length(double metres, const LengthUnit& unit);
+// "nm/s, um/s, mm/s, m/s"
+std::string speed_unit_names();
+// A speed in m/s from "400um/s", "0.4mm/s", "4e-4m/s": a length as parse_length reads it, then
+// "/s". A bare number is in `bare` per second (nullptr: refused, as ambiguous); a length without
+// "/s" is refused. InputError naming `what`, the text and the accepted units.
+double parse_speed(const std::string& text, const std::string& what, const LengthUnit* bare);
 // The shortest text that reads back as exactly `value` ("2.5e-07"), for a protocol line.
 std::string exact_number(double value);
 

@@ -5,16 +5,16 @@
 //
 // One-shot verbs send one protocol line each, then drain the session's error queue
 // (SYSTem:ERRor?): every error is printed on stderr and the exit status is 1. Moves (move, rel,
-// step) wait until the motion is done (polling MOVE:DONE?) unless --no-wait, so a fault the motion
-// ended in shows too; Ctrl-C while waiting sends STOP. Without a COMMAND, lines from stdin: a line
-// whose first word is one of the verbs runs it, any other is sent as a protocol line; after each
-// line the error queue is drained, each error printed naming the line.
-// Exit status: 0 ok, 1 an error from the daemon / a timeout / no connection / a failed line,
-// 2 bad usage, 130 interrupted.
+// step, jog) wait until the motion is done (polling MOVE:DONE?) unless --no-wait, so a fault the
+// motion ended in shows too; Ctrl-C while waiting sends STOP. Without a COMMAND, lines from stdin:
+// a line whose first word is one of the verbs runs it, any other is sent as a protocol line; after
+// each line the error queue is drained, each error printed naming the line. Exit status: 0 ok, 1 an
+// error from the daemon / a timeout / no connection / a failed line, 2 bad usage, 130 interrupted.
 #include <signal.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -53,7 +53,8 @@ const char* kUsage =
     "        default axis 1 (stop without --axis stops every axis)\n"
     "--unit: lengths printed in nm, um, mm or m (default: metres as idmd sends them)\n"
     "lengths (X, LOWER, UPPER, STROKE) take a unit: 250nm, 1.5um, 2mm, 2e-6m; a bare number is\n"
-    "metres (refused with --unit nm, um or mm: ambiguous); frequencies in Hz\n"
+    "metres (refused with --unit nm, um or mm: ambiguous); a SPEED a unit per second: 400um/s,\n"
+    "0.5mm/s, 4e-4m/s (a bare number is m/s, refused likewise); frequencies in Hz\n"
     "commands:\n"
     "  pos                         the position (an error instead when it is not valid)\n"
     "  move X                      closed-loop move to X (absolute); waits, prints the position\n"
@@ -61,6 +62,11 @@ const char* kUsage =
     "  step N [DUTY FREQ [STROKE]] open-loop burst of |N| cycles; the sign of N alone picks the\n"
     "                              direction (positive N: the positive direction); DUTY is given\n"
     "                              as for the positive direction (mirrored for negative N); waits\n"
+    "  jog +|-                     (or positive|negative) a continuous move that way at the\n"
+    "                              speed limit, to the soft limit; waits (Ctrl-C: STOP), prints\n"
+    "                              the position\n"
+    "  velocity [SPEED]            show or set the speed limit of moves and jogs (MOVE:VELocity,\n"
+    "                              0: no limit), in --unit per second\n"
     "  stop                        stop now\n"
     "  wait                        wait until the motion is done\n"
     "  status                      state, position, target, fault, errors (idmd's key=value)\n"
@@ -161,6 +167,8 @@ const Verb kVerbs[] = {
     {"rel", 1, 1, "rel X"},
     {"moverel", 1, 1, "moverel X"},
     {"step", 1, 4, "step N [DUTY FREQ [STROKE]]"},
+    {"jog", 1, 1, "jog +|-|positive|negative"},
+    {"velocity", 0, 1, "velocity [SPEED]"},
     {"stop", 0, 0, "stop"},
     {"wait", 0, 0, "wait"},
     {"status", 0, 0, "status"},
@@ -200,6 +208,15 @@ struct Request {
   std::string line;
 };
 
+// jog's direction: +, -, positive, negative (pos, neg; any case) as the protocol's keyword.
+std::string jog_direction(const std::string& word) {
+  std::string w = word;
+  for (char& ch : w) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+  if (w == "+" || w == "pos" || w == "positive") return "POSitive";
+  if (w == "-" || w == "neg" || w == "negative") return "NEGative";
+  throw InputError("jog: '" + word + "' is not a direction, allowed +, -, positive, negative");
+}
+
 // The protocol line of a verb: lengths read with their units and sent in metres, every other
 // argument as it was given (step's N keeps its sign as typed). InputError for bad usage.
 Request request_for(const std::vector<std::string>& a, const LengthUnit* bare) {
@@ -218,6 +235,11 @@ Request request_for(const std::vector<std::string>& a, const LengthUnit* bare) {
   if (verb == "limits")
     return {verb, a.size() == 1 ? "LIM?" : "LIM " + length(1, "LOWER") + "," + length(2, "UPPER")};
   if (verb == "ref") return {verb, "REF" + (a.size() > 1 ? " " + a[1] : std::string())};
+  if (verb == "jog") return {verb, "JOG " + jog_direction(a[1])};
+  if (verb == "velocity")
+    return {verb, a.size() == 1 ? "MOVE:VEL?"
+                                : "MOVE:VEL " + idm::tools::exact_number(idm::tools::parse_speed(
+                                                    a[1], "velocity SPEED", bare))};
   if (verb == "raw") return {verb, join(a, 1, " ")};
   static const std::map<std::string, std::string> kFixed = {
       {"pos", "POS?"}, {"stop", "STOP"},       {"wait", ""},      {"status", "STAT?"},
@@ -260,6 +282,16 @@ int print_position(Ctl& ctl, const std::string& line) {
                    line.c_str(), reply.substr(0, 80).c_str());
     return 1;
   }
+  std::printf("%s\n", in_unit(ctl, reply).c_str());
+  std::fflush(stdout);
+  return errors > 0 ? 1 : 0;
+}
+
+// MOVE:VEL?: the speed limit in --unit per second (0: none), as idmd sent it without --unit.
+int print_speed(Ctl& ctl, const std::string& line) {
+  const std::string reply = ctl.c.query(line);
+  const int errors = drain_errors(ctl);
+  if (reply.empty()) return 1;
   std::printf("%s\n", in_unit(ctl, reply).c_str());
   std::fflush(stdout);
   return errors > 0 ? 1 : 0;
@@ -366,7 +398,7 @@ int run(const Request& r, Ctl& ctl) {
   const std::string& verb = r.verb;
   const std::string line = ctl.axis + r.line;  // the per-axis verbs
   if (verb == "pos") return print_position(ctl, line);
-  if (verb == "move" || verb == "rel" || verb == "moverel" || verb == "ref")
+  if (verb == "move" || verb == "rel" || verb == "moverel" || verb == "ref" || verb == "jog")
     return motion(ctl, line, true);
   if (verb == "step") return motion(ctl, line, false);
   if (verb == "stop") return command(ctl, line);
@@ -377,6 +409,8 @@ int run(const Request& r, Ctl& ctl) {
   if (verb == "status") return print_query(ctl, line);
   if (verb == "show") return show_status(ctl);
   if (verb == "region") return print_lengths(ctl, line, true);
+  if (verb == "velocity")
+    return r.line == "MOVE:VEL?" ? print_speed(ctl, line) : command(ctl, line);
   if (verb == "limits")
     return r.line == "LIM?" ? print_lengths(ctl, line, false) : command(ctl, line);
   // *RST during a sweep completes in the background (MOVE:DONE? is 0 until then): wait for it,

@@ -113,7 +113,8 @@ bool same_secret(std::string_view a, std::string_view b) {
 }
 
 bool is_control(const HttpRequest& req) {
-  return req.method == "POST" && (req.path == "/api/stop" || req.path == "/api/move");
+  return req.method == "POST" && (req.path == "/api/stop" || req.path == "/api/move" ||
+                                  req.path == "/api/jog" || req.path == "/api/velocity");
 }
 
 std::optional<Denial> deny(const AccessRules& rules, const HttpRequest& req) {

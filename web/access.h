@@ -58,7 +58,7 @@ struct Denial {
   HeaderList headers;
 };
 
-// A control request: POST to /api/stop or /api/move.
+// A control request: POST to /api/stop, /api/move, /api/jog or /api/velocity.
 bool is_control(const HttpRequest& req);
 
 // The decision on every request before its route: the Host it names (DNS rebinding: on every

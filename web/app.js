@@ -36,6 +36,13 @@ function um(m) {
   return (m * 1e6).toFixed(4) + ' \u00b5m';
 }
 
+// A speed limit as a person reads it: µm/s, 'none' for 0 (no limit).
+function speed(mps) {
+  if (mps === null || mps === undefined) return '\u2014';
+  if (mps === 0) return 'none';
+  return String(Number((mps * 1e6).toPrecision(9))) + ' \u00b5m/s';
+}
+
 function limit(m) {
   if (m === null || m === undefined) return 'none';
   return (m * 1e6).toFixed(3);
@@ -64,7 +71,7 @@ function buildTable(axes) {
     tr.appendChild(el('td', {}, a.name + ' (' + a.axis + ')'));
     for (const k of ['pos', 'target']) tr.appendChild(el('td', { id: k + '-' + a.axis, class: 'num' }));
     for (const k of ['state', 'status']) tr.appendChild(el('td', { id: k + '-' + a.axis }));
-    for (const k of ['limits', 'ref', 'moves']) tr.appendChild(el('td', { id: k + '-' + a.axis, class: 'num' }));
+    for (const k of ['limits', 'ref', 'moves', 'speed-limit']) tr.appendChild(el('td', { id: k + '-' + a.axis, class: 'num' }));
     const ctl = el('td', { class: 'ctl' });
     if (view.control) {
       const stop = el('button', { class: 'stop', id: 'stop-' + a.axis }, 'STOP');
@@ -76,7 +83,15 @@ function buildTable(axes) {
         if (!input.value.trim() || !isFinite(t)) { message('move: a target in \u00b5m is needed'); return; }
         post('/api/move', { axis: a.axis, target: t }).then(() => message(''), e => message('move: ' + e.message));
       };
-      ctl.append(stop, ' ', input, go);
+      const speedInput = el('input', { id: 'speed-input-' + a.axis, size: 8, placeholder: '\u00b5m/s' });
+      const setSpeed = el('button', { id: 'speed-' + a.axis }, 'set speed limit');
+      setSpeed.onclick = () => {
+        const v = Number(speedInput.value) * 1e-6;
+        if (!speedInput.value.trim() || !isFinite(v)) { message('speed limit: a speed in \u00b5m/s is needed (0: no limit)'); return; }
+        post('/api/velocity', { axis: a.axis, speed: v.toPrecision(12) }).then(() => message(''), e => message('speed limit: ' + e.message));
+      };
+      ctl.append(stop, ' ', input, go, ' ', jogButton(a.axis, 'negative', '\u25c0 jog'),
+                 jogButton(a.axis, 'positive', 'jog \u25b6'), ' ', speedInput, setSpeed);
     } else {
       ctl.textContent = 'read-only';
     }
@@ -101,11 +116,36 @@ function buildTable(axes) {
   }
 }
 
+// A jog button: pressed, the axis jogs that way (POST /api/jog: toward the soft limit at the
+// speed limit); released (or the press lost: pointer cancelled, the window left), STOP of that
+// axis, sent after the jog's own request has been answered so that it cannot overtake it.
+function jogButton(axis, direction, label) {
+  const b = el('button', { class: 'jog', id: 'jog-' + direction.slice(0, 3) + '-' + axis,
+                           title: 'hold to jog ' + direction + ' (release: STOP)' }, label);
+  let jog = null;
+  const release = () => {
+    if (!jog) return;
+    const started = jog;
+    jog = null;
+    b.classList.remove('active');
+    started.finally(() => post('/api/stop', { axis }).then(() => {}, e => message('STOP: ' + e.message)));
+  };
+  b.addEventListener('pointerdown', ev => {
+    if (ev.button !== 0 || jog) return;
+    if (b.setPointerCapture) b.setPointerCapture(ev.pointerId);
+    b.classList.add('active');
+    jog = post('/api/jog', { axis, direction }).then(() => message(''), e => message('jog: ' + e.message));
+  });
+  for (const t of ['pointerup', 'pointercancel', 'lostpointercapture']) b.addEventListener(t, release);
+  window.addEventListener('blur', release);
+  return b;
+}
+
 function buildControl(tokenRequired) {
   const c = document.getElementById('control');
   c.textContent = '';
   if (!view.control) {
-    c.appendChild(el('span', { class: 'muted' }, 'read-only (idm-web --control enables STOP and moves)'));
+    c.appendChild(el('span', { class: 'muted' }, 'read-only (idm-web --control enables STOP, moves, jogs and the speed limit)'));
     return;
   }
   const stop = el('button', { class: 'stop', id: 'stop-all' }, 'STOP all axes');
@@ -149,6 +189,7 @@ function update(s) {
       : limit(a.lower_m) + ' .. ' + limit(a.upper_m) + ' \u00b5m';
     document.getElementById('ref-' + a.axis).textContent = a.referenced ? 'yes' : 'no';
     document.getElementById('moves-' + a.axis).textContent = a.moves === undefined ? '' : String(a.moves);
+    document.getElementById('speed-limit-' + a.axis).textContent = a.stale ? '\u2014' : speed(a.speed_limit_m_s);
     if (a.position_valid && s.connected) {
       const h = view.history[a.axis] || (view.history[a.axis] = []);
       if (!h.length || h[h.length - 1][0] < s.time) h.push([s.time, a.position_m]);
@@ -329,4 +370,4 @@ async function start() {
 
 // In a browser: run. Under node (tests/web/test_app.js): only the functions, no page.
 if (typeof document !== 'undefined') start();
-if (typeof module !== 'undefined') module.exports = { niceTicks, plotOn, HISTORY_S };
+if (typeof module !== 'undefined') module.exports = { niceTicks, plotOn, speed, HISTORY_S };

@@ -52,7 +52,8 @@ const char* kUsage =
     "  --listen HOST:PORT where to serve (default 127.0.0.1:8080; port 0: a free port)\n"
     "  --allow-host NAME  a Host name requests may carry besides localhost, 127.x and [::1] and\n"
     "                     the listen address (repeatable): how other machines name it\n"
-    "  --control          allow STOP and moves from the page (POST); without it only GET\n"
+    "  --control          allow STOP, moves, jogs and the speed limit from the page (POST);\n"
+    "                     without it only GET\n"
     "  --allow-remote-control  allow --control on a listen address that is not loopback (needs\n"
     "                     a token)\n"
     "  --token-file FILE  control requests must carry this token (Authorization: Bearer TOKEN);\n"
@@ -312,29 +313,49 @@ HttpResponse Routes::gap() const {
   return json_error(404, "cannot read the gap report " + f.why);
 }
 
-// STOP and moves (POST); the access rules let them through only with --control.
+// A control line to idmd: {"ok":true}, or the daemon's refusal (its error) as `refused`.
+HttpResponse control_reply(idm::web::Monitor& monitor, const std::string& line, int refused) {
+  try {
+    monitor.command(line);
+    return json_reply(200, "{\"ok\":true}");
+  } catch (const std::exception& e) {
+    return json_error(refused, e.what());
+  }
+}
+
+// A number parameter of a control request: finite, at most 64 characters; false when not.
+bool number_param(const HttpRequest& req, const char* name, double& value) {
+  const std::string text = req.param(name).value_or("");
+  return text.size() <= 64 && idm::daemon::parse_number(text, name, value).ok();
+}
+
+// STOP, moves, jogs and the speed limit (POST); the access rules let them through only with
+// --control.
 HttpResponse Routes::post(const HttpRequest& req) const {
   const int axis = axis_param(req);
   if (req.path == "/api/stop") {
     if (axis < 0) return json_error(400, "axis: expected 1.." + std::to_string(kMaxAxes));
-    try {
-      monitor.command(axis == 0 ? std::string("STOP") : "AXIS" + std::to_string(axis) + ":STOP");
-      return json_reply(200, "{\"ok\":true}");
-    } catch (const std::exception& e) {
-      return json_error(502, e.what());
-    }
+    return control_reply(
+        monitor, axis == 0 ? std::string("STOP") : "AXIS" + std::to_string(axis) + ":STOP", 502);
   }
   if (axis <= 0) return json_error(400, "axis=N (1.." + std::to_string(kMaxAxes) + ") is needed");
-  double target = 0;
-  const std::string text = req.param("target").value_or("");
-  if (text.size() > 64 || !idm::daemon::parse_number(text, "target", target).ok())
-    return json_error(400, "target: a finite number of metres is needed");
-  try {
-    monitor.command("AXIS" + std::to_string(axis) + ":MOVE:ABS " + format_number(target));
-    return json_reply(200, "{\"ok\":true}");
-  } catch (const std::exception& e) {
-    return json_error(422, e.what());
+  const std::string prefix = "AXIS" + std::to_string(axis) + ":";
+  if (req.path == "/api/jog") {
+    const std::string direction = req.param("direction").value_or("");
+    if (direction != "positive" && direction != "negative")
+      return json_error(400, "direction: positive or negative is needed");
+    return control_reply(monitor, prefix + (direction == "positive" ? "JOG POS" : "JOG NEG"), 422);
   }
+  if (req.path == "/api/velocity") {
+    double speed = 0;
+    if (!number_param(req, "speed", speed))
+      return json_error(400, "speed: a finite number of m/s is needed (0: no limit)");
+    return control_reply(monitor, prefix + "MOVE:VEL " + format_number(speed), 422);
+  }
+  double target = 0;
+  if (!number_param(req, "target", target))
+    return json_error(400, "target: a finite number of metres is needed");
+  return control_reply(monitor, prefix + "MOVE:ABS " + format_number(target), 422);
 }
 
 // Serves until SIGINT or SIGTERM (blocked in every thread, read from a signalfd) or until the

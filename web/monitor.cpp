@@ -44,6 +44,12 @@ void poll_axis(client::Client& c, int axis, const AxisView* old, AxisView& a) {
   a.axis = axis;
   const std::string prefix = axis_prefix(axis);
   a.status_error = query_error([&] { a.status = client::parse_status(c.query(prefix + "STAT?")); });
+  // MOVE:VELocity? likewise: a daemon without it answers -113 once per connection.
+  if (old && !old->speed_limit_m_s && old->speed_limit_error.rfind("-113,", 0) == 0)
+    a.speed_limit_error = old->speed_limit_error;
+  else
+    a.speed_limit_error = query_error(
+        [&] { a.speed_limit_m_s = client::parse_reply_number(c.query(prefix + "MOVE:VEL?")); });
   // STATus:OPERation? is in the protocol's extension; a daemon without it answers -113 once
   // per connection, and is not asked again until idm-web reconnects.
   const bool unsupported = old && !old->operation && old->operation_error.rfind("-113,", 0) == 0;
@@ -351,6 +357,9 @@ std::string axis_json(const AxisView& a) {
          ",\"eot\":" + json_string(s.eot) + ",\"daemon_error\":" + json_string(s.daemon_error) +
          ",\"moves\":" + std::to_string(s.moves) + ",\"bursts\":" + std::to_string(s.bursts) +
          ",\"cycles\":" + std::to_string(s.cycles);
+    o += a.speed_limit_m_s ? ",\"speed_limit_m_s\":" + json_number(*a.speed_limit_m_s)
+                           : ",\"speed_limit_m_s\":null,\"speed_limit_error\":" +
+                                 json_string(a.speed_limit_error);
   } else {
     o += ",\"name\":" + json_string("axis" + std::to_string(a.axis)) +
          ",\"status_error\":" + json_string(a.status_error);

@@ -27,6 +27,8 @@ struct AxisView {
   std::string status_error;                // why status is empty
   std::optional<std::uint32_t> operation;  // STATus:OPERation?, when the daemon answers it
   std::string operation_error;             // the daemon's error when it does not
+  std::optional<double> speed_limit_m_s;   // MOVE:VELocity? (0: none), when the daemon answers it
+  std::string speed_limit_error;           // the daemon's error when it does not
   std::uint64_t faults_seen = 0;           // transitions into FAULT seen by this idm-web
   struct Sample {
     double t;  // seconds since the epoch

@@ -459,6 +459,44 @@ def p_step(sess: Session, key: AxisKey, cycles: Any, duty: Any, freq_hz: Any, st
     return position
 
 
+JOG_DIRECTIONS = {"+": "POSitive", "POS": "POSitive", "POSITIVE": "POSitive",
+                  "-": "NEGative", "NEG": "NEGative", "NEGATIVE": "NEGative"}
+
+
+def jog_keyword(direction: Any) -> str:
+    """``JOG``'s keyword for a direction: ``"positive"``/``"+"``/``+1`` or
+    ``"negative"``/``"-"``/``-1`` (words in any case, ``pos``/``neg`` too)."""
+    if isinstance(direction, bool):
+        raise ValueError("jog direction %r: allowed positive, negative (or +, -, 1, -1)"
+                         % (direction,))
+    if isinstance(direction, numbers.Integral) and direction in (1, -1):
+        return "POSitive" if direction > 0 else "NEGative"
+    if isinstance(direction, str) and direction.strip().upper() in JOG_DIRECTIONS:
+        return JOG_DIRECTIONS[direction.strip().upper()]
+    raise ValueError("jog direction %r: allowed positive, negative (or +, -, 1, -1)"
+                     % (direction,))
+
+
+def p_jog(sess: Session, key: AxisKey, direction: Any, wait: bool, timeout: Optional[float],
+          poll: float) -> Plan:
+    command_word = jog_keyword(direction)
+    prefix = yield from p_prefix(sess, key)
+    command = prefix + "JOG " + command_word
+    if not (yield from p_motion(sess, prefix, command, wait, timeout, poll)):
+        return None
+    # A jog ends at the soft limit (OK) or by a STOP (STOPPED): both are how a jog ends. A
+    # STOP from another connection queues 114 for this one, raised above.
+    reply = yield from p_optional(sess, prefix + "MOVE:RESult?", "MOVE:RESult")
+    if reply is not None:
+        result = MoveResult.parse(reply)
+        if result.word not in ("OK", "STOPPED"):
+            raise MoveError("%s ended %s, %g m from the soft limit" % (command, result.word,
+                                                                       result.distance),
+                            result.word, result.distance)
+    position = yield from p_number(prefix + "POSition?")
+    return position
+
+
 def p_reference(sess: Session, key: AxisKey, mode: Optional[str], wait: bool,
                 timeout: Optional[float], poll: float) -> Plan:
     prefix = yield from p_prefix(sess, key)

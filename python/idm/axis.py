@@ -86,6 +86,18 @@ class Axis:
         return self._run(_core.p_step(self._s, self.key, cycles, duty, freq_hz, stroke_m, wait,
                                       self._timeout(timeout), self.client.poll_interval))
 
+    def jog(self, direction: Any, *, wait: bool = False, timeout: Optional[float] = None):
+        """``JOG POSitive|NEGative``: a continuous move that way at the speed limit
+        (:meth:`velocity`), to the soft limit less the window; :meth:`stop` (or any STOP) ends
+        it. ``direction``: ``"positive"``, ``"+"`` or ``1``; ``"negative"``, ``"-"`` or ``-1``
+        (anything else is a ``ValueError``, nothing sent). Without ``wait`` (the default: a jog
+        is meant to be stopped) it returns ``None`` once the daemon has accepted it; with
+        ``wait`` it returns the position where the jog ended, at the limit (``OK``) or stopped
+        by this connection (``STOPPED``); any other end raises as :meth:`move` does (a STOP from
+        another connection: the daemon's 114 as :class:`~idm.DeviceFault`)."""
+        return self._run(_core.p_jog(self._s, self.key, direction, wait, self._timeout(timeout),
+                                     self.client.poll_interval))
+
     def stop(self):
         """Stop this axis (and a sweep running on it): ``AXIS<n>:STOP``; plain ``STOP`` on a
         daemon without the several-axes extension. Other axes go on."""
@@ -173,6 +185,15 @@ class Axis:
     def set_window(self, metres: float):
         """``MOVE:WINDow``."""
         return self._run(_core.p_axis_set(self._s, self.key, "MOVE:WINDow", metres))
+
+    def velocity(self):
+        """``MOVE:VELocity?``: the speed limit of the moves and jogs that follow, m/s (0: none)."""
+        return self._run(_core.p_axis_query(self._s, self.key, "MOVE:VELocity?", parse_number))
+
+    def set_velocity(self, metres_per_second: float):
+        """``MOVE:VELocity``: the speed limit, m/s (0: none); out of the daemon's range
+        (``control.max_speed_m_s``'s, [0, 1] m/s) -222 naming the command and the range."""
+        return self._run(_core.p_axis_set(self._s, self.key, "MOVE:VELocity", metres_per_second))
 
     def dwell(self):
         """``MOVE:DWELl?``: how long readings must stay in the window, s."""

@@ -208,7 +208,8 @@ class FakeInstrument : public Instrument {
   }
   double motion_setting(int, MotionSetting which) override {
     std::lock_guard l(m_);
-    return settings_[static_cast<std::size_t>(which)];
+    const auto k = static_cast<std::size_t>(which);
+    return k < std::size(settings_) ? settings_[k] : 0;
   }
   CommandError reference(int axis, ReferenceMethod method) override {
     std::lock_guard l(m_);
@@ -247,7 +248,7 @@ class FakeInstrument : public Instrument {
   }
 
  private:
-  double settings_[6] = {};
+  double settings_[static_cast<std::size_t>(MotionSetting::MaxSpeed) + 1] = {};
   InstrumentStatus& at(int axis) {
     if (axis < 0 || static_cast<std::size_t>(axis) >= statuses_.size())
       throw std::out_of_range("FakeInstrument: no axis " + std::to_string(axis));

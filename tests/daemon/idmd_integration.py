@@ -4,7 +4,7 @@ tools/idm-simdev), driven through PyVISA (Debian's python3-pyvisa + python3-pyvi
 with a NOTIFY_SOCKET listener standing in for systemd.
 
 usage: idmd_integration.py BUILD_DIR SOURCE_DIR CASE
-CASE: pyvisa | idmctl | notify_sigterm | modbus | bad_config | missing_device
+CASE: pyvisa | idmctl | idmctl_jog | notify_sigterm | modbus | bad_config | missing_device
 """
 import os
 import socket
@@ -87,6 +87,69 @@ def case_idmctl():
         r = idmctl("--unix", d.sock, "status")
         rc, out = r.returncode, r.stdout.strip()
         check(rc == 0 and "state=IDLE" in out, "idmctl over the Unix socket: " + out)
+        check(d.stop(20) == 0, "SIGTERM -> exit 0")
+
+
+def case_idmctl_jog():
+    """idmctl velocity and jog against the real idmd: the speed limit set and read in units per
+    second, refused out of range with idmd's message (the command and the range); jog + ends at
+    the upper soft limit (OK), jog - stopped by another idmctl's stop, and by Ctrl-C on the jog's
+    own idmctl (it sends STOP, exit 130)."""
+    if not os.path.exists(harness.IDMCTL):
+        fail("idmctl not built")
+    with Daemon(config()) as d:
+        def ctl(*args):
+            r = idmctl("--unix", d.sock, *args)
+            return r.returncode, r.stdout.strip(), r.stderr.strip()
+
+        def result():
+            word, dist = ctl("raw", "MOVE:RES?")[1].split(",")
+            return word, float(dist)
+
+        rc, out, err = ctl("velocity")
+        check(rc == 0 and float(out) == 0, "no speed limit by default: %r %r" % (out, err))
+        rc, out, err = ctl("velocity", "2m/s")
+        check(rc == 1 and out == "" and "-222," in err and "MOVE:VELocity" in err and
+              "allowed [0, 1] m/s" in err, "2 m/s refused, naming the command and range: " + err)
+        rc, out, err = ctl("velocity", "-1um/s")
+        check(rc == 1 and "-222," in err and "allowed [0, 1] m/s" in err, "-1 um/s refused: " + err)
+        rc, out, err = ctl("velocity", "2mm/s")
+        check(rc == 0 and out == "" and err == "", "velocity 2mm/s: %r" % err)
+        rc, out, _ = ctl("--unit", "um", "velocity")
+        check(rc == 0 and out == "2000", "read back in um/s: %r" % out)
+        check(float(ctl("raw", "MOVE:VEL?")[1]) == 2e-3, "idmd has 0.002 m/s")
+        check(ctl("limits", "-50um", "150um")[0] == 0, "soft limits -50 um, 150 um")
+        rc, out, err = ctl("--unit", "um", "jog", "+")
+        window_um = float(ctl("--unit", "um", "raw", "MOVE:WIND?")[1]) * 1e6
+        count_um = float(ctl("raw", "RES?")[1]) * 1e6
+        check(rc == 0 and 150 - 2 * window_um - count_um <= float(out) <= 150,
+              "jog + waits and ends at the upper soft limit, inside: %r %r" % (out, err))
+        check(result()[0] == "OK", "MOVE:RES? OK at the limit: %r" % (result(),))
+        # Slower, so that the stops land on the way.
+        check(ctl("velocity", "200um/s")[0] == 0, "velocity 200um/s")
+        rc, out, err = ctl("--no-wait", "jog", "negative")
+        check(rc == 0 and out == "", "jog negative --no-wait returns at once: %r" % err)
+        time.sleep(0.3)
+        check(ctl("raw", "MOVE:DONE?")[1] == "0", "the jog goes on")
+        check(ctl("stop")[0] == 0, "idmctl stop")
+        rc, out, _ = ctl("wait")
+        word, _ = result()
+        p = float(ctl("pos")[1])
+        check(word == "STOPPED" and -50e-6 < p < 150e-6 - 10e-6,
+              "jog - stopped on the way: %s at %g" % (word, p))
+        # Ctrl-C while jog waits: idmctl sends STOP and exits 130.
+        jog = subprocess.Popen([harness.IDMCTL, "--unix", d.sock, "jog", "-"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(0.4)
+        check(jog.poll() is None, "jog - waits while the axis moves")
+        jog.send_signal(2)
+        out, err = jog.communicate(timeout=20)
+        check(jog.returncode == 130 and "sent STOP" in err, "Ctrl-C: STOP, exit 130: %r" % err)
+        ctl("wait")
+        word, _ = result()
+        q = float(ctl("pos")[1])
+        check(word == "STOPPED" and -50e-6 < q < p - 10e-6,
+              "jog - stopped by Ctrl-C on the way: %s at %g (from %g)" % (word, q, p))
         check(d.stop(20) == 0, "SIGTERM -> exit 0")
 
 
@@ -198,7 +261,8 @@ def case_missing_device():
           "the error says which device: " + r.stderr.strip().splitlines()[-1])
 
 
-CASES = {"pyvisa": case_pyvisa, "idmctl": case_idmctl, "notify_sigterm": case_notify_sigterm,
+CASES = {"pyvisa": case_pyvisa, "idmctl": case_idmctl, "idmctl_jog": case_idmctl_jog,
+         "notify_sigterm": case_notify_sigterm,
          "modbus": case_modbus, "bad_config": case_bad_config,
          "missing_device": case_missing_device}
 

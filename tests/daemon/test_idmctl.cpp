@@ -364,6 +364,98 @@ TEST_F(IdmctlTest, StepSendsTheSignOfNAsGivenAndTheHelpSaysWhatItMeans) {
       << help.out;
 }
 
+TEST_F(IdmctlTest, JogMovesTowardTheSoftLimitThatWayAndWaits) {
+  // idmd's JOG is a move to the soft limit that way less the window: the fake's limits are
+  // +-1 mm; the window is the fake's setting, given here.
+  ASSERT_EQ(idmctl("raw MOVE:WIND 2e-6").status, 0);
+  fake_.set_polls_until_done(5);
+  const std::pair<const char*, const char*> kDirections[] = {
+      {"+", "move_absolute(0.000998)"},        {"-", "move_absolute(-0.000998)"},
+      {"positive", "move_absolute(0.000998)"}, {"negative", "move_absolute(-0.000998)"},
+      {"POS", "move_absolute(0.000998)"},      {"Neg", "move_absolute(-0.000998)"}};
+  for (const auto& [word, call] : kDirections) {
+    const Result r = idmctl(std::string("jog ") + word);
+    EXPECT_EQ(r.status, 0) << word << ": " << r.out;
+    EXPECT_EQ(fake_.last_call().rfind(call, 0), 0u) << word << ": " << fake_.last_call();
+    EXPECT_TRUE(fake_.motion_done()) << word;
+    // It waited for the motion's end, then printed the position there (in --unit when given).
+    EXPECT_EQ(r.out,
+              word[0] == '+' || word[0] == 'p' || word[0] == 'P' ? "0.000998\n" : "-0.000998\n")
+        << word;
+  }
+  EXPECT_EQ(idmctl("--unit um jog +").out, "998\n");
+  // --no-wait: back at once, the jog goes on until a STOP.
+  fake_.set_polls_until_done(1 << 30);
+  Result r = idmctl("--no-wait jog -");
+  EXPECT_EQ(r.status, 0) << r.out;
+  EXPECT_EQ(r.out, "");
+  EXPECT_FALSE(fake_.motion_done());
+  EXPECT_EQ(idmctl("stop").status, 0);
+  EXPECT_TRUE(fake_.motion_done());
+  // A direction that is none is bad usage, and nothing is sent.
+  const std::size_t motions = fake_.motion_calls();
+  for (const char* bad : {"up", "1", "++", "'positive '", "''"}) {
+    r = idmctl(std::string("jog ") + bad);
+    EXPECT_EQ(r.status, 2) << bad;
+    EXPECT_NE(r.out.find("is not a direction, allowed +, -, positive, negative"), std::string::npos)
+        << r.out;
+  }
+  r = idmctl("jog");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_EQ(r.out, "idmctl: jog: usage: idmctl jog +|-|positive|negative\n");
+  EXPECT_EQ(fake_.motion_calls(), motions);
+}
+
+TEST_F(IdmctlTest, VelocityIsTheSpeedLimitInUnitsPerSecond) {
+  const std::string kSet =
+      "set_motion_setting(" + std::to_string(static_cast<int>(MotionSetting::MaxSpeed)) + ",";
+  Result r = idmctl("velocity 400um/s");
+  EXPECT_EQ(r.status, 0) << r.out;
+  EXPECT_EQ(r.out, "");
+  EXPECT_EQ(fake_.last_call(), kSet + "0.0004)");
+  EXPECT_EQ(idmctl("velocity").out, "0.0004\n");
+  EXPECT_EQ(idmctl("--unit um velocity").out, "400\n");
+  EXPECT_EQ(idmctl("--unit nm velocity").out, "400000\n");
+  EXPECT_EQ(idmctl("--unit mm velocity").out, "0.4\n");
+  const std::pair<const char*, const char*> kSpeeds[] = {{"--unit mm velocity 0.5mm/s", "0.0005)"},
+                                                         {"velocity 2.5e-4", "0.00025)"},
+                                                         {"--unit m velocity 1e-3", "0.001)"},
+                                                         {"velocity 250nm/s", "2.5e-07)"},
+                                                         {"velocity 0m/s", "0)"},
+                                                         {"velocity 1e-3m/s", "0.001)"}};
+  for (const auto& [args, value] : kSpeeds) {
+    r = idmctl(args);
+    EXPECT_EQ(r.status, 0) << args << ": " << r.out;
+    EXPECT_EQ(fake_.last_call(), kSet + value) << args;
+  }
+  // A bare number is m/s, ambiguous with --unit nm, um or mm; a length is not a speed.
+  r = idmctl("--unit um velocity 5");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_EQ(r.out,
+            "idmctl: velocity SPEED: '5' has no unit: write 5um/s, 5m/s, ... (a bare number is "
+            "m/s only without --unit or with --unit m)\n");
+  r = idmctl("velocity 400um");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_EQ(
+      r.out.rfind("idmctl: velocity SPEED: '400um' is a length, not a speed: write 400um/s", 0), 0u)
+      << r.out;
+  for (const char* bad : {"5km/s", "5Um/s", "um/s", "/s", "5/s", "1e/s", "5 um/s", "infm/s",
+                          "5um/h", "5\xC2\xB5m/s"}) {
+    r = idmctl(std::string("velocity '") + bad + "'");
+    EXPECT_EQ(r.status, 2) << bad;
+    EXPECT_EQ(r.out.rfind(std::string("idmctl: velocity SPEED: '") + bad + "'", 0), 0u) << r.out;
+    EXPECT_NE(r.out.find("nm/s, um/s, mm/s, m/s"), std::string::npos) << r.out;
+  }
+  EXPECT_EQ(idmctl("velocity 1um/s 2um/s").status, 2);
+  EXPECT_EQ(fake_.last_call(), kSet + "0.001)");  // nothing refused was sent
+  // The verbs on stdin's lines, as on the command line.
+  std::string err;
+  r = piped("velocity 3um/s\nvelocity\njog -\n", err, "--unit um");
+  EXPECT_EQ(r.status, 0) << err;
+  EXPECT_EQ(r.out, "3\n-1000\n");
+  EXPECT_EQ(fake_.last_call().rfind("move_absolute(-0.001)", 0), 0u) << fake_.last_call();
+}
+
 TEST_F(IdmctlTest, VersionIsTheProjectsVersion) {
   const Result r = run_shell(kIdmctl + " --version");
   EXPECT_EQ(r.status, 0);

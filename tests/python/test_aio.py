@@ -102,6 +102,31 @@ def test_tasks_share_a_client_and_stop_from_another_task(idmd):
     run(main())
 
 
+def test_jog_and_the_speed_limit(idmd):
+    async def main():
+        async with idm.aio.AsyncClient(port=idmd.port) as c:
+            x = c.axis(1)
+            p0 = await x.move(0)  # well inside the travel, wherever an earlier test left it
+            await x.set_limits(p0 - 0.2e-3, p0 + 0.2e-3)
+            await x.set_velocity(5e-4)
+            try:
+                assert await x.velocity() == 5e-4
+                arrived = await x.jog("-", wait=True)
+                window = await x.window()
+                assert p0 - 0.2e-3 <= arrived <= p0 - 0.2e-3 + 2 * window + COUNT
+                assert (await x.result()).word == "OK"
+                assert await x.jog("POSITIVE") is None
+                while await x.position() < arrived + 20e-6:
+                    await asyncio.sleep(0.01)
+                await x.stop()
+                assert await x.wait(10)
+                assert (await x.result()).word == "STOPPED"
+            finally:
+                await x.set_velocity(0)
+                await x.set_limits(*TRAVEL)
+    run(main())
+
+
 def test_wait_timeout_and_opc(idmd):
     async def main():
         async with idm.aio.AsyncClient(port=idmd.port) as c:

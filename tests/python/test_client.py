@@ -443,6 +443,7 @@ def _raw_answer(idmd, line):
     ("REFerence?", lambda c: c.axis(1).referenced()),
     ("MOVE:WINDow?", lambda c: c.axis(1).window()),
     ("MOVE:DWELl?", lambda c: c.axis(1).dwell()),
+    ("MOVE:VELocity?", lambda c: c.axis(1).velocity()),
     ("HOLD?", lambda c: c.axis(1).hold()),
     ("HOLD:WINDow?", lambda c: c.axis(1).hold_window()),
     ("EOT:CYCLes?", lambda c: c.axis(1).eot_cycles()),
@@ -465,7 +466,7 @@ def test_extension_queries_return_the_daemons_answer(idmd, line, call):
             assert got.word == value.split(",")[0]
         elif line == "REFerence?":
             assert got is (value == "1")
-        elif line in ("RESolution?", "MOVE:WINDow?", "MOVE:DWELl?", "HOLD?",
+        elif line in ("RESolution?", "MOVE:WINDow?", "MOVE:DWELl?", "MOVE:VELocity?", "HOLD?",
                       "HOLD:WINDow?", "EOT:STEP?"):
             assert got == float(value)
 
@@ -499,13 +500,15 @@ def test_axis_by_name_and_other_axes_need_the_extension(idmd):
 @pytest.mark.parametrize("name,value,bad", [
     ("window", 2e-8, -1.0),
     ("dwell", 0.05, -1.0),
+    ("velocity", 4e-4, 2.0),
     ("hold", 0.5, -2.0),
     ("hold_window", 3e-8, -1.0),
     ("eot_cycles", 25, 0),
     ("eot_step", 3e-9, -1.0),
 ])
 def test_extension_settings_are_written_and_read_back(client, name, value, bad):
-    """MOVE:WINDow, MOVE:DWELl, HOLD, HOLD:WINDow, EOT:CYCLes, EOT:STEP: a value set is read back
+    """MOVE:WINDow, MOVE:DWELl, MOVE:VELocity, HOLD, HOLD:WINDow, EOT:CYCLes, EOT:STEP: a value
+    set is read back
     as set; one out of range is the daemon's -222 naming the header, and changes nothing."""
     x = client.axis(1)
     read, write = getattr(x, name), getattr(x, "set_" + name)
@@ -517,7 +520,8 @@ def test_extension_settings_are_written_and_read_back(client, name, value, bad):
         with pytest.raises(idm.ExecutionError) as e:
             write(bad)
         assert e.value.code == -222
-        header = {"window": "MOVE:WINDow", "dwell": "MOVE:DWELl", "hold": "HOLD",
+        header = {"window": "MOVE:WINDow", "dwell": "MOVE:DWELl", "velocity": "MOVE:VELocity",
+                  "hold": "HOLD",
                   "hold_window": "HOLD:WINDow", "eot_cycles": "EOT:CYCLes",
                   "eot_step": "EOT:STEP"}[name]
         assert header + ":" in e.value.text and "out of range" in e.value.text
@@ -525,6 +529,70 @@ def test_extension_settings_are_written_and_read_back(client, name, value, bad):
     finally:
         write(before)
     assert read() == before
+
+
+def test_velocity_refusals_name_the_command_and_the_range(client):
+    x = client.axis(1)
+    for bad in (2.0, -1e-6):
+        with pytest.raises(idm.ExecutionError) as e:
+            x.set_velocity(bad)
+        assert e.value.code == -222
+        assert "MOVE:VELocity" in e.value.text and "allowed [0, 1] m/s" in e.value.text, e.value
+        assert e.value.command == "AXIS1:MOVE:VELocity %r" % bad
+    with pytest.raises(TypeError):
+        x.set_velocity("400um/s")  # metres per second, as the protocol: idm.units for people
+    assert x.velocity() == 0
+
+
+def test_jog_goes_to_the_soft_limit_at_the_speed_limit_and_stop_ends_it(client):
+    """JOG POSitive/NEGative through the client: with wait, to the soft limit less the window
+    (OK), no faster than the speed limit; without, it runs until the axis's stop (STOPPED, no
+    error); a jog waited for in one thread is ended by stop() from another and returns where it
+    stopped; a direction that is none is refused before anything is sent."""
+    x = client.axis(1)
+    p0 = x.move(0)  # well inside the travel, wherever an earlier test left the axis
+    lower, upper = p0 - 0.3e-3, p0 + 0.3e-3
+    x.set_limits(lower, upper)
+    limit = 4e-4
+    x.set_velocity(limit)
+    try:
+        assert x.velocity() == limit
+        window = x.window()
+        start = time.monotonic()
+        arrived = x.jog("+", wait=True)
+        elapsed = time.monotonic() - start
+        assert upper - 2 * window - COUNT <= arrived <= upper, (arrived, upper, window)
+        assert x.result().word == "OK"
+        assert x.target() == pytest.approx(upper - window, abs=1e-12)
+        # 0.3 mm at 0.4 mm/s at most (a loaded machine can only be slower).
+        assert elapsed >= (upper - p0) / (1.3 * limit), elapsed
+
+        assert x.jog("negative") is None
+        assert x.done() is False
+        wait_for("the jog under way", lambda: x.position() < arrived - 20e-6, 10)
+        x.stop()
+        assert x.wait(10) is True
+        stopped = x.position()
+        assert x.result().word == "STOPPED"
+        assert lower + 20e-6 < stopped < arrived - 20e-6, (lower, stopped, arrived)
+
+        ended = []
+        jogger = threading.Thread(target=lambda: ended.append(x.jog(-1, wait=True)))
+        jogger.start()
+        wait_for("the waited jog under way", lambda: x.position() < stopped - 20e-6, 10)
+        x.stop()
+        jogger.join(20)
+        assert not jogger.is_alive() and len(ended) == 1, ended
+        assert lower < ended[0] < stopped - 20e-6
+        assert x.result().word == "STOPPED"
+
+        moves = x.status().moves
+        for bad in ("up", 0, 2, True, None, "++", 1.0):
+            with pytest.raises(ValueError, match="allowed positive, negative"):
+                x.jog(bad)
+        assert x.status().moves == moves
+    finally:
+        x.set_velocity(0)
 
 
 def test_status_registers_follow_errors_and_motion(client):

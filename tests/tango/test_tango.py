@@ -7,6 +7,7 @@ import os
 import tempfile
 import shutil
 import threading
+import time
 
 import pytest
 import tango
@@ -211,6 +212,87 @@ def test_step_outside_the_daemon_s_range_is_a_tango_exception(lab, axis):
         axis.Step(0)
     assert failed.value.args[0].reason == "IdmdError"
     assert "-222," in failed.value.args[0].desc
+
+
+def failure_text(failed):
+    """Every reason and description of a DevFailed, joined."""
+    return " | ".join("%s: %s" % (e.reason, e.desc) for e in failed.value.args)
+
+
+def test_velocity_is_the_daemons_speed_limit(lab, axis):
+    """Velocity reads and writes MOVE:VELocity (m/s); a value out of the daemon's range is a
+    Tango exception carrying idmd's -222, which names the command and the range, and changes
+    nothing."""
+    daemon, _ = lab
+    assert float(ask(daemon, "MOVE:VEL?")[0]) == 0
+    assert axis.read_attribute("Velocity").value == 0
+    assert axis.get_attribute_config("Velocity").unit == "m/s"
+    try:
+        axis.write_attribute("Velocity", 5e-4)
+        assert float(ask(daemon, "MOVE:VEL?")[0]) == 5e-4
+        assert axis.read_attribute("Velocity").value == pytest.approx(5e-4, rel=1e-12)
+        for bad in (2.0, -1e-6):
+            with pytest.raises(tango.DevFailed) as refused:
+                axis.write_attribute("Velocity", bad)
+            text = failure_text(refused)
+            assert "IdmdError" in text and "-222," in text, text
+            assert "MOVE:VELocity" in text and "allowed [0, 1] m/s" in text, text
+        assert float(ask(daemon, "MOVE:VEL?")[0]) == 5e-4
+    finally:
+        send(daemon, "MOVE:VEL 0")
+
+
+def test_jog_moves_to_the_soft_limit_and_stop_ends_it(lab, axis):
+    """JogPositive: MOVING, then at rest at the upper soft limit less the window (MOVE:RESult?
+    OK), no faster than Velocity; JogNegative runs until Stop (STOPPED) and the device is ON
+    where it stopped."""
+    daemon, _ = lab
+    axis.write_attribute("Position", 0.0)
+    wait_at_rest(axis)
+    send(daemon, "LIM -0.2e-3,0.2e-3")
+    limit = 4e-4
+    axis.write_attribute("Velocity", limit)
+    try:
+        start_position = mean_position(daemon)
+        states = Events(axis, "State")
+        try:
+            states.wait_for("the first State event", lambda v: len(v) >= 1, 10)
+            # The first event is read at the subscription; pushed ones reach this client only
+            # once its event channel is connected, a moment later (an event pushed before is
+            # lost, as seen here: the jog's MOVING).
+            time.sleep(1)
+            start = time.monotonic()
+            axis.JogPositive()
+            states.wait_for("State MOVING, then at rest",
+                            lambda v: any(s == tango.DevState.MOVING for s, _ in v) and
+                            v[-1][0] != tango.DevState.MOVING, 30)
+            elapsed = time.monotonic() - start
+        finally:
+            states.close()
+        assert axis.state() in (tango.DevState.ON, tango.DevState.ALARM)
+        window = float(ask(daemon, "MOVE:WIND?")[0])
+        count = resolution(daemon)
+        arrived = mean_position(daemon)
+        assert 0.2e-3 - 2 * window - count <= arrived <= 0.2e-3 + count, (arrived, window)
+        assert ask(daemon, "MOVE:RES?")[0].startswith("OK,")
+        assert axis.read_attribute("Target").value == pytest.approx(0.2e-3 - window, abs=1e-12)
+        assert elapsed >= (0.2e-3 - start_position) / (1.3 * limit), elapsed
+
+        axis.JogNegative()
+        wait_for("State MOVING", lambda: axis.state() == tango.DevState.MOVING, 10)
+        wait_for("progress", lambda: axis.read_attribute("Position").value < arrived - 20e-6, 30)
+        axis.Stop()
+        wait_at_rest(axis, 10)
+        assert axis.state() == tango.DevState.ON
+        stopped = axis.read_attribute("Position").value
+        assert -0.2e-3 + 20e-6 < stopped < arrived - 20e-6, (stopped, arrived)
+        assert ask(daemon, "MOVE:RES?")[0].startswith("STOPPED,")
+    finally:
+        send(daemon, "MOVE:VEL 0")
+    for name in ("JogPositive", "JogNegative"):
+        info = axis.command_query(name)
+        assert info.in_type == tango.CmdArgType.DevVoid
+        assert info.out_type == tango.CmdArgType.DevVoid
 
 
 def test_reference_does_what_the_daemon_does(lab, axis):

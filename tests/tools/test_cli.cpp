@@ -17,6 +17,7 @@ using idm::tools::find_length_unit;
 using idm::tools::format_length;
 using idm::tools::LengthUnit;
 using idm::tools::parse_length;
+using idm::tools::parse_speed;
 
 namespace {
 
@@ -29,6 +30,15 @@ const LengthUnit& unit(const char* name) {
 std::string refusal(const std::string& text, const LengthUnit* bare) {
   try {
     parse_length(text, "move X", bare);
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+std::string speed_refusal(const std::string& text, const LengthUnit* bare) {
+  try {
+    parse_speed(text, "velocity SPEED", bare);
   } catch (const InputError& e) {
     return e.what();
   }
@@ -88,4 +98,45 @@ TEST(Lengths, WhatIsNotALengthIsRefusedNamingTheArgumentAndTheUnits) {
             "move X: '5' has no unit: write 5um, 5m, ... (a bare number is metres only without "
             "--unit or with --unit m)");
   EXPECT_EQ(refusal("5um", nullptr), "");
+}
+
+TEST(Speeds, EveryNumberWithEveryUnitPerSecondReadsBackAsItsMetresPerSecond) {
+  const std::pair<const char*, double> kUnits[] = {{"nm", 1e9}, {"um", 1e6}, {"mm", 1e3}, {"m", 1}};
+  std::mt19937 random(13);
+  std::uniform_real_distribution<double> mantissa(0, 10);
+  std::uniform_int_distribution<int> exponent(-9, 3);
+  for (int k = 0; k < 2000; ++k) {
+    char text[64];
+    std::snprintf(text, sizeof text, k % 2 ? "%.17g" : "%.6e",
+                  mantissa(random) * std::pow(10.0, exponent(random)));
+    const double written = std::stod(text);
+    for (const auto& [name, per_metre] : kUnits)
+      EXPECT_EQ(parse_speed(std::string(text) + name + "/s", "V", nullptr), written / per_metre)
+          << text << name;
+    EXPECT_EQ(parse_speed(text, "V", &unit("m")), written);
+    EXPECT_EQ(parse_speed(text, "V", &unit("mm")), written / 1e3);
+  }
+}
+
+TEST(Speeds, WhatIsNotASpeedIsRefusedNamingTheArgumentAndTheUnits) {
+  for (const char* bad : {"5km/s", "5Um/s", "um/s", "/s", "5/s", "", "-", "5 um/s", "infm/s",
+                          "5um/h", "5um/S", "5um//s", "5um/s/s", "1e400m/s", "5um", "5m"}) {
+    const std::string why = speed_refusal(bad, &unit("m"));
+    EXPECT_EQ(why.rfind(std::string("velocity SPEED: '") + bad + "'", 0), 0u) << bad << ": " << why;
+    EXPECT_NE(why.find("nm/s, um/s, mm/s, m/s"), std::string::npos) << bad << ": " << why;
+  }
+  EXPECT_EQ(speed_refusal("5km/s", &unit("m")),
+            "velocity SPEED: '5km/s': unknown unit 'km/s', accepted nm/s, um/s, mm/s, m/s (case "
+            "matters; a bare number is m/s)");
+  EXPECT_EQ(speed_refusal("400um", &unit("m")),
+            "velocity SPEED: '400um' is a length, not a speed: write 400um/s (a number and a "
+            "unit, one of nm/s, um/s, mm/s, m/s (e.g. 400um/s, 0.5mm/s))");
+  EXPECT_EQ(speed_refusal("5\xC2\xB5m/s", &unit("m"))
+                .rfind("velocity SPEED: '5\xC2\xB5m/s': write um/s for micrometres per second", 0),
+            0u);
+  EXPECT_EQ(speed_refusal("5", nullptr),
+            "velocity SPEED: '5' has no unit: write 5um/s, 5m/s, ... (a bare number is m/s only "
+            "without --unit or with --unit m)");
+  EXPECT_EQ(speed_refusal("5um/s", nullptr), "");
+  EXPECT_EQ(speed_refusal("-5um/s", nullptr), "");  // idmd judges the range (and names it)
 }

@@ -118,4 +118,21 @@ for (let i = 0; i < 300; i++) {
   assert.strictEqual(app.plotOn(g, 900, 260, {}, [], 1e9), null);
   assert.ok(g.calls.some(c => c[0] === 'fillText' && c[1] === 'no valid position yet'));
 }
+// The speed limit as the page shows it: µm/s to 9 digits, 'none' for 0 (no limit), a dash for
+// none known; generated speeds read back from the text within its rounding.
+{
+  assert.strictEqual(app.speed(0), 'none');
+  assert.strictEqual(app.speed(null), '\u2014');
+  assert.strictEqual(app.speed(undefined), '\u2014');
+  assert.strictEqual(app.speed(4e-4), '400 \u00b5m/s');
+  assert.strictEqual(app.speed(2.5e-7), '0.25 \u00b5m/s');
+  const rand = generator(32);
+  for (let k = 0; k < 1000; k++) {
+    const v = Math.pow(10, -9 + 9 * rand());
+    const m = /^(\d+(?:\.\d+)?(?:e[-+]\d+)?) \u00b5m\/s$/.exec(app.speed(v));
+    assert.ok(m, 'speed text: ' + app.speed(v));
+    assert.ok(Math.abs(Number(m[1]) * 1e-6 - v) <= v * 1e-8, 'speed ' + v + ': ' + app.speed(v));
+    cases++;
+  }
+}
 console.log('test_app.js: ' + cases + ' cases passed');

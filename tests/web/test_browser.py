@@ -1,14 +1,18 @@
 """The status page in a real browser: headless Chromium driven by Selenium (Debian's chromium,
 chromium-driver, python3-selenium) against idm-web and a real idmd on the simulated stage. The
 position shown follows a move, the plot and the region map are drawn, STOP on the page stops a
-move, and a screenshot is kept in the build tree (tests/web/status-page.png)."""
+move, the jog buttons jog while pressed and stop when released (or by STOP), the speed-limit field
+sets MOVE:VELocity and shows idmd's refusal, and a screenshot is kept in the build tree
+(tests/web/status-page.png)."""
 import os
 import re
+import time
 
 import pytest
 from selenium import webdriver
 from selenium.webdriver.chrome.options import Options
 from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 
 from conftest import BUILD, ask, mean_position, send, wait_done, wait_for
@@ -116,10 +120,103 @@ def test_a_move_from_the_page(lab, restore, browser):
              lambda: "-222" in browser.find_element(By.ID, "message").text, 10)
 
 
+def test_the_speed_limit_from_the_page(lab, restore, browser):
+    daemon, _, web = lab
+    browser.get(web.url + "/")
+    wait_for("the speed field", lambda: browser.find_elements(By.ID, "speed-input-1"), 30)
+    wait_for("no limit shown", lambda: browser.find_element(By.ID, "speed-limit-1").text == "none",
+             10)
+    box = browser.find_element(By.ID, "speed-input-1")
+    try:
+        box.clear()
+        box.send_keys("400")
+        browser.find_element(By.ID, "speed-1").click()
+        wait_for("the daemon's speed limit", lambda: ask(daemon, "MOVE:VEL?")[0] == "0.0004", 10)
+        wait_for("the page to show it",
+                 lambda: browser.find_element(By.ID, "speed-limit-1").text == "400 µm/s", 10)
+        assert browser.find_element(By.ID, "message").text == ""
+        box.clear()
+        box.send_keys("2000000")  # 2 m/s: past idmd's range
+        browser.find_element(By.ID, "speed-1").click()
+        wait_for("the daemon's refusal shown",
+                 lambda: "-222" in browser.find_element(By.ID, "message").text, 10)
+        shown = browser.find_element(By.ID, "message").text
+        assert shown.startswith("speed limit: -222,") and "MOVE:VELocity" in shown, shown
+        assert "allowed [0, 1] m/s" in shown, shown
+        assert ask(daemon, "MOVE:VEL?")[0] == "0.0004"
+        box.clear()
+        box.send_keys("fast")
+        browser.find_element(By.ID, "speed-1").click()
+        wait_for("the page's own refusal", lambda: browser.find_element(By.ID, "message").text ==
+                 "speed limit: a speed in µm/s is needed (0: no limit)", 10)
+    finally:
+        send(daemon, "MOVE:VEL 0")
+
+
+def test_jog_buttons_jog_while_pressed(lab, restore, browser):
+    """Pressed, a jog button jogs (idmd's JOG toward that soft limit); released, the axis stops
+    short of the limit (STOPPED); pressed again and stopped with the axis's STOP while still
+    held, it stops too."""
+    daemon, _, web = lab
+    browser.get(web.url + "/")
+    wait_for("the jog buttons", lambda: browser.find_elements(By.ID, "jog-pos-1"), 30)
+    send(daemon, "MOVE:ABS 0")  # well inside the travel, wherever an earlier test left it
+    wait_done(daemon)
+    start = mean_position(daemon)
+    lower, upper = start - 1e-3, start + 1e-3
+    send(daemon, "LIM %.12g,%.12g" % (lower, upper))
+    send(daemon, "MOVE:VEL 4e-4")
+    window = float(ask(daemon, "MOVE:WIND?")[0])
+    try:
+        jog = browser.find_element(By.ID, "jog-pos-1")
+        actions = ActionChains(browser)
+        actions.click_and_hold(jog).perform()
+        wait_for("the jog toward the upper limit",
+                 lambda: abs(float(ask(daemon, "MOVE?")[0]) - (upper - window)) < 1e-12, 10)
+        wait_for("the page to show MOVING",
+                 lambda: browser.find_element(By.ID, "state-1").text in ("MOVING", "SETTLING"), 10)
+        assert "active" in jog.get_attribute("class")
+        wait_for("progress", lambda: mean_position(daemon, 2) > start + 50e-6, 10)
+        actions.release(jog).perform()
+        wait_done(daemon, 10)
+        released = mean_position(daemon)
+        assert ask(daemon, "MOVE:RES?")[0].startswith("STOPPED,")
+        assert start + 50e-6 < released < upper - 100e-6, (start, released, upper)
+        assert "active" not in jog.get_attribute("class")
+        wait_for("the page to show IDLE",
+                 lambda: browser.find_element(By.ID, "state-1").text == "IDLE", 10)
+        # At rest it stays: the release sent one STOP, nothing more moves it.
+        time.sleep(0.5)
+        assert abs(mean_position(daemon) - released) < 0.5e-6
+
+        back = browser.find_element(By.ID, "jog-neg-1")
+        actions = ActionChains(browser)
+        actions.click_and_hold(back).perform()
+        wait_for("the jog toward the lower limit",
+                 lambda: abs(float(ask(daemon, "MOVE?")[0]) - (lower + window)) < 1e-12, 10)
+        wait_for("progress back", lambda: mean_position(daemon, 2) < released - 50e-6, 10)
+        # STOP while the button is still held (the page's script clicks it: one pointer).
+        browser.execute_script("document.getElementById('stop-1').click();")
+        wait_done(daemon, 10)
+        stopped = mean_position(daemon)
+        assert ask(daemon, "MOVE:RES?")[0].startswith("STOPPED,")
+        assert lower + 100e-6 < stopped < released - 50e-6, (lower, stopped, released)
+        actions.release(back).perform()
+        wait_done(daemon, 10)
+        assert browser.find_element(By.ID, "message").text == ""
+    finally:
+        send(daemon, "MOVE:VEL 0")
+
+
 def test_a_read_only_page_has_no_controls(lab, browser):
     _, web, _ = lab
     browser.get(web.url + "/")
     wait_for("a position shown", lambda: shown_position_m(browser) is not None, 30)
     assert not browser.find_elements(By.ID, "stop-all")
     assert not browser.find_elements(By.ID, "move-1")
+    for control in ("jog-pos-1", "jog-neg-1", "speed-input-1", "speed-1"):
+        assert not browser.find_elements(By.ID, control), control
+    # The speed limit is shown there too (read, not set).
+    wait_for("the speed limit shown",
+             lambda: browser.find_element(By.ID, "speed-limit-1").text == "none", 10)
     assert "read-only" in browser.find_element(By.ID, "control").text

@@ -1,7 +1,7 @@
 """idm-web over HTTP against a real idmd on the simulated stage: the JSON endpoints and /metrics
-follow the daemon, a read-only server refuses everything but GET, control (STOP, moves) works
-only with --control and its header, foreign Host names are refused, hostile requests do not
-bring it down, and pipelined requests are all answered in order.
+follow the daemon, a read-only server refuses everything but GET, control (STOP, moves, jogs, the
+speed limit) works only with --control and its header, foreign Host names are refused, hostile
+requests do not bring it down, and pipelined requests are all answered in order.
 
 Inputs that vary (pipelined requests, how they are cut into pieces) come from hypothesis."""
 import json
@@ -233,6 +233,64 @@ def test_control_moves_and_stops(lab, restore):
         assert web.request("/api/move", "POST", bad, hdr)[0] == 400, bad
     assert web.request("/api/stop", "POST", b"axis=1", hdr)[0] == 200
     assert web.request("/api/stop", "POST", b"axis=0", hdr)[0] == 400
+
+
+def test_control_jogs_and_sets_the_speed_limit(lab, restore):
+    """POST /api/velocity sets MOVE:VELocity (shown in /api/state as speed_limit_m_s), refused
+    out of the daemon's range with its error (the command and the range); POST /api/jog starts
+    JOG toward that soft limit, which /api/stop ends; both need --control and the header, and
+    bad parameters are 400 before anything reaches idmd."""
+    daemon, readonly, web = lab
+    hdr = {"X-Idm-Control": "1"}
+    for path, body in (("/api/jog", b"axis=1&direction=positive"),
+                       ("/api/velocity", b"axis=1&speed=1e-4")):
+        assert readonly.request(path, "POST", body, hdr)[0] == 405, path
+        assert web.request(path, "POST", body)[0] == 403, path
+    assert float(ask(daemon, "MOVE:VEL?")[0]) == 0
+    assert web.json("/api/state")["axes"][0]["speed_limit_m_s"] == 0
+    assert readonly.json("/api/state")["axes"][0]["speed_limit_m_s"] == 0
+    try:
+        status, _, body = web.request("/api/velocity", "POST", b"axis=1&speed=0.0004", hdr)
+        assert status == 200 and json.loads(body) == {"ok": True}
+        assert float(ask(daemon, "MOVE:VEL?")[0]) == 4e-4
+        wait_for("the speed limit in the state",
+                 lambda: web.json("/api/state")["axes"][0]["speed_limit_m_s"] == 4e-4, 10)
+        for bad in (b"2", b"-1e-6"):
+            status, _, body = web.request("/api/velocity", "POST", b"axis=1&speed=" + bad, hdr)
+            error = json.loads(body)["error"]
+            assert status == 422 and error.startswith("-222,"), (bad, status, body)
+            assert "MOVE:VELocity" in error and "allowed [0, 1] m/s" in error, error
+        assert float(ask(daemon, "MOVE:VEL?")[0]) == 4e-4
+        for bad in (b"axis=1&speed=nan", b"axis=1&speed=abc", b"axis=1", b"speed=1e-4",
+                    b"axis=0&speed=1e-4", b"axis=1&speed=1e-4%0A*RST", b"axis=1&speed=1e999"):
+            assert web.request("/api/velocity", "POST", bad, hdr)[0] == 400, bad
+        status, _, body = web.request("/api/velocity", "POST", b"axis=9&speed=0", hdr)
+        assert status == 422 and json.loads(body)["error"].startswith("-114,")
+
+        send(daemon, "MOVE:ABS 0")  # well inside the travel, wherever an earlier test left it
+        wait_done(daemon)
+        start = mean_position(daemon)
+        send(daemon, "LIM %.12g,%.12g" % (start - 0.5e-3, start + 0.5e-3))
+        status, _, body = web.request("/api/jog", "POST", b"axis=1&direction=negative", hdr)
+        assert status == 200 and json.loads(body) == {"ok": True}
+        window = float(ask(daemon, "MOVE:WIND?")[0])
+        assert float(ask(daemon, "MOVE?")[0]) == pytest.approx(start - 0.5e-3 + window, abs=1e-12)
+        wait_for("progress", lambda: mean_position(daemon, 2) < start - 30e-6, 30)
+        assert ask(daemon, "MOVE:DONE?")[0] == "0"
+        status, _, body = web.request("/api/stop", "POST", b"axis=1", hdr)
+        assert status == 200
+        wait_done(daemon, 10)
+        stopped = mean_position(daemon)
+        assert ask(daemon, "MOVE:RES?")[0].startswith("STOPPED,")
+        assert start - 0.5e-3 + 20e-6 < stopped < start - 30e-6, (start, stopped)
+        for bad in (b"axis=1&direction=up", b"axis=1&direction=POSITIVE", b"axis=1",
+                    b"direction=positive", b"axis=x&direction=negative"):
+            assert web.request("/api/jog", "POST", bad, hdr)[0] == 400, bad
+        status, _, body = web.request("/api/jog", "POST", b"axis=9&direction=positive", hdr)
+        assert status == 422 and json.loads(body)["error"].startswith("-114,")
+        assert ask(daemon, "MOVE:DONE?")[0] == "1"
+    finally:
+        send(daemon, "MOVE:VEL 0")
 
 
 def test_a_foreign_host_name_is_refused(lab):

@@ -335,6 +335,16 @@ TEST(Access, ReadsControlTheHeaderAndTheToken) {
   EXPECT_EQ(decision(control, request("POST", "/api/stop", {{"x-idm-control", "1"}})), 0);
   EXPECT_EQ(decision(control, request("POST", "/api/stop/", {{"x-idm-control", "1"}})), 405);
   EXPECT_EQ(decision(control, request("PUT", "/api/stop", {{"x-idm-control", "1"}})), 405);
+  // Jogs and the speed limit are control requests too, under the same rules.
+  for (const char* path : {"/api/jog", "/api/velocity"}) {
+    EXPECT_EQ(decision(read_only, request("POST", path, {{"x-idm-control", "1"}})), 405) << path;
+    EXPECT_EQ(decision(control, request("POST", path)), 403) << path;
+    EXPECT_EQ(decision(control, request("POST", path, {{"x-idm-control", "1"}})), 0) << path;
+    EXPECT_EQ(decision(control, request("GET", path)), 0) << path;  // a GET: 404 from the routes
+    HttpRequest elsewhere = request("POST", path, {{"x-idm-control", "1"}});
+    elsewhere.headers[0].second = "evil.example";
+    EXPECT_EQ(decision(control, elsewhere), 403) << path;
+  }
   control.token = "0123456789abcdef0123";
   const idm::web::HeaderList mark = {{"x-idm-control", "1"}};
   EXPECT_EQ(decision(control, request("POST", "/api/move", mark)), 401);
@@ -355,4 +365,12 @@ TEST(Access, ReadsControlTheHeaderAndTheToken) {
                                        {"authorization", "Bearer " + control.token}})),
             0);
   EXPECT_EQ(decision(control, request("GET", "/api/state")), 0);
+  for (const char* path : {"/api/jog", "/api/velocity"}) {
+    EXPECT_EQ(decision(control, request("POST", path, mark)), 401) << path;
+    EXPECT_EQ(decision(control, request("POST", path,
+                                        {{"x-idm-control", "1"},
+                                         {"authorization", "Bearer " + control.token}})),
+              0)
+        << path;
+  }
 }
