@@ -128,7 +128,7 @@ void Axis::prepare(const ControlConfig& control) {
 void Axis::build(const ControlConfig& control) {
   const drivers::OutputCapabilities& oc = link_.output_capabilities(channel());
   const drivers::InterferometerCapabilities& ic = link_.interferometer_capabilities(channel());
-  count_m_ = ic.word.count_m();
+  count_m_.store(ic.word.count_m(), std::memory_order_relaxed);
   if (!next_map_ && (!map_ || grid_changed(control_, control))) prepare(control);
   const control::MotionStatus previous =
       positioner_ ? positioner_->status() : control::MotionStatus{};

@@ -175,7 +175,7 @@ class Axis {
   drivers::ChannelPort& port() { return port_; }
   drivers::DeviceLink& link() { return link_; }
   std::size_t channel() const { return link_index_; }
-  double count_m() const { return count_m_; }
+  double count_m() const { return count_m_.load(std::memory_order_relaxed); }
   // The interferometer reports crossing a reference mark (REFerence MARK can find it).
   bool has_reference_mark() const { return has_reference_mark_; }
   // The calibration as the loop last published it (a copy), and its update count.
@@ -199,7 +199,8 @@ class Axis {
   drivers::DeviceLink& link_;
   std::size_t link_index_;
   drivers::ChannelPort& port_;
-  double count_m_ = 0;
+  // Written by build() (start, reload: housekeeping), read by the sessions' status unlocked.
+  std::atomic<double> count_m_{0};
   const bool has_reference_mark_;  // the device's, fixed at construction (any thread reads it)
   ControlConfig control_;
   control::DeviceLimits limits_;

@@ -637,6 +637,14 @@ TEST_F(DaemonSim, EveryThreadItStartsIsNamedForItsJob) {
     EXPECT_NE(std::find(started.begin(), started.end(), job), started.end()) << job;
   EXPECT_TRUE(std::any_of(started.begin(), started.end(),
                           [](const std::string& n) { return n.rfind("idmd-io-", 0) == 0; }));
+  // ThreadSanitizer's runtime starts a background thread of its own (named as the process) when
+  // the first thread is created: not the daemon's.
+#if defined(__SANITIZE_THREAD__)
+  std::string process;
+  std::getline(std::ifstream("/proc/self/comm"), process);
+  const auto runtime = std::find(started.begin(), started.end(), process);
+  if (runtime != started.end()) started.erase(runtime);
+#endif
   for (const std::string& n : started) EXPECT_EQ(n.rfind("idmd-", 0), 0u) << n;
 }
 
