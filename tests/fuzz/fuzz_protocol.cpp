@@ -37,6 +37,7 @@ using idm::daemon::ParsedLine;
 struct Expected {
   std::size_t query_lines = 0;
   std::size_t motion_lines = 0;  // well-formed lines that may start a motion
+  bool closed = false;  // a line that looks like HTTP closed the session: none after it runs
 };
 
 bool may_move(std::string_view line) {
@@ -54,6 +55,12 @@ Expected expected_from(std::string_view stream) {
        start = nl + 1, nl = stream.find('\n', start)) {
     std::string_view line = stream.substr(start, nl - start);
     if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+    if (idm::daemon::looks_like_http(line) ||
+        (line.size() > idm::daemon::kMaxLineBytes &&
+         idm::daemon::looks_like_http(line.substr(0, idm::daemon::kMaxLineBytes)))) {
+      e.closed = true;
+      break;
+    }
     e.query_lines += looks_like_query(line);
     e.motion_lines += may_move(line);
   }
@@ -104,7 +111,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   // An unterminated last line already too long is reported at once, with its empty reply when
   // it is a query (it can never become a line the session executes).
   const bool early_overrun_reply =
-      tail.size() > idm::daemon::kMaxLineBytes + 1 && looks_like_query(tail);
+      !e.closed && tail.size() > idm::daemon::kMaxLineBytes + 1 && looks_like_query(tail) &&
+      !idm::daemon::looks_like_http(tail.substr(0, idm::daemon::kMaxLineBytes));
   const std::size_t got = count_lines(replies);
   if (got != e.query_lines + early_overrun_reply) {
     std::fprintf(stderr, "fuzz_protocol: %zu query lines, %zu reply lines\n", e.query_lines, got);
