@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <sstream>
 #include <string_view>
+#include <utility>
 
 #include "model/text_list.h"
 #include "model/yaml_util.h"
@@ -146,12 +147,34 @@ std::string length_unit_names() {
   return names;
 }
 
+namespace {
+
+// "1.5mm" -> {"1.5", "mm"}: the number and the letters that end it.
+std::pair<std::string, std::string> split_number_unit(const std::string& text) {
+  std::size_t end = text.size();
+  while (end > 0 && is_letter(text[end - 1])) --end;
+  return {text.substr(0, end), text.substr(end)};
+}
+
+// `number` in metres (or metres per second) given in `unit`; `kind` ("length", "speed") and
+// `accepted` for the message when it is not a number.
+double in_metres(const std::string& number, const LengthUnit& unit, const std::string& what,
+                 const std::string& text, const char* kind, const std::string& accepted) {
+  double value = 0;
+  try {
+    value = parse_number(number, what);
+  } catch (const InputError&) {
+    throw InputError(what + ": '" + text + "' is not a " + kind + ": " + accepted);
+  }
+  return value / unit.per_metre;
+}
+
+}  // namespace
+
 double parse_length(const std::string& text, const std::string& what, const LengthUnit* bare) {
   const std::string accepted =
       "a number and a unit, one of " + length_unit_names() + " (e.g. 250nm, 1.5mm)";
-  std::size_t end = text.size();
-  while (end > 0 && is_letter(text[end - 1])) --end;
-  const std::string number = text.substr(0, end), suffix = text.substr(end);
+  const auto [number, suffix] = split_number_unit(text);
   if (text.find("\xC2\xB5") != std::string::npos || text.find("\xCE\xBC") != std::string::npos)
     throw InputError(what + ": '" + text + "': write um for micrometres; " + accepted);
   if (number.empty() || number.find_first_not_of("0123456789.eE+-") != std::string::npos)
@@ -163,13 +186,7 @@ double parse_length(const std::string& text, const std::string& what, const Leng
   if (!unit)
     throw InputError(what + ": '" + text + "': unknown unit '" + suffix + "', accepted " +
                      length_unit_names() + " (case matters; a bare number is metres)");
-  double value = 0;
-  try {
-    value = parse_number(number, what);
-  } catch (const InputError&) {
-    throw InputError(what + ": '" + text + "' is not a length: " + accepted);
-  }
-  return value / unit->per_metre;
+  return in_metres(number, *unit, what, text, "length", accepted);
 }
 
 std::string speed_unit_names() {
@@ -186,9 +203,7 @@ double parse_speed(const std::string& text, const std::string& what, const Lengt
     throw InputError(what + ": '" + text + "': write um/s for micrometres per second; " + accepted);
   const bool per_second = text.size() > 2 && text.compare(text.size() - 2, 2, "/s") == 0;
   const std::string length = per_second ? text.substr(0, text.size() - 2) : text;
-  std::size_t end = length.size();
-  while (end > 0 && is_letter(length[end - 1])) --end;
-  const std::string number = length.substr(0, end), suffix = length.substr(end);
+  const auto [number, suffix] = split_number_unit(length);
   if (number.empty() || number.find_first_not_of("0123456789.eE+-") != std::string::npos)
     throw InputError(what + ": '" + text + "' is not a speed: " + accepted);
   if (!per_second && !suffix.empty())
@@ -203,13 +218,7 @@ double parse_speed(const std::string& text, const std::string& what, const Lengt
   if (!unit)
     throw InputError(what + ": '" + text + "': unknown unit '" + suffix + "/s', accepted " +
                      speed_unit_names() + " (case matters; a bare number is m/s)");
-  double value = 0;
-  try {
-    value = parse_number(number, what);
-  } catch (const InputError&) {
-    throw InputError(what + ": '" + text + "' is not a speed: " + accepted);
-  }
-  return value / unit->per_metre;
+  return in_metres(number, *unit, what, text, "speed", accepted);
 }
 
 std::string format_length(double metres, const LengthUnit& unit) {
