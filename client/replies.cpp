@@ -122,6 +122,8 @@ AxisStatus parse_status(std::string_view reply) {
   s.device = need(kv, "device", reply);
   if (const auto it = kv.find("eot"); it != kv.end() && it->second != "none") s.eot = it->second;
   if (const auto it = kv.find("daemon_error"); it != kv.end()) s.daemon_error = it->second;
+  if (const auto it = kv.find("offset"); it != kv.end())
+    s.offset_m = parse_reply_number(it->second);
   return s;
 }
 

@@ -49,6 +49,7 @@ struct AxisStatus {
   std::string device;        // up, lost
   std::string eot;           // "" or low / high (end of travel), when the daemon reports it
   std::string daemon_error;  // none or the daemon core's last error (blanks as _)
+  double offset_m = 0;       // offset=: the user offset (0 from a daemon that has none)
 };
 AxisStatus parse_status(std::string_view reply);
 

@@ -97,10 +97,12 @@ std::string motion_note_text(const std::string& axis, const MotionNote& n) {
     if (n.result == control::MoveResult::EndOfTravel && n.eot != 0)
       text += n.eot < 0 ? " (low end)" : " (high end)";
   }
+  const double off = n.user_offset_m;
   text += ": position " +
-          (n.position_valid ? model::format_number(n.position_m) + " m" : "unknown") + ", target " +
-          model::format_number(n.target_m) + " m";
+          (n.position_valid ? model::format_number(n.position_m + off) + " m" : "unknown") +
+          ", target " + model::format_number(n.target_m + off) + " m";
   if (n.position_valid) text += ", distance " + model::format_number(n.distance_m) + " m";
+  if (off != 0) text += ", user offset " + model::format_number(off) + " m";
   return text;
 }
 
@@ -412,6 +414,7 @@ void Axis::note_motion() {
   n.target_m = m.target_m;
   n.distance_m = ended ? m.result_distance_m : m.target_m - m.position_m;
   n.eot = m.eot;
+  n.user_offset_m = user_offset_m();
   // A motion that ended OK, or STOPPED as a client (or the daemon stopping) asked, is no news.
   if (!entered && (m.result == MoveResult::Ok || m.result == MoveResult::Stopped ||
                    m.result == MoveResult::None))

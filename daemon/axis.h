@@ -87,10 +87,12 @@ struct MotionNote {
   bool position_valid = false;
   double position_m = 0, target_m = 0, distance_m = 0;  // distance: target - position
   int eot = 0;                                          // END_OF_TRAVEL: -1 low, +1 high
+  double user_offset_m = 0;  // Axis::user_offset_m then: the line gives positions as clients do
 };
 using MotionNotes = SpscRing<MotionNote, 32>;
 // The note as one log line: "axis x: FAULT stall, ending its MOVE: position ... m, target ... m,
-// distance ... m" / "axis x: STEP ended LIMIT: position ...".
+// distance ... m" / "axis x: STEP ended LIMIT: position ...". Positions in the clients' (user)
+// frame, with ", user offset ... m" when the axis has one.
 std::string motion_note_text(const std::string& axis, const MotionNote& note);
 
 // A sweep trial: recorder -> loop.
@@ -176,6 +178,14 @@ class Axis {
   drivers::DeviceLink& link() { return link_; }
   std::size_t channel() const { return link_index_; }
   double count_m() const { return count_m_.load(std::memory_order_relaxed); }
+  // The user offset (POSition:SET, POSition:OFFSet): what the protocol's positions add to the
+  // axis's own (user = dial + offset, as the EPICS motor record's OFF). The loop and the control
+  // layer work in the dial frame and never read it; set by the server thread (and at start, with
+  // a restored reference), read by any.
+  double user_offset_m() const { return user_offset_m_.load(std::memory_order_relaxed); }
+  void set_user_offset_m(double offset_m) {
+    user_offset_m_.store(offset_m, std::memory_order_relaxed);
+  }
   // The interferometer reports crossing a reference mark (REFerence MARK can find it).
   bool has_reference_mark() const { return has_reference_mark_; }
   // The calibration as the loop last published it (a copy), and its update count.
@@ -201,6 +211,7 @@ class Axis {
   drivers::ChannelPort& port_;
   // Written by build() (start, reload: housekeeping), read by the sessions' status unlocked.
   std::atomic<double> count_m_{0};
+  std::atomic<double> user_offset_m_{0};
   const bool has_reference_mark_;  // the device's, fixed at construction (any thread reads it)
   ControlConfig control_;
   control::DeviceLimits limits_;

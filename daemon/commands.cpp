@@ -26,6 +26,13 @@ std::string num(double v) {
   return model::format_number(v);
 }
 
+// A position is trusted while the axis holds it valid and its device is up: the link says a
+// device is lost at once, the loop marks the axis's position a tick later, and a client that sees
+// device=lost must not read a number in between.
+bool position_trusted(const AxisPublished& p, drivers::LinkState device) {
+  return p.motion.position_valid && device == drivers::LinkState::Up;
+}
+
 }  // namespace
 
 std::string Daemon::identity() {
@@ -56,24 +63,26 @@ CommandError Daemon::fault_error(control::MotionFault fault) {
 CommandError Daemon::refusal_error(int axis, control::Refusal r, double target,
                                    AxisCommand::Kind kind) {
   if (r == control::Refusal::None) return {};
-  const AxisPublished p = axes_.at(static_cast<std::size_t>(std::max(axis, 0)))->published();
+  const Axis& a = *axes_.at(static_cast<std::size_t>(std::max(axis, 0)));
+  const AxisPublished p = a.published();
+  const double off = a.user_offset_m();  // the message speaks the client's frame
   switch (r) {
     case control::Refusal::None:
       return {};
     case control::Refusal::NotFinite:
       return {error_code::kNumericDataError, "the argument is not a finite number"};
     case control::Refusal::OutsideSoftLimits:
-      return {
-          error_code::kDataOutOfRange,
-          (std::isnan(target) ? std::string("the motion's end") : "target " + num(target) + " m") +
-              " is outside the soft limits [" + num(p.soft_lower_m) + ", " + num(p.soft_upper_m) +
-              "] m; nothing moved"};
+      return {error_code::kDataOutOfRange,
+              (std::isnan(target) ? std::string("the motion's end")
+                                  : "target " + num(target + off) + " m") +
+                  " is outside the soft limits [" + num(p.soft_lower_m + off) + ", " +
+                  num(p.soft_upper_m + off) + "] m; nothing moved"};
     case control::Refusal::Faulted:
       return fault_error(p.motion.fault);
     case control::Refusal::Busy:
       if (kind == AxisCommand::Kind::SetLimits)
         return {error_code::kSettingsConflict, "the motion in progress ends at " +
-                                                   num(p.motion.target_m) +
+                                                   num(p.motion.target_m + off) +
                                                    " m, outside the new limits: STOP it first"};
       if (supervisor_->stopping())
         return {error_code::kSettingsConflict, "the daemon is shutting down"};
@@ -110,7 +119,7 @@ CommandError Daemon::move_absolute(int axis, double target_m) {
   AxisCommand c;
   c.kind = AxisCommand::Kind::MoveAbsolute;
   c.axis = axis;
-  c.a = target_m;
+  c.a = target_m - axes_.at(static_cast<std::size_t>(axis))->user_offset_m();
   return submit(c);
 }
 
@@ -183,21 +192,76 @@ CommandError Daemon::set_soft_limits(int axis, double lower_m, double upper_m) {
     return {error_code::kDataOutOfRange, "the lower limit " + num(lower_m) +
                                              " m must be below the upper limit " + num(upper_m) +
                                              " m"};
-  const model::StageFile& st = axes_.at(static_cast<std::size_t>(axis))->config().stage;
-  const std::string travel =
-      "the stage's travel [" + num(st.travel_lower_m) + ", " + num(st.travel_upper_m) + "] m";
-  if (lower_m < st.travel_lower_m)
-    return {error_code::kDataOutOfRange,
-            "the lower limit " + num(lower_m) + " m lies outside " + travel};
-  if (upper_m > st.travel_upper_m)
-    return {error_code::kDataOutOfRange,
-            "the upper limit " + num(upper_m) + " m lies outside " + travel};
+  const Axis& a = *axes_.at(static_cast<std::size_t>(axis));
+  const model::StageFile& st = a.config().stage;
+  // The travel is the stage's (the dial frame); the client gave user-frame limits.
+  const double off = a.user_offset_m();
+  const std::string travel = "the stage's travel [" + num(st.travel_lower_m + off) + ", " +
+                             num(st.travel_upper_m + off) + "] m" +
+                             (off != 0 ? " (with the user offset " + num(off) + " m)" : "");
+  // A limit at the travel's end read back (LIM?: 12 significant digits, in the user frame) and
+  // written again differs from it by that rounding: within it, it is the travel's end.
+  const auto at_edge = [off](double user_m, double edge_m) {
+    return std::fabs(user_m - off - edge_m) <= 1e-12 * std::max(std::fabs(user_m), 1e-3);
+  };
+  double lower_dial_m = lower_m - off, upper_dial_m = upper_m - off;
+  if (lower_dial_m < st.travel_lower_m) {
+    if (!at_edge(lower_m, st.travel_lower_m))
+      return {error_code::kDataOutOfRange,
+              "the lower limit " + num(lower_m) + " m lies outside " + travel};
+    lower_dial_m = st.travel_lower_m;
+  }
+  if (upper_dial_m > st.travel_upper_m) {
+    if (!at_edge(upper_m, st.travel_upper_m))
+      return {error_code::kDataOutOfRange,
+              "the upper limit " + num(upper_m) + " m lies outside " + travel};
+    upper_dial_m = st.travel_upper_m;
+  }
   AxisCommand c;
   c.kind = AxisCommand::Kind::SetLimits;
   c.axis = axis;
-  c.a = lower_m;
-  c.b = upper_m;
+  c.a = lower_dial_m;
+  c.b = upper_dial_m;
   return submit(c);
+}
+
+CommandError Daemon::set_user_offset(int axis, double offset_m) {
+  if (std::isnan(offset_m))
+    return {error_code::kNumericDataError, "POSition:OFFSet: the offset is not a number"};
+  if (!(std::fabs(offset_m) <= kMaxUserOffsetM))
+    return {error_code::kDataOutOfRange,
+            "POSition:OFFSet: " + num(offset_m) + " m is out of range, allowed [" +
+                num(-kMaxUserOffsetM) + ", " + num(kMaxUserOffsetM) + "] m"};
+  Axis& a = *axes_.at(static_cast<std::size_t>(axis));
+  const double before = a.user_offset_m();
+  a.set_user_offset_m(offset_m);
+  if (offset_m != before)
+    housekeeping_->note(false, "axis " + a.config().name + ": user offset " + num(before) +
+                                   " m -> " + num(offset_m) +
+                                   " m (positions, targets and soft limits read " +
+                                   num(offset_m - before) + " m more)");
+  return {};
+}
+
+CommandError Daemon::set_position(int axis, double position_m) {
+  if (std::isnan(position_m))
+    return {error_code::kNumericDataError, "POSition:SET: the position is not a number"};
+  Axis& a = *axes_.at(static_cast<std::size_t>(axis));
+  const AxisPublished p = a.published();
+  // At rest, so that "the current position" is one number (a reading averaged at rest), and a
+  // move's target does not shift under it while it plays.
+  if (!motion_done(axis))
+    return {error_code::kSettingsConflict,
+            "POSition:SET: a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
+  if (!position_trusted(p, a.link().health().state))
+    return {error_code::kDataCorruptOrStale,
+            "POSition:SET: the position is not known (no valid interferometer reading)"};
+  const double offset_m = position_m - p.motion.position_m;
+  if (!(std::fabs(offset_m) <= kMaxUserOffsetM))
+    return {error_code::kDataOutOfRange,
+            "POSition:SET: " + num(position_m) + " m would need a user offset of " + num(offset_m) +
+                " m, allowed [" + num(-kMaxUserOffsetM) + ", " + num(kMaxUserOffsetM) + "] m"};
+  return set_user_offset(axis, offset_m);
 }
 
 // The value against the key's own range, then the axis's config as it stands now (the file's,
@@ -379,17 +443,6 @@ bool Daemon::motion_done(int axis) {
          !p.trial_active;
 }
 
-namespace {
-
-// A position is trusted while the axis holds it valid and its device is up: the link says a
-// device is lost at once, the loop marks the axis's position a tick later, and a client that sees
-// device=lost must not read a number in between.
-bool position_trusted(const AxisPublished& p, drivers::LinkState device) {
-  return p.motion.position_valid && device == drivers::LinkState::Up;
-}
-
-}  // namespace
-
 InstrumentStatus Daemon::status(int axis) {
   Axis& a = *axes_.at(static_cast<std::size_t>(axis));
   const AxisPublished p = a.published();
@@ -398,12 +451,13 @@ InstrumentStatus Daemon::status(int axis) {
   s.name = a.config().name;
   s.state = control::motion_state_name(p.motion.state);
   s.position_valid = position_trusted(p, device);
-  s.position_m = p.motion.position_m;
-  s.target_m = p.motion.target_m;
+  s.user_offset_m = a.user_offset_m();
+  s.position_m = p.motion.position_m + s.user_offset_m;
+  s.target_m = p.motion.target_m + s.user_offset_m;
   s.fault = control::motion_fault_name(p.motion.fault);
   s.motion_done = motion_done(axis);
-  s.soft_lower_m = p.soft_lower_m;
-  s.soft_upper_m = p.soft_upper_m;
+  s.soft_lower_m = p.soft_lower_m + s.user_offset_m;
+  s.soft_upper_m = p.soft_upper_m + s.user_offset_m;
   s.resolution_m = a.count_m();
   s.referenced = p.referenced;
   s.device = drivers::link_state_name(device);
@@ -432,7 +486,9 @@ std::vector<double> Daemon::positions() {
   std::vector<double> out;
   for (const auto& a : axes_) {
     const AxisPublished p = a->published();
-    out.push_back(position_trusted(p, a->link().health().state) ? p.motion.position_m : kNaN);
+    out.push_back(position_trusted(p, a->link().health().state)
+                      ? p.motion.position_m + a->user_offset_m()
+                      : kNaN);
   }
   return out;
 }

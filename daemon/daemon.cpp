@@ -134,9 +134,13 @@ void Daemon::restore_reference(Axis& axis) {
     }
     axis.link().continue_count(axis.channel(), saved.origin.offset_counts);
     axis.restore_reference(saved.offset_m);
-    start_notes_.push_back({false, name + "referenced as before the restart (" + file +
-                                       "; the device kept its count, epoch " +
-                                       std::to_string(now.epoch) + ")"});
+    axis.set_user_offset_m(saved.user_offset_m);
+    start_notes_.push_back(
+        {false, name + "referenced as before the restart (" + file +
+                    "; the device kept its count, epoch " + std::to_string(now.epoch) + ")" +
+                    (saved.user_offset_m != 0
+                         ? "; user offset " + model::format_number(saved.user_offset_m) + " m"
+                         : "")});
   } catch (const model::InputError& e) {
     throw StartError(exit_code::kBadConfig,
                      name + "reference_file: " + e.what() +

@@ -113,6 +113,8 @@ class Daemon final : public Instrument, public Reloader {
   CommandError stop() override;
   CommandError stop(int axis) override;
   CommandError set_soft_limits(int axis, double lower_m, double upper_m) override;
+  CommandError set_position(int axis, double position_m) override;
+  CommandError set_user_offset(int axis, double offset_m) override;
   CommandError set_motion_setting(int axis, MotionSetting which, double value) override;
   double motion_setting(int axis, MotionSetting which) override;
   CommandError reference(int axis, ReferenceMethod method) override;

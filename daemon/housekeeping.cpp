@@ -214,6 +214,7 @@ void Housekeeping::save_reference(std::size_t i) {
   if (now.referenced) {
     now.origin = axis.link().count_origin(axis.channel());
     now.offset_m = p.motion.offset_m;
+    now.user_offset_m = axis.user_offset_m();
   }
   if (saved_references_[i] && *saved_references_[i] == now) return;
   try {

@@ -66,6 +66,8 @@ class Housekeeping {
     std::string text;
   };
   std::vector<Note> take_notes();
+  // A line to log from another thread (the server's: a user offset set).
+  void note(bool warning, std::string text) { add_note(warning, std::move(text)); }
   // The latest housekeeping error of an axis (a failed save, a device lost, a sweep's failures),
   // with when it happened; *RST hides the ones before it.
   ErrorNote error(std::size_t axis) const;

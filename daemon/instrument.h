@@ -95,20 +95,26 @@ inline constexpr DeviceFault kDeviceFaults[] = {
 inline constexpr int kMaxSweepTrials = recording::kMaxTrialsPerCell;
 inline constexpr int kMaxSweepCycles = recording::kMaxCycles;
 
+// The largest user offset, m: the config's travel lies within [-10, 10] m, so every user-frame
+// position stays within [-20, 20] m, where a double still resolves 4e-15 m.
+inline constexpr double kMaxUserOffsetM = 10.0;
+
 struct CommandError {
   int code = error_code::kNoError;
   std::string text;  // without quotes; the protocol layer quotes it
   bool ok() const { return code == error_code::kNoError; }
 };
 
-// A plain snapshot of one axis for STATus? and friends.
+// A plain snapshot of one axis for STATus? and friends. Positions (position, target, soft limits)
+// are in the user frame: the axis's own (dial) position plus its user offset.
 struct InstrumentStatus {
   std::string name;   // the axis's name ("x")
   std::string state;  // "IDLE", "MOVING", "SETTLING", "FAULT"
   bool position_valid = false;
   double position_m = 0;  // meaningful only when position_valid
   double target_m = 0;
-  std::string fault;  // "none", "invalid_sample", "stall", ...
+  double user_offset_m = 0;  // POSition:OFFSet: user = dial + offset
+  std::string fault;         // "none", "invalid_sample", "stall", ...
   bool motion_done = true;
   double soft_lower_m = 0;
   double soft_upper_m = 0;
@@ -189,6 +195,7 @@ class Instrument {
   // POSition:ALL?: every axis's position read at one instant (NaN where not valid).
   virtual std::vector<double> positions() = 0;
 
+  // Every position below is in the user frame (InstrumentStatus).
   virtual CommandError move_absolute(int axis, double target_m) = 0;
   virtual CommandError move_relative(int axis, double distance_m) = 0;
   // STEP n[,duty,freq_hz[,stroke_m]]: n != 0; an omitted argument is NaN (duty and freq both
@@ -202,6 +209,13 @@ class Instrument {
   virtual CommandError stop(int axis) = 0;
 
   virtual CommandError set_soft_limits(int axis, double lower_m, double upper_m) = 0;
+
+  // POSition:SET: the axis at rest with a trusted position, that position becomes `position_m`
+  // (the user offset changes; nothing moves). POSition:OFFSet: the user offset itself. The soft
+  // limits, the target and the travel stay where they are on the stage: their user-frame values
+  // move with the offset. Offsets within +-kMaxUserOffsetM.
+  virtual CommandError set_position(int axis, double position_m) = 0;
+  virtual CommandError set_user_offset(int axis, double offset_m) = 0;
 
   // A setting out of its range is -222 naming the command and the range.
   virtual CommandError set_motion_setting(int axis, MotionSetting which, double value) = 0;

@@ -257,6 +257,9 @@ class Session {
   CommandError axis_name(const Args&, std::string& reply);
   CommandError resolution(const Args&, std::string& reply);
   CommandError position(const Args&, std::string& reply);
+  CommandError position_set(const Args&, std::string& reply);
+  CommandError offset(const Args&, std::string& reply);
+  CommandError offset_query(const Args&, std::string& reply);
   CommandError move_absolute(const Args&, std::string& reply);
   CommandError move_target(const Args&, std::string& reply);
   CommandError move_relative(const Args&, std::string& reply);

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <limits>
 
+#include "daemon/instrument.h"
 #include "model/stage.h"
 #include "model/yaml_util.h"
 #include "recording/durable_file.h"
@@ -36,12 +37,12 @@ std::uint64_t read_epoch(const YAML::Node& root, const std::string& path) {
 }  // namespace
 
 std::string reference_text(const SavedReference& r, const std::string& axis) {
-  char numbers[160];
+  char numbers[200];
   std::snprintf(numbers, sizeof numbers,
                 "has_count_epoch: %s\ncount_epoch: \"%" PRIu64 "\"\noffset_counts: %" PRId64
-                "\noffset_m: %.17g\n",
+                "\noffset_m: %.17g\nuser_offset_m: %.17g\n",
                 r.origin.has_epoch ? "true" : "false", r.origin.epoch, r.origin.offset_counts,
-                r.offset_m);
+                r.offset_m, r.user_offset_m);
   return "# idmd: the reference of axis " + axis +
          " (restored at start only while the device's count epoch is the same)\nreferenced: " +
          (r.referenced ? "true" : "false") + "\n" + numbers;
@@ -60,6 +61,9 @@ SavedReference load_reference(const std::string& path) {
   r.origin.offset_counts = model::read_integer(required(root, "offset_counts", path), path,
                                                "offset_counts", -kMaxCounts, kMaxCounts);
   r.offset_m = model::read_double(required(root, "offset_m", path), path, "offset_m", -100, 100);
+  if (const YAML::Node u = root["user_offset_m"])
+    r.user_offset_m =
+        model::read_double(u, path, "user_offset_m", -kMaxUserOffsetM, kMaxUserOffsetM);
   return r;
 }
 

@@ -17,10 +17,14 @@ struct SavedReference {
   bool referenced = false;
   drivers::CountOrigin origin;  // the count's epoch and the link's offset in counts
   double offset_m = 0;          // the positioner's offset (control::MotionStatus::offset_m)
+  // The user offset (POSition:SET / POSition:OFFSet, Axis::user_offset_m): kept with the
+  // reference, since it means something only while the reference does. Optional in the file
+  // (0 when absent: files written before it).
+  double user_offset_m = 0;
   bool operator==(const SavedReference& o) const {
     return referenced == o.referenced && origin.has_epoch == o.origin.has_epoch &&
            origin.epoch == o.origin.epoch && origin.offset_counts == o.origin.offset_counts &&
-           offset_m == o.offset_m;
+           offset_m == o.offset_m && user_offset_m == o.user_offset_m;
   }
 };
 

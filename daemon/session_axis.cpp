@@ -61,6 +61,23 @@ CommandError Session::position(const Args&, std::string& reply) {
   return {};
 }
 
+CommandError Session::position_set(const Args& args, std::string&) {
+  double position = 0;
+  if (CommandError e = number_arg(args, 0, "POSition:SET position", position); !e.ok()) return e;
+  return instrument_error(instrument_.set_position(axis_, position));
+}
+
+CommandError Session::offset(const Args& args, std::string&) {
+  double offset = 0;
+  if (CommandError e = number_arg(args, 0, "POSition:OFFSet", offset); !e.ok()) return e;
+  return instrument_error(instrument_.set_user_offset(axis_, offset));
+}
+
+CommandError Session::offset_query(const Args&, std::string& reply) {
+  reply = format_value(instrument_.status(axis_).user_offset_m);
+  return {};
+}
+
 CommandError Session::move_absolute(const Args& args, std::string&) {
   return start_move(args, "MOVE:ABSolute target", &Instrument::move_absolute);
 }
@@ -217,7 +234,8 @@ CommandError Session::status(const Args&, std::string& reply) {
                        : "none") +
           " in_position=" + (s.in_position ? "1" : "0") + " holding=" + (s.holding ? "1" : "0") +
           " referencing=" + (s.referencing ? "1" : "0") +
-          " fault_reason=" + word(fault_reason(s.fault));
+          " fault_reason=" + word(fault_reason(s.fault)) +
+          " offset=" + format_value(s.user_offset_m);
   return {};
 }
 

@@ -387,6 +387,17 @@ void IdmAxis::write_Velocity(Tango::WAttribute& att) {
   write_setting(att, "MOVE:VEL", "IdmAxis::write_Velocity");
 }
 
+void IdmAxis::read_Offset(Tango::Attribute& att) {
+  read_setting(att, "POS:OFFS", offset_, "IdmAxis::read_Offset");
+}
+
+void IdmAxis::write_Offset(Tango::WAttribute& att) {
+  write_setting(att, "POS:OFFS", "IdmAxis::write_Offset");
+  refresh();  // the position and the soft limits (Position's min/max) moved with it
+  apply_status();
+  publish();
+}
+
 void IdmAxis::read_StatusBits(Tango::Attribute& att) {
   const std::uint64_t bits =
       client::parse_reply_count(query("STAT:OPER?", "IdmAxis::read_StatusBits"));
@@ -419,6 +430,13 @@ void IdmAxis::step(Tango::DevLong cycles) {
 void IdmAxis::jog(bool positive) {
   command(positive ? "JOG POS" : "JOG NEG",
           positive ? "IdmAxis::JogPositive" : "IdmAxis::JogNegative");
+  refresh();
+  apply_status();
+  publish();
+}
+
+void IdmAxis::set_position(Tango::DevDouble position_m) {
+  command("POS:SET " + number_text(position_m), "IdmAxis::SetPosition");
   refresh();
   apply_status();
   publish();
@@ -508,6 +526,22 @@ class JogCmd : public Tango::Command {
   bool positive_;
 };
 
+class SetPositionCmd : public Tango::Command {
+ public:
+  SetPositionCmd()
+      : Command("SetPosition", Tango::DEV_DOUBLE, Tango::DEV_VOID,
+                "the position, m, that the current one becomes (idmd's POSition:SET): nothing "
+                "moves, the user offset (attribute Offset) changes; at rest only",
+                "", Tango::OPERATOR) {}
+  CORBA::Any* execute(Tango::DeviceImpl* d, const CORBA::Any& in) override {
+    Tango::DevDouble position_m = 0;
+    extract(in, position_m);
+    axis_of(d)->set_position(position_m);
+    return new CORBA::Any();
+  }
+  bool is_allowed(Tango::DeviceImpl*, const CORBA::Any&) override { return true; }
+};
+
 Tango::Attr* with_properties(Tango::Attr* attr, const char* unit, const char* description,
                              const char* format) {
   Tango::UserDefaultAttrProp p;
@@ -546,6 +580,7 @@ void IdmAxisClass::command_factory() {
   command_list.push_back(new StepCmd());
   command_list.push_back(new JogCmd(true));
   command_list.push_back(new JogCmd(false));
+  command_list.push_back(new SetPositionCmd());
 }
 
 void IdmAxisClass::attribute_factory(std::vector<Tango::Attr*>& attrs) {
@@ -574,6 +609,11 @@ void IdmAxisClass::attribute_factory(std::vector<Tango::Attr*>& attrs) {
                                   "Speed limit of the moves and jogs that follow (MOVE:VELocity; 0 "
                                   "no limit)",
                                   "%.3e"));
+  attrs.push_back(with_properties(
+      new AxisAttr("Offset", Tango::DEV_DOUBLE, &IdmAxis::read_Offset, &IdmAxis::write_Offset), "m",
+      "User offset (POSition:OFFSet): Position, Target and the soft limits are the axis's own "
+      "plus it",
+      "%.9e"));
   attrs.push_back(
       with_properties(new AxisAttr("StatusBits", Tango::DEV_LONG, &IdmAxis::read_StatusBits), "",
                       "STATus:OPERation?: 0 moving, 1 in position, 2 holding, 3 "

@@ -1,7 +1,8 @@
 // The Tango device class IdmAxis: one device per idmd axis, a client of idmd's socket (README.md
 // here). Attributes Position (r/w, m, min/max from the soft limits), Target, Referenced, Window,
-// Hold, Velocity, StatusBits; State ON/MOVING/FAULT/ALARM/DISABLE; commands Stop, Reference, Step,
-// JogPositive, JogNegative; change events on Position and State, pushed while the axis moves.
+// Hold, Velocity, Offset, StatusBits; State ON/MOVING/FAULT/ALARM/DISABLE; commands Stop,
+// Reference, Step, JogPositive, JogNegative, SetPosition; change events on Position and State,
+// pushed while the axis moves.
 #pragma once
 
 #include <tango.h>
@@ -42,6 +43,8 @@ class IdmAxis : public TANGO_BASE_CLASS {
   void write_Hold(Tango::WAttribute& att);
   void read_Velocity(Tango::Attribute& att);
   void write_Velocity(Tango::WAttribute& att);
+  void read_Offset(Tango::Attribute& att);
+  void write_Offset(Tango::WAttribute& att);
   void read_StatusBits(Tango::Attribute& att);
 
   void stop();
@@ -49,6 +52,8 @@ class IdmAxis : public TANGO_BASE_CLASS {
   void step(Tango::DevLong cycles);
   // JOG POSitive (positive) or JOG NEGative: toward that soft limit at the speed limit.
   void jog(bool positive);
+  // POSition:SET: the current position becomes `position_m` (the user offset changes).
+  void set_position(Tango::DevDouble position_m);
 
  private:
   // With a database: the properties IdmdSocket or IdmdAddress (idmd's address, both set is an
@@ -83,7 +88,7 @@ class IdmAxis : public TANGO_BASE_CLASS {
   std::string status_error_;
 
   // Tango's buffers for the attributes (set_value keeps a pointer until the reply is sent).
-  Tango::DevDouble position_ = 0, target_ = 0, window_ = 0, hold_ = 0, velocity_ = 0;
+  Tango::DevDouble position_ = 0, target_ = 0, window_ = 0, hold_ = 0, velocity_ = 0, offset_ = 0;
   Tango::DevDouble event_position_ = 0;
   Tango::DevBoolean referenced_ = false;
   Tango::DevLong status_bits_ = 0;

@@ -67,6 +67,10 @@ const char* kUsage =
     "                              the position\n"
     "  velocity [SPEED]            show or set the speed limit of moves and jogs (MOVE:VELocity,\n"
     "                              0: no limit), in --unit per second\n"
+    "  setpos X                    the current position becomes X: nothing moves, the user\n"
+    "                              offset changes (POSition:SET; at rest); prints the position\n"
+    "  offset [X]                  show or set the user offset (POSition:OFFSet): every position\n"
+    "                              shown or given is the axis's own plus it\n"
     "  stop                        stop now\n"
     "  wait                        wait until the motion is done\n"
     "  status                      state, position, target, fault, errors (idmd's key=value)\n"
@@ -169,6 +173,8 @@ const Verb kVerbs[] = {
     {"step", 1, 4, "step N [DUTY FREQ [STROKE]]"},
     {"jog", 1, 1, "jog +|-|positive|negative"},
     {"velocity", 0, 1, "velocity [SPEED]"},
+    {"setpos", 1, 1, "setpos X"},
+    {"offset", 0, 1, "offset [X]"},
     {"stop", 0, 0, "stop"},
     {"wait", 0, 0, "wait"},
     {"status", 0, 0, "status"},
@@ -234,6 +240,8 @@ Request request_for(const std::vector<std::string>& a, const LengthUnit* bare) {
     return {verb, "REG? " + a[1] + "," + a[2] + (a.size() > 3 ? "," + length(3, "STROKE") : "")};
   if (verb == "limits")
     return {verb, a.size() == 1 ? "LIM?" : "LIM " + length(1, "LOWER") + "," + length(2, "UPPER")};
+  if (verb == "setpos") return {verb, "POS:SET " + length(1, "X")};
+  if (verb == "offset") return {verb, a.size() == 1 ? "POS:OFFS?" : "POS:OFFS " + length(1, "X")};
   if (verb == "ref") return {verb, "REF" + (a.size() > 1 ? " " + a[1] : std::string())};
   if (verb == "jog") return {verb, "JOG " + jog_direction(a[1])};
   if (verb == "velocity")
@@ -287,8 +295,9 @@ int print_position(Ctl& ctl, const std::string& line) {
   return errors > 0 ? 1 : 0;
 }
 
-// MOVE:VEL?: the speed limit in --unit per second (0: none), as idmd sent it without --unit.
-int print_speed(Ctl& ctl, const std::string& line) {
+// One length (POS:OFFS?) or speed (MOVE:VEL?: --unit per second, 0 none) in --unit, as idmd sent
+// it without --unit.
+int print_length(Ctl& ctl, const std::string& line) {
   const std::string reply = ctl.c.query(line);
   const int errors = drain_errors(ctl);
   if (reply.empty()) return 1;
@@ -352,6 +361,9 @@ int show_status(Ctl& ctl) {
   std::printf("axis:        %s (%s)\n", kv["axis"].c_str(), kv["state"].c_str());
   std::printf("position:    %s, target %s %s\n", position.c_str(),
               in_unit(ctl, kv["target"]).c_str(), u.c_str());
+  if (kv.count("offset") && kv["offset"] != "0")
+    std::printf("user offset: %s %s (positions are the axis's own plus it)\n",
+                in_unit(ctl, kv["offset"]).c_str(), u.c_str());
   std::printf("last motion: %s, %s %s from its target\n", result.substr(0, comma).c_str(),
               comma == std::string::npos ? "?" : in_unit(ctl, result.substr(comma + 1)).c_str(),
               u.c_str());
@@ -410,7 +422,12 @@ int run(const Request& r, Ctl& ctl) {
   if (verb == "show") return show_status(ctl);
   if (verb == "region") return print_lengths(ctl, line, true);
   if (verb == "velocity")
-    return r.line == "MOVE:VEL?" ? print_speed(ctl, line) : command(ctl, line);
+    return r.line == "MOVE:VEL?" ? print_length(ctl, line) : command(ctl, line);
+  if (verb == "offset") return r.line == "POS:OFFS?" ? print_length(ctl, line) : command(ctl, line);
+  if (verb == "setpos") {
+    if (command(ctl, line) != 0) return 1;
+    return print_position(ctl, ctl.axis + "POS?");
+  }
   if (verb == "limits")
     return r.line == "LIM?" ? print_lengths(ctl, line, false) : command(ctl, line);
   // *RST during a sweep completes in the background (MOVE:DONE? is 0 until then): wait for it,

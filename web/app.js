@@ -184,7 +184,8 @@ function update(s) {
     const st = document.getElementById('state-' + a.axis);
     st.textContent = a.state || ('unknown: ' + (a.status_error || ''));
     st.className = 'state-' + a.state;
-    document.getElementById('status-' + a.axis).textContent = a.stale ? 'idmd not reached' : statusWords(a);
+    document.getElementById('status-' + a.axis).textContent = a.stale ? 'idmd not reached'
+      : statusWords(a) + (a.offset_m ? '; user offset ' + um(a.offset_m) + ' \u00b5m' : '');
     document.getElementById('limits-' + a.axis).textContent = a.stale ? '\u2014'
       : limit(a.lower_m) + ' .. ' + limit(a.upper_m) + ' \u00b5m';
     document.getElementById('ref-' + a.axis).textContent = a.referenced ? 'yes' : 'no';

@@ -356,7 +356,7 @@ std::string axis_json(const AxisView& a) {
          ",\"fault\":" + json_string(s.fault) + ",\"device\":" + json_string(s.device) +
          ",\"eot\":" + json_string(s.eot) + ",\"daemon_error\":" + json_string(s.daemon_error) +
          ",\"moves\":" + std::to_string(s.moves) + ",\"bursts\":" + std::to_string(s.bursts) +
-         ",\"cycles\":" + std::to_string(s.cycles);
+         ",\"cycles\":" + std::to_string(s.cycles) + ",\"offset_m\":" + json_number(s.offset_m);
     o += a.speed_limit_m_s ? ",\"speed_limit_m_s\":" + json_number(*a.speed_limit_m_s)
                            : ",\"speed_limit_m_s\":null,\"speed_limit_error\":" +
                                  json_string(a.speed_limit_error);

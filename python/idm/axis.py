@@ -161,6 +161,21 @@ class Axis:
         """``REGion? freq,duty[,stroke]``: ``(region, predicted step m)``."""
         return self._run(_core.p_region(self._s, self.key, freq_hz, duty, stroke_m))
 
+    # -- the user frame --
+    def set_position(self, position: float):
+        """``POSition:SET``: the current position becomes ``position`` m; nothing moves, the user
+        offset changes. At rest only (-221 while moving), with a trusted position (-230)."""
+        return self._run(_core.p_axis_set(self._s, self.key, "POSition:SET", position))
+
+    def offset(self):
+        """``POSition:OFFSet?``: the user offset, m. Every position the daemon shows or takes
+        (position, target, soft limits) is the axis's own plus it."""
+        return self._run(_core.p_axis_query(self._s, self.key, "POSition:OFFSet?", parse_number))
+
+    def set_offset(self, metres: float):
+        """``POSition:OFFSet``: the user offset, m ([-10, 10], else -222)."""
+        return self._run(_core.p_axis_set(self._s, self.key, "POSition:OFFSet", metres))
+
     # -- settings --
     def limits(self):
         """``LIMit?``: ``(lower, upper)`` soft limits, m."""

@@ -105,6 +105,7 @@ _STATUS_TYPES = {
     "target": parse_number,
     "lower": parse_number,
     "upper": parse_number,
+    "offset": parse_number,
     "moves": parse_int,
     "bursts": parse_int,
     "cycles": parse_int,

@@ -39,6 +39,10 @@ TEST(Replies, StatusHasEveryField) {
   EXPECT_EQ(s.eot, "");
   // The daemon says eot=none away from the ends: no end of travel.
   EXPECT_EQ(parse_status(std::string(kStatus) + " eot=none").eot, "");
+  // The user offset: 0 from a daemon that does not report one.
+  EXPECT_EQ(s.offset_m, 0.0);
+  EXPECT_DOUBLE_EQ(parse_status(std::string(kStatus) + " offset=-0.00125").offset_m, -1.25e-3);
+  EXPECT_THROW(parse_status(std::string(kStatus) + " offset=far"), ReplyError);
 }
 
 TEST(Replies, AnUntrustedPositionIsNaNAndUnsetLimitsAreInfinite) {

@@ -172,6 +172,22 @@ class FakeInstrument : public Instrument {
     at(axis).soft_upper_m = upper_m;
     return {};
   }
+  CommandError set_position(int axis, double position_m) override {
+    std::lock_guard l(m_);
+    calls_.push_back(prefix(axis) + "set_position(" + format_value(position_m) + ")");
+    InstrumentStatus& s = at(axis);
+    s.user_offset_m += position_m - s.position_m;
+    s.position_m = position_m;
+    return {};
+  }
+  CommandError set_user_offset(int axis, double offset_m) override {
+    std::lock_guard l(m_);
+    calls_.push_back(prefix(axis) + "set_user_offset(" + format_value(offset_m) + ")");
+    InstrumentStatus& s = at(axis);
+    s.position_m += offset_m - s.user_offset_m;
+    s.user_offset_m = offset_m;
+    return {};
+  }
   RegionRange region_range(int axis) override {
     std::lock_guard l(m_);
     calls_.push_back(prefix(axis) + "region_range()");

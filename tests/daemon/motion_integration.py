@@ -9,6 +9,7 @@ usage: motion_integration.py BUILD_DIR SOURCE_DIR CASE
 import math
 import os
 import random
+import re
 import time
 
 import script_harness as harness
@@ -498,18 +499,24 @@ def case_reference_kept():
             c.send("MOVE:ABS -4.9e-3\n")
             check(c.ask("*OPC?") == "1" and result(c)[0] == "OK",
                   "MOVE:ABS -4.9 mm: %s %s" % (result(c), errors(c)))
+            c.send("POS:SET 1.5e-3\n")  # a user offset: kept with the reference
+            c.no_error()
             before = c.mean_position()
+            time.sleep(0.2)  # housekeeping writes the file within 50 ms
         with open(ref) as f:
             text = f.read()
-        check("referenced: true" in text, "the file says referenced:\n" + text)
+        check("referenced: true" in text and "user_offset_m:" in text,
+              "the file says referenced, with the user offset:\n" + text)
         with Daemon(cfg) as d:
             c = Client(d)
             check(c.ask("REF?") == "1", "referenced after the restart\n" + d.log())
-            check("referenced as before the restart" in d.log(), "the log says so")
+            check("referenced as before the restart" in d.log() and "user offset" in d.log(),
+                  "the log says so, with the user offset:\n" + d.log())
             p = c.mean_position()
-            check(abs(p - before) <= 2 * COUNT_M,
-                  "the same position: %.4g before, %.4g after the restart" % (before, p))
-            c.send("MOVE:ABS -4.8e-3\n")
+            check(abs(p - before) <= 2 * COUNT_M and abs(p - 1.5e-3) <= 3 * COUNT_M,
+                  "the same position (user frame): %.4g before, %.4g after the restart" % (
+                      before, p))
+            c.send("MOVE:ABS %.17g\n" % (-4.8e-3 + float(c.ask("POS:OFFS?"))))
             check(c.ask("*OPC?") == "1" and result(c)[0] == "OK" and errors(c) == [],
                   "absolute moves go on")
         dev.kill()
@@ -518,6 +525,7 @@ def case_reference_kept():
             c = Client(d)
             check(c.ask("REF?") == "0", "not referenced once the device restarted")
             check("count started over" in d.log(), "the log says why:\n" + d.log())
+            check(c.ask("POS:OFFS?") == "0", "nor is the user offset restored")
     with open(ref) as f:
         check("referenced: false" in f.read(), "the file follows")
     sim_ref = os.path.join(harness.TMP, "reference-sim.yaml")
@@ -532,6 +540,148 @@ def case_reference_kept():
         c = Client(d)
         check(c.ask("REF?") == "0" and "count started over" in d.log(),
               "the simulated stage is not referenced after a restart:\n" + d.log())
+
+
+def case_user_offset():
+    """POSition:SET / POSition:OFFSet (a user offset, as the EPICS motor record's SET and OFF):
+    every position the protocol shows or takes moves with the offset (POS?, POS:ALL?, MOVE:ABS and
+    its query, LIM, STAT?), the stage's own frame (the soft limits and travel on the stage, where
+    a move lands on it) does not. A mixed sequence of offsets, positions, limits and moves drawn
+    at random (seed printed), checked against a model of the two frames kept here."""
+    seed = int(os.environ.get("IDM_TEST_SEED", random.randrange(1 << 30)))
+    print("seed %d (IDM_TEST_SEED)" % seed)
+    rng = random.Random(seed)
+    travel = (-5e-3, 5e-3)
+    with Daemon(config()) as d:
+        c = Client(d)
+        check(c.ask("POS:OFFS?") == "0" and c.status()["offset"] == "0", "no offset at start")
+        offset = 0.0
+        dial_limits = list(travel)  # the soft limits on the stage: the travel at start
+
+        def user_limits():
+            return [float(x) for x in c.ask("LIM?").split(",")]
+
+        largest = [0.0]  # the largest offset so far, m
+
+        def agrees(why):
+            largest[0] = max(largest[0], abs(offset))
+            u = user_limits()
+            check(abs(float(c.ask("POS:OFFS?")) - offset) <= 1e-11 * abs(offset),
+                  "%s: POS:OFFS? %s, expected %.17g" % (why, c.ask("POS:OFFS?"), offset))
+            for k in (0, 1):
+                # Replies carry 12 significant digits: LIM? and POS:OFFS? are each rounded, and
+                # the model's stage limits carry the rounding of every offset they met.
+                check(abs(u[k] - (dial_limits[k] + offset)) <= 1e-11 * (largest[0] + 1e-2),
+                      "%s: LIM? %s is the stage's limits %s + the offset %.12g" % (
+                          why, u, dial_limits, offset))
+            st = c.status()
+            check(float(st["offset"]) == float(c.ask("POS:OFFS?")) and
+                  float(st["lower"]) == u[0] and float(st["upper"]) == u[1],
+                  "%s: STAT? says the same: %s" % (why, st))
+            check(c.positions("POS:ALL?")[0] != 9.91e37, "%s: POS:ALL? valid" % why)
+
+        for k in range(14):
+            action = rng.choice(["set", "set", "offset", "offset_bad", "limits", "limits_bad",
+                                 "move", "move", "move_outside", "rst"])
+            why = "step %d (%s)" % (k, action)
+            if action == "set":
+                x = rng.choice([rng.uniform(-8, 8), rng.uniform(-1e-2, 1e-2), 0.0])
+                before = c.mean_position()
+                c.send("POS:SET %.17g\n" % x)
+                c.no_error()
+                reply = float(c.ask("POS:OFFS?"))  # the daemon's reading at rest, not ours
+                check(abs(reply - (offset + x - before)) <= 3 * COUNT_M + 1e-11 * abs(reply),
+                      "%s: POS:SET %.12g at %.12g: offset %.12g -> %.12g" % (why, x, before,
+                                                                            offset, reply))
+                offset = reply
+                p = c.mean_position()
+                check(abs(p - x) <= 3 * COUNT_M + 1e-12 * abs(x),
+                      "%s: POS:SET %.12g, then POS? %.12g" % (why, x, p))
+            elif action == "offset":
+                new = rng.choice([rng.uniform(-10, 10), rng.uniform(-1e-3, 1e-3), 0.0, -10.0, 10.0])
+                before = c.mean_position()
+                c.send("POS:OFFS %.17g\n" % new)
+                c.no_error()
+                p = c.mean_position()
+                check(abs((p - before) - (new - offset)) <= 3 * COUNT_M + 1e-12 * abs(new),
+                      "%s: the position moved with the offset: %.12g -> %.12g, offset %.12g -> "
+                      "%.12g" % (why, before, p, offset, new))
+                offset = new
+            elif action == "offset_bad":
+                bad = rng.choice([1, -1]) * rng.uniform(10.0000001, 1e6)
+                c.send("POS:OFFS %.17g\n" % bad)
+                e = c.error()
+                check(e.startswith("-222,") and "[-10, 10] m" in e, "%s: %s" % (why, e))
+            elif action in ("limits", "limits_bad"):
+                lo = rng.uniform(travel[0], travel[0] / 2)
+                hi = rng.uniform(travel[1] / 2, travel[1])
+                if rng.random() < 0.3:
+                    lo = travel[0]  # the travel's end, given in the user frame
+                if action == "limits_bad":
+                    (lo, hi) = (travel[0] - rng.uniform(1e-7, 1e-3), hi) if rng.random() < 0.5 \
+                        else (lo, travel[1] + rng.uniform(1e-7, 1e-3))
+                c.send("LIM %.17g,%.17g\n" % (lo + offset, hi + offset))
+                e = c.error()
+                if action == "limits":
+                    check(e.startswith("0,"), "%s: LIM within the travel: %s" % (why, e))
+                    u = user_limits()
+                    check(all(abs(u[i] - (lo, hi)[i] - offset) <= 1e-11 * (largest[0] + 1e-2)
+                              for i in (0, 1)),
+                          "%s: LIM? %s after LIM %.12g,%.12g" % (why, u, lo + offset, hi + offset))
+                    dial_limits = [u[0] - offset, u[1] - offset]
+                else:
+                    check(e.startswith("-222,") and "travel" in e, "%s: refused: %s" % (why, e))
+                    if offset != 0:
+                        check("user offset" in e, "%s: the message names the offset: %s" % (why, e))
+            elif action == "move":
+                t = rng.uniform(dial_limits[0] + 1e-4, dial_limits[1] - 1e-4) + offset
+                c.send("MOVE:ABS %.17g\n" % t)
+                check(c.ask("*OPC?") == "1", why)
+                word, dist = result(c)
+                p = c.mean_position()
+                check(word == "OK" and abs(p - t) <= 2 * COUNT_M,
+                      "%s: MOVE:ABS %.12g: %s %g, POS? %.12g %s" % (why, t, word, dist, p,
+                                                                 errors(c)))
+                check(abs(float(c.ask("MOVE:ABS?")) - t) <= 1e-11 * max(1e-3, abs(t)),
+                      "%s: MOVE:ABS? %s" % (why, c.ask("MOVE:ABS?")))
+            elif action == "move_outside":
+                t = dial_limits[1] + rng.uniform(1e-6, 1e-3) + offset
+                bursts = c.status()["bursts"]
+                c.send("MOVE:ABS %.17g\n" % t)
+                e = c.error()
+                lim = user_limits()
+                m = re.search(r"soft limits \[(\S+), (\S+)\] m", e)
+                check(e.startswith("-222,") and m and all(
+                    abs(float(m.group(i + 1)) - lim[i]) <= 1e-8 * max(1e-3, abs(lim[i]))
+                    for i in (0, 1)),
+                      "%s: refused naming the user-frame limits %s: %s" % (why, lim, e))
+                check(c.status()["bursts"] == bursts, "%s: nothing moved" % why)
+            elif action == "rst":
+                c.send("*RST\n")
+                check(c.ask("*OPC?") == "1", why)
+            agrees(why)
+        # At rest only, with a trusted position.
+        u = user_limits()
+        far = u[0] + 0.1 * (u[1] - u[0])
+        if abs(c.mean_position() - far) < 1e-3:
+            far = u[1] - 0.1 * (u[1] - u[0])
+        c.send("MOVE:ABS %.17g\nPOS:SET 0\n" % far)
+        e = c.error()
+        check(e.startswith("-221,") and "POSition:SET" in e, "POS:SET while moving: %s" % e)
+        check(c.ask("*OPC?") == "1", "the move ends")
+        c.send("SIM:FAULT beam_lost,1\n")
+        wait_state(c, {"position_valid": "0"})
+        c.send("POS:SET 0\n")
+        e = c.error()
+        check(e.startswith("-230,"), "POS:SET without a valid position: %s" % e)
+        c.send("SIM:FAULT beam_lost,0\n")
+        wait_state(c, {"position_valid": "1"})
+        c.send("POS:OFFS %.17g\n" % (offset + 1e-3))
+        c.no_error()
+        end = time.time() + 5
+        while "user offset" not in d.log() and time.time() < end:
+            time.sleep(0.05)
+        check("user offset" in d.log(), "the log says when the offset changed:\n" + d.log())
 
 
 def case_shipped_configs():
@@ -590,6 +740,7 @@ def case_shipped_configs():
 
 
 CASES = {
+    "user_offset": case_user_offset,
     "fresh_reading": case_fresh_reading,
     "status_bits": case_status_bits,
     "bad_settings": case_bad_settings,

@@ -406,6 +406,31 @@ TEST_F(IdmctlTest, JogMovesTowardTheSoftLimitThatWayAndWaits) {
   EXPECT_EQ(fake_.motion_calls(), motions);
 }
 
+TEST_F(IdmctlTest, SetposAndOffsetSetTheUserFrameInUnits) {
+  // setpos: the current position becomes X (POSition:SET), then the position is printed.
+  Result r = idmctl("--unit um setpos 250um");
+  EXPECT_EQ(r.status, 0) << r.out;
+  EXPECT_EQ(fake_.last_call(), "set_position(0.00025)");
+  EXPECT_EQ(r.out, "250\n");
+  EXPECT_EQ(idmctl("--unit um offset").out, "250\n");  // the fake's position was 0
+  r = idmctl("offset -1.5mm");
+  EXPECT_EQ(r.status, 0) << r.out;
+  EXPECT_EQ(r.out, "");
+  EXPECT_EQ(fake_.last_call(), "set_user_offset(-0.0015)");
+  EXPECT_EQ(idmctl("offset").out, "-0.0015\n");
+  EXPECT_EQ(idmctl("--unit mm offset").out, "-1.5\n");
+  r = idmctl("show");
+  EXPECT_NE(r.out.find("user offset: -0.0015 m"), std::string::npos) << r.out;
+  // Lengths take their units as every verb's do; usage errors send nothing.
+  const std::size_t calls = fake_.calls().size();
+  for (const char* bad :
+       {"setpos", "setpos 1 2", "--unit um setpos 5", "offset 3 furlongs", "setpos 1um/s"}) {
+    r = idmctl(bad);
+    EXPECT_EQ(r.status, 2) << bad << ": " << r.out;
+  }
+  EXPECT_EQ(fake_.calls().size(), calls);
+}
+
 TEST_F(IdmctlTest, VelocityIsTheSpeedLimitInUnitsPerSecond) {
   const std::string kSet =
       "set_motion_setting(" + std::to_string(static_cast<int>(MotionSetting::MaxSpeed)) + ",";

@@ -33,12 +33,13 @@ SavedReference referenced(std::uint64_t epoch, std::int64_t offset_counts, doubl
 TEST(ReferenceFile, RoundTripsExactlyTheWholeEpochAndTheOffset) {
   const fs::path file = temp_path("roundtrip.yaml");
   // An epoch above the signed 64-bit range, an offset with all 17 digits, a negative count.
-  const SavedReference saved =
-      referenced(18446744073709551557ull, -987654321012, -4.9012345678901234e-3);
+  SavedReference saved = referenced(18446744073709551557ull, -987654321012, -4.9012345678901234e-3);
+  saved.user_offset_m = 7.1234567890123456;  // POSition:SET's offset, kept with it
   save_reference(file.string(), saved, "x");
   const SavedReference loaded = load_reference(file.string());
   EXPECT_TRUE(loaded == saved);
-  EXPECT_EQ(loaded.offset_m, saved.offset_m);  // bit for bit
+  EXPECT_EQ(loaded.offset_m, saved.offset_m);            // bit for bit
+  EXPECT_EQ(loaded.user_offset_m, saved.user_offset_m);  // bit for bit
   EXPECT_FALSE(fs::exists(file.string() + ".tmp"));
   fs::remove(file);
 }
@@ -55,6 +56,8 @@ TEST(ReferenceFile, ABadFileNamesTheFileTheLineAndTheKey) {
       {"offset_m: 0.001", "offset_m: 1e300", "offset_m"},
       {"offset_m: 0.001", "offset_m: .nan", "offset_m"},
       {"offset_counts: 0\n", "", "offset_counts"},
+      {"user_offset_m: 0\n", "user_offset_m: 10.5\n", "user_offset_m"},  // allowed [-10, 10]
+      {"user_offset_m: 0\n", "user_offset_m: .nan\n", "user_offset_m"},
   };
   for (const auto& c : cases) {
     std::string text = good;
@@ -70,6 +73,11 @@ TEST(ReferenceFile, ABadFileNamesTheFileTheLineAndTheKey) {
       EXPECT_NE(what.find(c.expect), std::string::npos) << what;
     }
   }
+  // A file written before the user offset: it loads, with none.
+  std::string old_file = good;
+  old_file.erase(old_file.find("user_offset_m: 0\n"), std::string("user_offset_m: 0\n").size());
+  std::ofstream(file) << old_file;
+  EXPECT_EQ(load_reference(file.string()).user_offset_m, 0.0);
   std::ofstream(file) << "referenced: [";
   EXPECT_THROW(load_reference(file.string()), idm::model::InputError);
   fs::remove(file);

@@ -76,6 +76,13 @@ INSTANTIATE_TEST_SUITE_P(
             "period=0.001 wakeups=1000 misses=2 min=1e-06 avg=5e-06 max=4e-05 bin_width=1e-05 "
             "hist=990;0;0;10;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0;0"},
         CommandCase{{"POS?", "POSITION?", "position?", ":pos?"}, "", "0"},
+        CommandCase{{"POS:SET 2.5e-3", "POSITION:SET 2.5e-3", "pos:set 0.0025"},
+                    "set_position(0.0025)",
+                    ""},
+        CommandCase{{"POS:OFFS -1e-3", "POSITION:OFFSET -1e-3", "axis1:pos:offs -0.001"},
+                    "set_user_offset(-0.001)",
+                    ""},
+        CommandCase{{"POS:OFFS?", "POSITION:OFFSET?"}, "", "0"},
         CommandCase{{"MOVE:ABS 1e-6", "MOVE:ABSOLUTE 1e-6", "move:absolute 0.000001", "MOVE 1e-6",
                      ":Move:Abs 1E-06"},
                     "move_absolute(1e-06)",
@@ -110,7 +117,8 @@ INSTANTIATE_TEST_SUITE_P(
             "state=IDLE done=1 position=0 position_valid=1 target=0 fault=none lower=-0.001 "
             "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none axis=x "
             "referenced=0 device=up "
-            "result=NONE eot=none in_position=0 holding=0 referencing=0 fault_reason=none"},
+            "result=NONE eot=none in_position=0 holding=0 referencing=0 fault_reason=none "
+            "offset=0"},
         CommandCase{
             {"SWEEP /tmp/s,100:300:100,0.1;0.2,3", "sweep \"/tmp/s\", 100:300:100, 0.1;0.2, 3"},
             "sweep(/tmp/s,100;200;300,0.1;0.2,3,12)",

@@ -73,11 +73,13 @@ def make_idmd(tmp_dir):
 
 
 def restore(daemon):
-    """After a test: every axis stopped and at rest, its soft limits back to the travel."""
+    """After a test: every axis stopped and at rest, no user offset, its soft limits back to the
+    travel."""
     with daemon.client() as c:
         c.stop()
         for k in range(1, c.axis_count() + 1):
             c.axis(k).wait(30)
+            c.axis(k).set_offset(0)
             c.axis(k).set_limits(*TRAVEL)
 
 

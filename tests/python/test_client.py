@@ -531,6 +531,35 @@ def test_extension_settings_are_written_and_read_back(client, name, value, bad):
     assert read() == before
 
 
+def test_set_position_and_offset_put_every_position_in_the_user_frame(client):
+    """Axis.set_position / offset / set_offset (POSition:SET, POSition:OFFSet): the position,
+    the target, the soft limits and the status move with the offset; a move lands where the user
+    frame says; nothing moves when it is set; an offset out of range is refused and kept."""
+    x = client.axis(1)
+    p0 = x.move(0)
+    bursts = x.status().bursts
+    x.set_position(1e-3)
+    assert x.status().bursts == bursts  # nothing moved
+    assert abs(x.position() - 1e-3) <= 3 * COUNT
+    off = x.offset()
+    assert abs(off - (1e-3 - p0)) <= 3 * COUNT
+    assert x.limits() == pytest.approx((TRAVEL[0] + off, TRAVEL[1] + off), abs=1e-12)
+    st = x.status()
+    assert st.offset == pytest.approx(off, abs=1e-15) and st.lower == pytest.approx(
+        TRAVEL[0] + off, abs=1e-12)
+    arrived = x.move(1.25e-3)
+    assert abs(arrived - 1.25e-3) <= 2 * COUNT and x.result().word == "OK"
+    assert x.target() == pytest.approx(1.25e-3, abs=1e-12)
+    x.set_offset(0)  # back to the axis's own frame: the same place reads 1.25 mm - off
+    assert abs(x.position() - (1.25e-3 - off)) <= 3 * COUNT
+    assert x.target() == pytest.approx(1.25e-3 - off, abs=1e-12)
+    for bad in (10.5, -1e3):
+        with pytest.raises(idm.ExecutionError) as e:
+            x.set_offset(bad)
+        assert e.value.code == -222 and "allowed [-10, 10] m" in e.value.text, e.value
+    assert x.offset() == 0
+
+
 def test_velocity_refusals_name_the_command_and_the_range(client):
     x = client.axis(1)
     for bad in (2.0, -1e-6):

@@ -60,12 +60,14 @@ def wait_at_rest(dev, timeout=60):
 
 @pytest.fixture
 def axis(lab):
-    """The device of axis 1; afterwards stopped, at rest, with its soft limits the travel."""
+    """The device of axis 1; afterwards stopped, at rest, without a user offset, with its soft
+    limits the travel."""
     daemon, server = lab
     dev = server.proxy()
     yield dev
     send(daemon, "STOP")
     wait_at_rest(dev)
+    send(daemon, "POS:OFFS 0")
     send(daemon, "LIM %g,%g" % fixtures.TRAVEL)
 
 
@@ -240,6 +242,34 @@ def test_velocity_is_the_daemons_speed_limit(lab, axis):
         assert float(ask(daemon, "MOVE:VEL?")[0]) == 5e-4
     finally:
         send(daemon, "MOVE:VEL 0")
+
+
+def test_set_position_and_offset_are_the_daemons_user_frame(lab, axis):
+    """SetPosition (POSition:SET) makes the current position the one given, nothing moving;
+    Offset reads and writes POSition:OFFSet; Position and its min/max (the soft limits) follow
+    the offset; an offset out of range is idmd's -222 and changes nothing."""
+    daemon, _ = lab
+    axis.write_attribute("Position", 0.0)
+    wait_at_rest(axis)
+    count = resolution(daemon)
+    info = axis.command_query("SetPosition")
+    assert info.in_type == tango.CmdArgType.DevDouble
+    axis.SetPosition(2e-3)
+    assert abs(mean_position(daemon) - 2e-3) <= 3 * count
+    offset = axis.read_attribute("Offset").value
+    assert offset == pytest.approx(float(ask(daemon, "POS:OFFS?")[0]), abs=1e-15)
+    assert abs(axis.read_attribute("Position").value - 2e-3) <= 3 * count
+    wait_for("Position's max_value to follow the offset",
+             lambda: float(axis.get_attribute_config("Position").max_value) ==
+             pytest.approx(fixtures.TRAVEL[1] + offset, abs=1e-9), 10)
+    axis.write_attribute("Offset", 0.0)
+    assert abs(mean_position(daemon) - (2e-3 - offset)) <= 3 * count
+    assert axis.get_attribute_config("Offset").unit == "m"
+    with pytest.raises(tango.DevFailed) as refused:
+        axis.write_attribute("Offset", 11.0)
+    text = failure_text(refused)
+    assert "-222," in text and "allowed [-10, 10] m" in text, text
+    assert float(ask(daemon, "POS:OFFS?")[0]) == 0
 
 
 def test_jog_moves_to_the_soft_limit_and_stop_ends_it(lab, axis):

@@ -247,6 +247,13 @@ def test_control_jogs_and_sets_the_speed_limit(lab, restore):
         assert readonly.request(path, "POST", body, hdr)[0] == 405, path
         assert web.request(path, "POST", body)[0] == 403, path
     assert float(ask(daemon, "MOVE:VEL?")[0]) == 0
+    assert web.json("/api/state")["axes"][0]["offset_m"] == 0
+    send(daemon, "POS:OFFS 1.5e-3")
+    try:
+        wait_for("the user offset in the state",
+                 lambda: web.json("/api/state")["axes"][0]["offset_m"] == 1.5e-3, 10)
+    finally:
+        send(daemon, "POS:OFFS 0")
     assert web.json("/api/state")["axes"][0]["speed_limit_m_s"] == 0
     assert readonly.json("/api/state")["axes"][0]["speed_limit_m_s"] == 0
     try:
