@@ -649,3 +649,22 @@ TEST_F(DaemonSim, EveryThreadItStartsIsNamedForItsJob) {
 }
 
 }  // namespace
+
+// The log's line about a motion speaks the clients' frame: positions plus the user offset, which
+// it names; a distance is the same in both frames.
+TEST(MotionNoteText, GivesPositionsInTheUserFrameAndNamesTheOffset) {
+  MotionNote n;
+  n.kind = MotionNote::Kind::Ended;
+  n.result = idm::control::MoveResult::Limit;
+  n.motion = idm::control::MotionKind::Move;
+  n.position_valid = true;
+  n.position_m = 1e-3;
+  n.target_m = 2e-3;
+  n.distance_m = 1e-3;
+  EXPECT_EQ(motion_note_text("x", n),
+            "axis x: MOVE ended LIMIT: position 0.001 m, target 0.002 m, distance 0.001 m");
+  n.user_offset_m = -5e-4;
+  EXPECT_EQ(motion_note_text("x", n),
+            "axis x: MOVE ended LIMIT: position 0.0005 m, target 0.0015 m, distance 0.001 m, user "
+            "offset -0.0005 m");
+}
