@@ -160,6 +160,8 @@ class Axis {
   // A trial's segment has been handed to the link and its end not yet seen: the next trial waits.
   bool trial_finishing() const { return trial_phase_ == TrialPhase::Playing; }
   bool at_rest() const { return positioner_->at_rest() && trial_phase_ == TrialPhase::Idle; }
+  // At rest with nothing for the link still to be handed (the loop may tick at its rest rate).
+  bool quiet() const { return at_rest() && !pending_.due; }
   // Done (MOVE:DONE? 1, *OPC?): at rest, or holding the target of a move that arrived.
   bool done() const { return positioner_->done() && trial_phase_ == TrialPhase::Idle; }
   void publish(bool parked);

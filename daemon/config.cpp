@@ -261,6 +261,7 @@ void parse_globals(const Node& root, DaemonConfig& c) {
             "to mean it"));
   }
   realtime_params().read(child(root, "realtime"), f, "realtime", c.realtime);
+  realtime_params().check_relations(c.realtime, child(root, "realtime"), f, "realtime");
   logging_params().read(child(root, "logging"), f, "logging", c.logging);
   recording_params().read(child(root, "recording"), f, "recording", c.recording);
   if (c.recording.data_dir.empty())

@@ -100,7 +100,11 @@ const model::ParamTable<ListenConfig>& server_params();
 
 // `realtime:`: the loop's period and the real-time setup it attempts.
 struct RealtimeConfig {
-  double period_s = 1e-4;         // 10 kHz
+  double period_s = 1e-4;  // 10 kHz
+  // While every axis is at rest (nothing commanded, played, settling or recorded) the loop ticks
+  // this often instead: readings at rest come every daq.poll_interval_s, so nothing waits on a
+  // faster tick but a command, which it picks up this much later at most. 0: always period_s.
+  double rest_period_s = 1e-3;
   bool sched_fifo = true;         // SCHED_FIFO at `priority` when permitted (CAP_SYS_NICE)
   int priority = 80;              // 1..99
   int cpu = -1;                   // pin the loop to this CPU; -1 = no affinity

@@ -171,29 +171,50 @@ const model::ParamTable<ListenConfig>& server_params() {
 
 const model::ParamTable<RealtimeConfig>& realtime_params() {
   using R = RealtimeConfig;
-  static const model::ParamTable<R> table({
-      real<R>(
-          "period_s", "s", {1e-5, 0.1}, "the real-time loop's period",
-          [](auto& c) -> auto& { return c.period_s; }),
-      boolean<R>(
-          "sched_fifo", "SCHED_FIFO when permitted (CAP_SYS_NICE)",
-          [](auto& c) -> auto& { return c.sched_fifo; }),
-      integer<R>(
-          "priority", "", 1, 99, "SCHED_FIFO priority",
-          [](auto& c) -> auto& { return c.priority; }),
-      integer<R>(
-          "cpu", "", -1, 1023, "pin the loop to this CPU; -1: no affinity",
-          [](auto& c) -> auto& { return c.cpu; }),
-      boolean<R>(
-          "lock_memory", "mlockall when permitted (CAP_IPC_LOCK / RLIMIT_MEMLOCK)",
-          [](auto& c) -> auto& { return c.lock_memory; }),
-      real<R>(
-          "histogram_bin_s", "s", {1e-7, 1e-2}, "wake-up latency histogram bin (32 bins)",
-          [](auto& c) -> auto& { return c.histogram_bin_s; }),
-      real<R>(
-          "watchdog_stall_s", "s", {1e-3, 60}, "no tick for this long: the loop has stalled",
-          [](auto& c) -> auto& { return c.watchdog_stall_s; }),
-  });
+  static const model::ParamTable<R> table = [] {
+    std::vector<model::Param<R>> params{
+        real<R>(
+            "period_s", "s", {1e-5, 0.1}, "the real-time loop's period",
+            [](auto& c) -> auto& { return c.period_s; }),
+        real<R>(
+            "rest_period_s", "s", {0, 0.1},
+            "the loop's period while every axis is at rest (a command then waits this long at "
+            "most); 0: always period_s",
+            [](auto& c) -> auto& { return c.rest_period_s; }),
+        boolean<R>(
+            "sched_fifo", "SCHED_FIFO when permitted (CAP_SYS_NICE)",
+            [](auto& c) -> auto& { return c.sched_fifo; }),
+        integer<R>(
+            "priority", "", 1, 99, "SCHED_FIFO priority",
+            [](auto& c) -> auto& { return c.priority; }),
+        integer<R>(
+            "cpu", "", -1, 1023, "pin the loop to this CPU; -1: no affinity",
+            [](auto& c) -> auto& { return c.cpu; }),
+        boolean<R>(
+            "lock_memory", "mlockall when permitted (CAP_IPC_LOCK / RLIMIT_MEMLOCK)",
+            [](auto& c) -> auto& { return c.lock_memory; }),
+        real<R>(
+            "histogram_bin_s", "s", {1e-7, 1e-2}, "wake-up latency histogram bin (32 bins)",
+            [](auto& c) -> auto& { return c.histogram_bin_s; }),
+        real<R>(
+            "watchdog_stall_s", "s", {1e-3, 60}, "no tick for this long: the loop has stalled",
+            [](auto& c) -> auto& { return c.watchdog_stall_s; }),
+    };
+    model::relate(
+        params, "rest_period_s", ">= period_s (0: off)",
+        [](const R& c) {
+          return Range{c.period_s, kNoBound};
+        },
+        true);
+    // The watchdog must see ticks at rest too.
+    model::relate(
+        params, "rest_period_s", "< watchdog_stall_s",
+        [](const R& c) {
+          return Range{-kNoBound, c.watchdog_stall_s, false, true};
+        },
+        true);
+    return model::ParamTable<R>(std::move(params));
+  }();
   return table;
 }
 

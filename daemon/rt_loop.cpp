@@ -3,9 +3,11 @@
 #include <pthread.h>
 #include <sched.h>
 #include <sys/mman.h>
+#include <sys/prctl.h>
 #include <sys/resource.h>
 #include <time.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -104,6 +106,10 @@ std::string RtLoop::setup_realtime() {
           std::strerror(e) + "): needs CAP_SYS_NICE or RLIMIT_RTPRIO >= priority (now " +
           limit_text(RLIMIT_RTPRIO) + ")");
   }
+  // The kernel may defer a normal thread's timer by its slack (50 us by default) to batch
+  // wake-ups; the loop wakes on deadlines and wants each on time (SCHED_FIFO has no slack, so
+  // this matters where it is not permitted).
+  (void)prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
   prefault_stack();
   if (why.empty()) return {};
   return "real-time setup incomplete, running without it: " + why;
@@ -120,14 +126,16 @@ void RtLoop::run() {
   setup_done_.store(1, std::memory_order_release);
 
   const std::int64_t period_ns = static_cast<std::int64_t>(std::llround(config_.period_s * 1e9));
+  // The rest period in whole periods (the deadlines stay on one grid); at least one.
+  const std::int64_t rest_periods =
+      std::max<std::int64_t>(1, std::llround(config_.rest_period_s / config_.period_s));
   const double bin_ns = config_.histogram_bin_s * 1e9;
   constexpr std::size_t kBins = sizeof(local_.bins) / sizeof(local_.bins[0]);
-  const std::uint64_t publish_every = static_cast<std::uint64_t>(0.05 / config_.period_s) > 0
-                                          ? static_cast<std::uint64_t>(0.05 / config_.period_s)
-                                          : 1;
+  constexpr std::int64_t kPublishEveryNs = 50'000'000;  // the statistics, every 50 ms
 
   if (hook_) hook_(true);
   std::int64_t deadline = now_ns() + period_ns;
+  std::int64_t next_publish = deadline;
   while (!stop_.load(std::memory_order_acquire)) {
     const timespec ts = to_timespec(deadline);
     while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
@@ -146,16 +154,20 @@ void RtLoop::run() {
     body_.tick(static_cast<double>(woke) * 1e-9);
     ticks_.fetch_add(1, std::memory_order_release);
 
-    // Next deadline; when the tick (or the wake-up) overran one or more periods, those deadlines
-    // are counted as missed and skipped rather than run back to back.
-    deadline += period_ns;
+    // Next deadline (the rest period's while the body rests); when the tick (or the wake-up)
+    // overran one or more periods, those deadlines are counted as missed and skipped rather than
+    // run back to back.
+    deadline += body_.resting() ? rest_periods * period_ns : period_ns;
     const std::int64_t after = now_ns();
     if (after > deadline) {
       const std::int64_t missed = (after - deadline) / period_ns + 1;
       local_.deadline_misses += static_cast<std::uint64_t>(missed);
       deadline += missed * period_ns;
     }
-    if (local_.wakeups % publish_every == 0) publish_stats();
+    if (woke >= next_publish) {
+      publish_stats();
+      next_publish = woke + kPublishEveryNs;
+    }
   }
   publish_stats();
   if (hook_) hook_(false);

@@ -36,6 +36,9 @@ class LoopBody {
   // Called once per period on the loop thread; now_s on CLOCK_MONOTONIC. Must not block,
   // allocate, lock or log.
   virtual void tick(double now_s) = 0;
+  // After a tick: nothing needs the next one sooner than the rest period (RealtimeConfig::
+  // rest_period_s). Bodies that never rest keep the default.
+  virtual bool resting() const { return false; }
 };
 
 // Called on the loop thread with true right before the first tick and false right after the last

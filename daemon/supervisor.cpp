@@ -94,8 +94,14 @@ void MotionSupervisor::tick(double now_s) {
     }
   }
   for (Axis* a : axes_) a->tick(now_s, notices_);
-  bool rest = true;
-  for (const Axis* a : axes_) rest = rest && a->at_rest();
+  bool rest = true, quiet = true;
+  for (Axis* a : axes_) {
+    rest = rest && a->at_rest();
+    const bool q = a->quiet();
+    quiet = quiet && q;
+    a->port().controller_active.store(!q, std::memory_order_relaxed);
+  }
+  resting_ = quiet && ack == 0 && !stopping && !park && !trial_held_;
   const bool now_parked = park && rest;
   for (Axis* a : axes_) a->publish(now_parked);
   if (now_parked && !parked_.load(std::memory_order_relaxed))

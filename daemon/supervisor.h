@@ -54,6 +54,8 @@ class MotionSupervisor final : public LoopBody {
 
   // ---- the loop ----
   void tick(double now_s) override;
+  // After a tick: every axis quiet, nothing commanded or held, no stop or park under way.
+  bool resting() const override { return resting_; }
 
  private:
   void apply(const AxisCommand& command);
@@ -73,6 +75,7 @@ class MotionSupervisor final : public LoopBody {
   std::atomic<bool> stop_all_{false};
   std::atomic<std::uint8_t> park_request_{0};  // Park
   std::atomic<bool> parked_{false};
+  bool resting_ = false;  // the loop thread's
 };
 
 }  // namespace idm::daemon

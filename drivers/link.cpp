@@ -184,6 +184,7 @@ void DeviceLink::start_thread() {
       next += period;
       const double now = monotonic_s();
       if (next < now) next = now;  // behind (a slow device): no catching up in a burst
+      next = std::max(next, idle_until_s(now));
       sleep_until_s(next);
     }
   });
@@ -195,6 +196,19 @@ void DeviceLink::stop_thread() {
 }
 
 // ---- the I/O cycle ----
+
+double DeviceLink::idle_until_s(double now_s) const {
+  if (!opened_ || !sim_actions_.empty()) return now_s;
+  double until = now_s + config_.poll_interval_s;
+  if (state_.state == LinkState::Lost) return std::max(now_s, std::min(until, next_retry_s_));
+  for (const Channel& c : channels_) {
+    if (c.playing || c.port->controller_active.load(std::memory_order_relaxed) ||
+        !c.port->requests.empty())
+      return now_s;
+    until = std::min(until, c.next_poll_s);
+  }
+  return std::max(now_s, until);  // a latch already due: now
+}
 
 bool DeviceLink::simulated(std::size_t ch) const {
   return ch < channels_.size() && channels_[ch].device.sim != nullptr;

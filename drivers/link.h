@@ -90,6 +90,9 @@ struct ChannelPort {
   SpscRing<model::OutputRequest, 16> requests;  // controller -> link
   SpscRing<model::AxisEvent, 8192> events;      // link -> controller
   SpscRing<CaptureRecord, 1u << 16> capture;    // link -> recorder (record = true segments)
+  // controller -> link: a motion is under way (between its segments too), so the link keeps its
+  // full rate; false: the controller is at rest and the link may idle (idle_until_s).
+  std::atomic<bool> controller_active{false};
 };
 
 // Where a channel's count comes from: the device's count epoch (when it reports one: it changes
@@ -118,8 +121,14 @@ class DeviceLink {
   // rest latches, loss and reconnection. The I/O thread calls it; so do tests on the synthetic
   // clock (never both).
   void service(double now_s);
-  // The I/O thread: service(monotonic_s()) every io_period_s until stop_thread().
+  // The I/O thread: service(monotonic_s()) every io_period_s until stop_thread(); while the link
+  // is idle (idle_until_s), not before there is something to do (a request or a simulated action
+  // then waits one poll_interval_s at most).
   void start_thread();
+  // I/O side: when the link has nothing to do before a later time (no segment playing, no request
+  // or simulated action queued, no controller in a motion), that time: the next rest latch or
+  // reconnection try, at most one poll_interval_s from now; else now_s.
+  double idle_until_s(double now_s) const;
   void stop_thread();
   // Caller's thread, after stop_thread(): output to zero, deactivate, shut down. Idempotent.
   void close();

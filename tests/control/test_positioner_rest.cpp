@@ -196,3 +196,55 @@ TEST(Positioner, InPositionIsRecomputedFromEveryReadingAtRest) {
     EXPECT_NEAR(p.requested_target_m(), base + 1e-6, 1e-12) << push;
   }
 }
+
+// The device link's I/O thread sleeps while the link is idle (drivers::DeviceLink::idle_until_s):
+// never while a segment plays or a request waits, never past one poll interval, and at rest
+// until the next rest latch. Drawn moves and steps on the ideal plant, every tick checked.
+TEST(LinkIdle, IdleOnlyWhenNothingPlaysOrWaitsAndNeverPastOnePollInterval) {
+  test_rig::Rig rig(ideal_map(), test_rig::ideal_device());
+  const double poll_s = drivers::LinkConfig{}.poll_interval_s;
+  std::mt19937_64 rng(7);
+  int idle_ticks = 0, busy_ticks = 0, moving_ticks = 0;
+  const auto check = [&] {
+    const double now = rig.sim->now_s();
+    const double until = rig.link->idle_until_s(now);
+    ASSERT_GE(until, now);
+    ASSERT_LE(until, now + poll_s + 1e-12);
+    const bool waiting = !rig.link->port(0).requests.empty();
+    if (waiting) {
+      ASSERT_EQ(until, now) << "a queued request must not wait";
+    }
+    (until > now ? idle_ticks : busy_ticks) += 1;
+    if (rig.positioner->status().state == MotionState::Moving) ++moving_ticks;
+  };
+  for (int k = 0; k < 12; ++k) {
+    const double here = rig.positioner->status().position_m;
+    const Refusal r = rng() % 3 == 0
+                          ? rig.positioner->step_open_loop(rng() % 2 ? 40 : -40)
+                          : rig.positioner->move_absolute(
+                                here + std::uniform_real_distribution<double>(-2e-4, 2e-4)(rng));
+    ASSERT_EQ(r, Refusal::None);
+    // Right after the command, the request is queued or playing: the link is not idle.
+    step_axis(rig.link->port(0), *rig.positioner, rig.sim->now_s(), rig.pending);
+    ASSERT_EQ(rig.link->idle_until_s(rig.sim->now_s()), rig.sim->now_s());
+    for (int t = 0; t < 200000 && !rig.positioner->at_rest(); ++t) {
+      rig.sim->advance_s(1e-4);
+      rig.tick();
+      check();
+    }
+    ASSERT_TRUE(rig.positioner->at_rest());
+    for (int t = 0; t < 50; ++t) {  // at rest: idle between the latches
+      rig.sim->advance_s(1e-4);
+      rig.tick();
+      check();
+    }
+    EXPECT_GT(rig.link->idle_until_s(rig.sim->now_s()), rig.sim->now_s());
+    // A controller in a motion (the daemon's loop says so between chunks) keeps the link awake.
+    rig.link->port(0).controller_active.store(true);
+    EXPECT_EQ(rig.link->idle_until_s(rig.sim->now_s()), rig.sim->now_s());
+    rig.link->port(0).controller_active.store(false);
+  }
+  EXPECT_GT(idle_ticks, 500);
+  EXPECT_GT(busy_ticks, 100);
+  EXPECT_GT(moving_ticks, 100);
+}

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "daemon/rt_loop.h"
+#include "drivers/clock.h"
 #include "drivers/lockfree.h"
 #include "tests/daemon/daemon_test_util.h"
 
@@ -171,4 +172,44 @@ TEST(DeadlineMissWatch, ARateAboveTheLimitWarnsAtMostOnceAMinute) {
       << warnings[1];
   run(120, 0);
   EXPECT_EQ(warnings.size(), 3u) << "nothing once the loop keeps up";
+}
+
+namespace {
+
+// Rests (resting() true) for its first kRest ticks, then ticks at the full rate; keeps each
+// tick's time (preallocated: the loop thread must not allocate).
+struct RestThenWorkBody : LoopBody {
+  static constexpr int kRest = 20;
+  static constexpr int kTicks = 60;
+  double t[kTicks] = {};
+  std::atomic<int> n{0};
+  void tick(double now_s) override {
+    const int k = n.load(std::memory_order_relaxed);
+    if (k < kTicks) t[k] = now_s;
+    n.store(k + 1, std::memory_order_release);
+  }
+  bool resting() const override { return n.load(std::memory_order_relaxed) <= kRest; }
+};
+
+}  // namespace
+
+// At rest the loop's deadlines are rest_period_s apart (on the period's grid): a tick never comes
+// before its deadline, so the k-th tick at rest is at least k - 1 rest periods after the start.
+// (Only lower bounds: an upper bound would be a timing assertion on a shared machine.)
+TEST(RtLoop, AtRestTheDeadlinesAreTheRestPeriodApart) {
+  RealtimeConfig rc;
+  rc.period_s = 1e-4;
+  rc.rest_period_s = 2e-3;
+  rc.sched_fifo = false;
+  rc.lock_memory = false;
+  RestThenWorkBody body;
+  RtLoop loop(rc, body);
+  const double start_s = idm::drivers::monotonic_s();
+  EXPECT_EQ(loop.start(), "");
+  ASSERT_TRUE(wait_for([&] { return body.n.load() >= RestThenWorkBody::kTicks; }, 30));
+  loop.stop();
+  for (int k = 1; k <= RestThenWorkBody::kRest + 1; ++k)
+    EXPECT_GE(body.t[k - 1] - start_s, (k - 1) * rc.rest_period_s - 1e-9) << "tick " << k;
+  const LoopStats s = loop.stats();
+  EXPECT_EQ(s.wakeups, static_cast<std::uint64_t>(body.n.load()));
 }
