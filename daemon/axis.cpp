@@ -184,51 +184,58 @@ void Axis::set_soft_limits_now(double lower_m, double upper_m) {
 
 // ---- the loop ----
 
-control::Refusal Axis::apply(const AxisCommand& c) {
+control::Refusal Axis::apply(const AxisCommand& command) {
   using control::Refusal;
+  namespace ac = axis_command;
   const bool busy = trial_phase_ != TrialPhase::Idle;
-  switch (c.kind) {
-    case AxisCommand::Kind::MoveAbsolute:
-      if (busy) return Refusal::Busy;
-      if (config_.require_reference && !referenced_) return Refusal::NotReferenced;
-      return positioner_->move_absolute(c.a);
-    case AxisCommand::Kind::MoveRelative:
-      if (busy) return Refusal::Busy;
-      return positioner_->move_relative(c.a);
-    case AxisCommand::Kind::Step:
-      if (busy) return Refusal::Busy;
-      return positioner_->step_open_loop(c.n, c.a, c.b, c.c);
-    case AxisCommand::Kind::SetWindow:
-      return positioner_->set_window(c.a);
-    case AxisCommand::Kind::SetDwell:
-      return positioner_->set_dwell(c.a);
-    case AxisCommand::Kind::SetEot:
-      return positioner_->set_eot(c.a, static_cast<int>(c.n));
-    case AxisCommand::Kind::SetHold:
-      return positioner_->set_hold(c.a, c.b);
-    case AxisCommand::Kind::SetSpeed:
-      return positioner_->set_settings({{"max_speed_m_s", c.a}});
-    case AxisCommand::Kind::Reference: {
-      if (busy) return Refusal::Busy;
-      const int direction = c.n > 0 ? 1 : -1;
-      const Refusal r = c.b != 0 ? positioner_->reference_mark(direction, c.a)
-                                 : positioner_->reference(direction, c.a);
-      if (r == Refusal::None) referenced_ = false;  // until it is found
+  if (busy && command.motion()) return Refusal::Busy;
+  // One overload per command type (a type without one does not compile).
+  struct Apply {
+    Axis& a;
+    Refusal operator()(const ac::MoveAbsolute& c) const {
+      if (a.config_.require_reference && !a.referenced_) return Refusal::NotReferenced;
+      return a.positioner_->move_absolute(c.target_m);
+    }
+    Refusal operator()(const ac::MoveRelative& c) const {
+      return a.positioner_->move_relative(c.distance_m);
+    }
+    Refusal operator()(const ac::Step& c) const {
+      return a.positioner_->step_open_loop(c.cycles, c.duty, c.freq_hz, c.stroke_m);
+    }
+    Refusal operator()(const ac::SetWindow& c) const {
+      return a.positioner_->set_window(c.window_m);
+    }
+    Refusal operator()(const ac::SetDwell& c) const { return a.positioner_->set_dwell(c.dwell_s); }
+    Refusal operator()(const ac::SetEot& c) const {
+      return a.positioner_->set_eot(c.step_m, c.cycles);
+    }
+    Refusal operator()(const ac::SetHold& c) const {
+      return a.positioner_->set_hold(c.hold_s, c.window_m);
+    }
+    Refusal operator()(const ac::SetSpeed& c) const {
+      return a.positioner_->set_settings({{"max_speed_m_s", c.max_speed_m_s}});
+    }
+    Refusal operator()(const ac::Reference& c) const {
+      const int direction = c.direction > 0 ? 1 : -1;
+      const Refusal r = c.mark ? a.positioner_->reference_mark(direction, c.position_m)
+                               : a.positioner_->reference(direction, c.position_m);
+      if (r == Refusal::None) a.referenced_ = false;  // until it is found
       return r;
     }
-    case AxisCommand::Kind::SetLimits: {
-      const Refusal r = positioner_->set_soft_limits(c.a, c.b);
+    Refusal operator()(const ac::SetLimits& c) const {
+      const Refusal r = a.positioner_->set_soft_limits(c.lower_m, c.upper_m);
       if (r == Refusal::None) {
-        soft_lower_m_ = pub_.soft_lower_m = c.a;
-        soft_upper_m_ = pub_.soft_upper_m = c.b;
+        a.soft_lower_m_ = a.pub_.soft_lower_m = c.lower_m;
+        a.soft_upper_m_ = a.pub_.soft_upper_m = c.upper_m;
       }
       return r;
     }
-    case AxisCommand::Kind::Stop:
-      positioner_->stop();
+    Refusal operator()(const ac::Stop&) const {
+      a.positioner_->stop();
       return Refusal::None;
-  }
-  return Refusal::None;
+    }
+  };
+  return std::visit(Apply{*this}, command.body);
 }
 
 void Axis::stop(TrialNotices& notices) {

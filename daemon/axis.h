@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <variant>
 
 #include "control/calibration.h"
 #include "control/positioner.h"
@@ -25,26 +26,61 @@ using drivers::Seqlock;
 using drivers::SpscRing;
 
 // server -> loop. Stop with axis -1 stops every axis.
+// What the server asks of one axis (or of every axis: Stop with axis -1), one type per command,
+// each with its arguments named (positions in the axis's own frame, SI units).
+namespace axis_command {
+struct MoveAbsolute {
+  double target_m = 0;
+};
+struct MoveRelative {
+  double distance_m = 0;
+};
+struct Step {  // an omitted duty/frequency/stroke is NaN (control::Positioner::step_open_loop)
+  std::int64_t cycles = 0;
+  double duty = 0, freq_hz = 0, stroke_m = 0;
+};
+struct Stop {};
+struct SetLimits {
+  double lower_m = 0, upper_m = 0;
+};
+struct SetWindow {
+  double window_m = 0;
+};
+struct SetDwell {
+  double dwell_s = 0;
+};
+struct SetEot {
+  double step_m = 0;
+  int cycles = 0;
+};
+struct SetHold {
+  double hold_s = 0, window_m = 0;
+};
+struct SetSpeed {
+  double max_speed_m_s = 0;
+};
+struct Reference {
+  int direction = -1;     // the way the end stop (or the mark's search) lies
+  double position_m = 0;  // the position it sets there
+  bool mark = false;      // find the reference mark (else the end stop)
+};
+using Body = std::variant<MoveAbsolute, MoveRelative, Step, Stop, SetLimits, SetWindow, SetDwell,
+                          SetEot, SetHold, SetSpeed, Reference>;
+}  // namespace axis_command
+
 struct AxisCommand {
-  enum class Kind : std::uint8_t {
-    MoveAbsolute,
-    MoveRelative,
-    Step,
-    Stop,
-    SetLimits,
-    SetWindow,
-    SetDwell,
-    SetEot,
-    SetHold,
-    SetSpeed,
-    Reference,  // settings: a (and b, n); Reference: n = direction, a = the position it
-                // sets, b != 0: find the reference mark (else the end stop)
-  };
-  Kind kind = Kind::Stop;
-  std::int32_t axis = -1;
-  std::uint64_t seq = 0;
-  double a = 0, b = 0, c = 0;
-  std::int64_t n = 0;
+  axis_command::Body body = axis_command::Stop{};
+  std::int32_t axis = -1;  // -1: every axis (Stop only)
+  std::uint64_t seq = 0;   // the supervisor's, for the acknowledgement
+  template <class T>
+  bool is() const {
+    return std::holds_alternative<T>(body);
+  }
+  // Motion: a move, a step or a reference (what a stop, a park or a sweep refuses).
+  bool motion() const {
+    return is<axis_command::MoveAbsolute>() || is<axis_command::MoveRelative>() ||
+           is<axis_command::Step>() || is<axis_command::Reference>();
+  }
 };
 
 // Published by the loop after every tick, per axis (seqlock).

@@ -49,7 +49,7 @@ CommandError Daemon::submit(AxisCommand command) {
   const MotionSupervisor::Ack ack = supervisor_->submit(command, *loop_);
   if (!ack.taken)
     return {error_code::kExecutionError, "the real-time loop did not take the command"};
-  return refusal_error(command.axis, ack.refusal, ack.target_m, command.kind);
+  return refusal_error(command, ack.refusal, ack.target_m);
 }
 
 CommandError Daemon::fault_error(control::MotionFault fault) {
@@ -60,8 +60,8 @@ CommandError Daemon::fault_error(control::MotionFault fault) {
   return {error_code::kSettingsConflict, text};
 }
 
-CommandError Daemon::refusal_error(int axis, control::Refusal r, double target,
-                                   AxisCommand::Kind kind) {
+CommandError Daemon::refusal_error(const AxisCommand& command, control::Refusal r, double target) {
+  const int axis = command.axis;
   if (r == control::Refusal::None) return {};
   const Axis& a = *axes_.at(static_cast<std::size_t>(std::max(axis, 0)));
   const AxisPublished p = a.published();
@@ -80,7 +80,7 @@ CommandError Daemon::refusal_error(int axis, control::Refusal r, double target,
     case control::Refusal::Faulted:
       return fault_error(p.motion.fault);
     case control::Refusal::Busy:
-      if (kind == AxisCommand::Kind::SetLimits)
+      if (command.is<axis_command::SetLimits>())
         return {error_code::kSettingsConflict, "the motion in progress ends at " +
                                                    num(p.motion.target_m + off) +
                                                    " m, outside the new limits: STOP it first"};
@@ -91,7 +91,7 @@ CommandError Daemon::refusal_error(int axis, control::Refusal r, double target,
       return {error_code::kSettingsConflict,
               "a motion is in progress: STOP it or wait for MOVE:DONE? 1"};
     case control::Refusal::OutOfRange:
-      if (kind == AxisCommand::Kind::Reference)
+      if (command.is<axis_command::Reference>())
         return {error_code::kSettingsConflict, "REFerence: no cell of the map moves that way"};
       return {error_code::kDataOutOfRange,
               "outside the device limits (cycles, duty, frequency or stroke)"};
@@ -117,17 +117,16 @@ CommandError Daemon::refusal_error(int axis, control::Refusal r, double target,
 
 CommandError Daemon::move_absolute(int axis, double target_m) {
   AxisCommand c;
-  c.kind = AxisCommand::Kind::MoveAbsolute;
   c.axis = axis;
-  c.a = target_m - axes_.at(static_cast<std::size_t>(axis))->user_offset_m();
+  c.body = axis_command::MoveAbsolute{target_m -
+                                      axes_.at(static_cast<std::size_t>(axis))->user_offset_m()};
   return submit(c);
 }
 
 CommandError Daemon::move_relative(int axis, double distance_m) {
   AxisCommand c;
-  c.kind = AxisCommand::Kind::MoveRelative;
   c.axis = axis;
-  c.a = distance_m;
+  c.body = axis_command::MoveRelative{distance_m};
   return submit(c);
 }
 
@@ -160,27 +159,21 @@ CommandError Daemon::step(int axis, std::int64_t cycles, double duty, double fre
     return out_of_range("stroke_m", stroke_m,
                         "[" + num(limits.min_stroke_m) + ", " + num(limits.max_stroke_m) + "] m");
   AxisCommand c;
-  c.kind = AxisCommand::Kind::Step;
   c.axis = axis;
-  c.n = cycles;
-  c.a = duty;
-  c.b = freq_hz;
-  c.c = stroke_m;
+  c.body = axis_command::Step{cycles, duty, freq_hz, stroke_m};
   return submit(c);
 }
 
 CommandError Daemon::stop() {
   if (sweeps_) sweeps_->abort();  // between trials too: the next one is never asked for
-  AxisCommand c;
-  c.kind = AxisCommand::Kind::Stop;
+  AxisCommand c;                  // Stop, every axis
   c.axis = -1;
   return submit(c);
 }
 
 CommandError Daemon::stop(int axis) {
   if (sweeps_ && sweeps_->active() && sweeps_->status().axis == axis) sweeps_->abort();
-  AxisCommand c;
-  c.kind = AxisCommand::Kind::Stop;
+  AxisCommand c;  // Stop
   c.axis = axis;
   return submit(c);
 }
@@ -218,10 +211,8 @@ CommandError Daemon::set_soft_limits(int axis, double lower_m, double upper_m) {
     upper_dial_m = st.travel_upper_m;
   }
   AxisCommand c;
-  c.kind = AxisCommand::Kind::SetLimits;
   c.axis = axis;
-  c.a = lower_dial_m;
-  c.b = upper_dial_m;
+  c.body = axis_command::SetLimits{lower_dial_m, upper_dial_m};
   return submit(c);
 }
 
@@ -318,38 +309,28 @@ CommandError Daemon::set_motion_setting(int axis, MotionSetting which, double va
   if (CommandError e = check_setting(axis, p.settings, r.command, r.key, value); !e.ok()) return e;
   AxisCommand c;
   c.axis = axis;
+  namespace ac = axis_command;
   switch (which) {
     case MotionSetting::Window:
-      c.kind = AxisCommand::Kind::SetWindow;
-      c.a = value;
+      c.body = ac::SetWindow{value};
       break;
     case MotionSetting::Dwell:
-      c.kind = AxisCommand::Kind::SetDwell;
-      c.a = value;
+      c.body = ac::SetDwell{value};
       break;
     case MotionSetting::MaxSpeed:
-      c.kind = AxisCommand::Kind::SetSpeed;
-      c.a = value;
+      c.body = ac::SetSpeed{value};
       break;
     case MotionSetting::EotStep:
-      c.kind = AxisCommand::Kind::SetEot;
-      c.a = value;
-      c.n = p.settings.eot_cycles;
+      c.body = ac::SetEot{value, p.settings.eot_cycles};
       break;
     case MotionSetting::EotCycles:
-      c.kind = AxisCommand::Kind::SetEot;
-      c.a = p.settings.eot_step_m;
-      c.n = static_cast<std::int64_t>(value);
+      c.body = ac::SetEot{p.settings.eot_step_m, static_cast<int>(value)};
       break;
     case MotionSetting::Hold:
-      c.kind = AxisCommand::Kind::SetHold;
-      c.a = value;
-      c.b = p.settings.hold_window_set_m;
+      c.body = ac::SetHold{value, p.settings.hold_window_set_m};
       break;
     case MotionSetting::HoldWindow:
-      c.kind = AxisCommand::Kind::SetHold;
-      c.a = p.settings.hold_s;
-      c.b = value;
+      c.body = ac::SetHold{p.settings.hold_s, value};
       break;
   }
   return submit(c);
@@ -384,7 +365,6 @@ CommandError Daemon::reference(int axis, ReferenceMethod method) {
              : cfg.reference == AxisConfig::Reference::Mark   ? ReferenceMethod::Mark
                                                               : ReferenceMethod::Negative;
   AxisCommand c;
-  c.kind = AxisCommand::Kind::Reference;
   c.axis = axis;
   if (method == ReferenceMethod::Mark) {
     if (!a.has_reference_mark())
@@ -393,16 +373,15 @@ CommandError Daemon::reference(int axis, ReferenceMethod method) {
                   "'s interferometer reports no reference mark; use NEGative or POSitive"};
     // The search drives the configured way first (and turns at an end stop); the mark reads
     // reference_position_m, 0 when not configured.
-    c.n = cfg.reference_mark_search == AxisConfig::Reference::Positive ? 1 : -1;
-    c.b = 1;
-    c.a = std::isnan(cfg.reference_position_m) ? 0.0 : cfg.reference_position_m;
+    c.body = axis_command::Reference{
+        cfg.reference_mark_search == AxisConfig::Reference::Positive ? 1 : -1,
+        std::isnan(cfg.reference_position_m) ? 0.0 : cfg.reference_position_m, true};
     return submit(c);
   }
   const bool negative = method == ReferenceMethod::Negative;
   double at = cfg.reference_position_m;
   if (std::isnan(at)) at = negative ? cfg.stage.travel_lower_m : cfg.stage.travel_upper_m;
-  c.n = negative ? -1 : 1;
-  c.a = at;
+  c.body = axis_command::Reference{negative ? -1 : 1, at, false};
   return submit(c);
 }
 

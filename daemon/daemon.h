@@ -136,8 +136,7 @@ class Daemon final : public Instrument, public Reloader {
   void restore_reference(Axis& axis);
   void wait_until_ready();
   CommandError submit(AxisCommand command);
-  CommandError refusal_error(int axis, control::Refusal refusal, double target_m,
-                             AxisCommand::Kind kind);
+  CommandError refusal_error(const AxisCommand& command, control::Refusal refusal, double target_m);
   CommandError fault_error(control::MotionFault fault);
   bool wait_at_rest(double timeout_s);
   // A setting a command changes, checked as the config file's reader checks it

@@ -57,11 +57,7 @@ void MotionSupervisor::tick(double now_s) {
   AxisCommand cmd;
   std::uint64_t ack = 0;
   if (commands_.pop(cmd)) {
-    const bool motion = cmd.kind == AxisCommand::Kind::MoveAbsolute ||
-                        cmd.kind == AxisCommand::Kind::MoveRelative ||
-                        cmd.kind == AxisCommand::Kind::Step ||
-                        cmd.kind == AxisCommand::Kind::Reference;
-    if ((stopping || park) && motion) {
+    if ((stopping || park) && cmd.motion()) {
       acked_refusal_.store(
           static_cast<std::uint8_t>(park_mode == Park::Wait ? control::Refusal::Reloading
                                                             : control::Refusal::Busy),
@@ -116,13 +112,11 @@ void MotionSupervisor::apply(const AxisCommand& c) {
     for (Axis* a : axes_) a->stop(notices_);
   } else if (static_cast<std::size_t>(c.axis) < axes_.size()) {
     Axis& a = *axes_[static_cast<std::size_t>(c.axis)];
-    if (c.kind == AxisCommand::Kind::Stop) {
+    if (c.is<axis_command::Stop>()) {
       a.stop(notices_);
     } else {
       r = a.apply(c);
-      if (c.kind == AxisCommand::Kind::MoveAbsolute || c.kind == AxisCommand::Kind::MoveRelative ||
-          c.kind == AxisCommand::Kind::Step)
-        target = a.requested_target_m();
+      if (c.motion() && !c.is<axis_command::Reference>()) target = a.requested_target_m();
     }
   }
   acked_target_m_.store(target, std::memory_order_relaxed);
