@@ -68,7 +68,7 @@ echo "== 3. RSS over ${moves} moves of 1 um on the simulated stage"
 
 echo "== 4. real-time loop, 10 kHz, ${secs} s, on a Modbus device whose server is stalled (SIGSTOP)"
 mport=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-sed -e "s#/var/lib/idmd/calibration.txt#$tmp/cal-mb.txt#" -e "s#/var/lib/idmd/data#$tmp/data#" \
+sed -e "s#/var/lib/idmd/calibration-modbus.txt#$tmp/cal-mb.txt#" -e "s#/var/lib/idmd/data#$tmp/data#" \
     -e "s/port: 1502/port: $mport/" -e "s/period_s: 1e-3 /period_s: 1e-4 /" \
     -e '/^realtime:/a\  rest_period_s: 0' "$src/config/idmd-modbus.yaml" > "$tmp/modbus.yaml"
 "$build/tools/idm-simdev" --port "$mport" --config "$tmp/modbus.yaml" > "$tmp/simdev.out" &
@@ -95,7 +95,7 @@ start_idmd "$tmp/idmd-rest.yaml" "$tmp/idle-sim.out"
 python3 "$src/bench/idle_cpu.py" "$idmd_pid" "$idle_secs" idmd_sim | tee "$tmp/idle.txt"
 kill "$idmd_pid"; wait "$idmd_pid" 2>/dev/null || true
 kill -CONT "$simdev" 2>/dev/null || true
-sed -e "s#/var/lib/idmd/calibration.txt#$tmp/cal-mb2.txt#" -e "s#/var/lib/idmd/data#$tmp/data#" \
+sed -e "s#/var/lib/idmd/calibration-modbus.txt#$tmp/cal-mb2.txt#" -e "s#/var/lib/idmd/data#$tmp/data#" \
     -e "s/port: 1502/port: $mport/" "$src/config/idmd-modbus.yaml" > "$tmp/modbus-rest.yaml"
 start_idmd "$tmp/modbus-rest.yaml" "$tmp/idle-mb.out"
 python3 "$src/bench/idle_cpu.py" "$idmd_pid" "$idle_secs" idmd_modbus | tee -a "$tmp/idle.txt"

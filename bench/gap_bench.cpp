@@ -81,7 +81,12 @@ void run(const Case& c) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
+  const bool quick = argc == 2 && std::strcmp(argv[1], "--quick") == 0;
+  if (argc > 2 || (argc == 2 && !quick)) {
+    std::fprintf(stderr, "gap_bench: '%s' is not an option; usage: gap_bench [--quick]\n",
+                 argv[argc > 2 && quick ? 2 : 1]);
+    return 2;
+  }
   const model::EffectSpec amp{"amplifier", {{"cutoff_hz", 3000}, {"order", 2}}};
   const model::EffectSpec tilt{"tilt", {{"angle_deg", 1.5}}};
   if (quick) {

@@ -261,7 +261,8 @@ int main(int argc, char** argv) {
     else {
       std::fprintf(stderr,
                    "usage: positioning_bench [--quick] [--moves N] [--seed S] [--uncertainty U] "
-                   "[--max-freq HZ] [--trace]\n");
+                   "[--max-freq HZ] [--dwell S] [--window COUNTS] [--settling FILE.svg] "
+                   "[--trace]\n");
       return 2;
     }
   }

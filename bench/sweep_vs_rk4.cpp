@@ -116,7 +116,12 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
+  const bool quick = argc == 2 && std::strcmp(argv[1], "--quick") == 0;
+  if (argc > 2 || (argc == 2 && !quick)) {
+    std::fprintf(stderr, "sweep_vs_rk4: '%s' is not an option; usage: sweep_vs_rk4 [--quick]\n",
+                 argv[argc > 2 && quick ? 2 : 1]);
+    return 2;
+  }
   StageParams stage;  // Table 1, K 5.7e6 N/m, C 230 N s/m
   InterferometerParams exact_sensor;
   exact_sensor.resolution_m = 1e-15;  // positions as they are: the comparison is of integrators

@@ -165,14 +165,15 @@ FileFindings check_config_files(const DaemonConfig& c) {
   check_data_dir(c.recording.data_dir, out);
   for (const AxisConfig& a : c.axes) {
     const std::string prefix = c.axes.size() > 1 ? "axes." + a.name + "." : "";
+    // Read as idmd reads it at start: the file's content, and that it is this axis's stage's
+    // (a calibration another config wrote, of another stage, stops idmd there).
     check_axis_file(
         prefix + "control.calibration_file", a.control.calibration_file,
-        [](const std::string& f) -> std::string {
+        [&a](const std::string& f) -> std::string {
           try {
-            control::CalibrationState state;
+            control::Calibration calibration(a.stage.stage, a.control.calibration);
             std::string error;
-            if (!control::Calibration::parse(model::read_regular_file(f, 1 << 20), f, state, error))
-              return error;
+            if (!calibration.load(f, error)) return error;
           } catch (const std::exception& e) {
             return e.what();
           }

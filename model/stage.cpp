@@ -59,7 +59,8 @@ constexpr StageKey kStageKeys[] = {
      {0.0, 1.0, true},
      true,
      "1",
-     "alpha of eq 22 (the shipped files give 1.0: the rigid plant is the ideal model)"},
+     "alpha of eq 22 (config/idmd.yaml and idmd-xyz.yaml give 1.0: their rigid plant is the "
+     "ideal model; idmd-modbus.yaml and idmd-usb.yaml 0.35, a stage with compliance)"},
     {"stiffness_n_m",
      &StageParams::stiffness_n_m,
      {0.0, 1e12, true},

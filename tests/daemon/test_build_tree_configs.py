@@ -35,7 +35,6 @@ def test_the_build_tree_config_keeps_its_state_in_the_build_tree_and_checks_clea
     assert os.path.isfile(path), "the build did not write " + path
     with open(path) as f:
         text = f.read()
-    assert "/var/lib/idmd" not in text and "/run/idmd" not in text, path
     paths = PATH_KEYS.findall(text)
     assert paths, "no paths in " + path
     for key, value in paths:
@@ -82,3 +81,69 @@ def test_idmd_runs_on_the_build_tree_config_as_idm_run_starts_it():
     for line in log.splitlines():
         if " warning: " in line or " error: " in line:
             assert "data_dir" not in line and "calibration" not in line, log
+
+
+def shipped_calibration_files():
+    """(config, calibration_file) of every axis of every shipped config, as the file gives it."""
+    out = []
+    for name in NAMES:
+        with open(os.path.join(SOURCE, "config", name + ".yaml")) as f:
+            out += [(name, v) for k, v in PATH_KEYS.findall(f.read()) if k == "calibration_file"]
+    return out
+
+
+def test_every_shipped_stage_learns_into_a_file_of_its_own():
+    """A calibration belongs to one stage: two shipped configs (or two axes) sharing one file
+    would stop idmd on the second ('a calibration of another stage') once the first had run."""
+    files = shipped_calibration_files()
+    assert len(files) >= len(NAMES)
+    paths = [p for _, p in files]
+    assert len(set(paths)) == len(paths), files
+
+
+def test_after_the_default_config_ran_every_shipped_config_still_checks_and_starts():
+    """The lab's path: ./idm run (the default config) first, then another shipped config in the
+    same state directory: --check-config is clean and idmd starts on the simulated ones."""
+    test_idmd_runs_on_the_build_tree_config_as_idm_run_starts_it()
+    for name in NAMES:
+        r = subprocess.run([IDMD, "--check-config", build_config(name)], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 0 and "calibration" not in r.stderr, (name, r.stderr)
+
+
+def test_check_config_refuses_a_calibration_of_another_stage():
+    """--check-config reads the calibration file as the start does: one written for another stage
+    (here Table 1's, step_correction 1, under the Modbus stage's 0.35) is an error naming the key
+    and both values, exit 2, as idmd's start would be."""
+    tmp = tempfile.mkdtemp(prefix="idm-cal-")
+    try:
+        cal = os.path.join(tmp, "calibration.txt")
+        with open(os.path.join(SOURCE, "config", "idmd.yaml")) as f:
+            default = f.read().replace("/var/lib/idmd", tmp)
+        with open(os.path.join(SOURCE, "config", "idmd-modbus.yaml")) as f:
+            modbus = re.sub(r"calibration_file: \S+", "calibration_file: " + cal,
+                            f.read().replace("/var/lib/idmd", tmp))
+        for n, text in (("a.yaml", default), ("b.yaml", modbus)):
+            with open(os.path.join(tmp, n), "w") as f:
+                f.write(text.replace("sched_fifo: true", "sched_fifo: false")
+                        .replace("lock_memory: true", "lock_memory: false"))
+        sock = os.path.join(tmp, "s.sock")
+        proc = subprocess.Popen([IDMD, "--config", os.path.join(tmp, "a.yaml"), "--port", "0",
+                                 "--unix", sock], stdout=subprocess.PIPE,
+                                stderr=subprocess.DEVNULL, text=True)
+        try:
+            assert "listening" in proc.stdout.readline()
+            r = subprocess.run([IDMCTL, "--unix", sock, "move", "50um"], capture_output=True,
+                               text=True, timeout=120)
+            assert r.returncode == 0, r.stdout + r.stderr
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(30)
+        assert os.path.exists(cal)
+        r = subprocess.run([IDMD, "--check-config", os.path.join(tmp, "b.yaml")],
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2, r.stdout + r.stderr
+        assert "step_correction 1 differs from the configured 0.35" in r.stderr, r.stderr
+        assert "control.calibration_file" in r.stderr and cal in r.stderr, r.stderr
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

@@ -113,8 +113,10 @@ def axes_config(tmp, names=("x", "y"), stalled=(), modbus=None):
             sections = [(key, top[key]) for key in ("stage", "interferometer", "sim", "control")]
         for key, body in sections:
             text = "\n".join(body)
-            for cal in (os.path.join(tmp, "calibration.txt"), "/var/lib/idmd/calibration.txt"):
-                text = text.replace(cal, os.path.join(tmp, "calibration-%s.txt" % name))
+            # Every shipped file's own calibration (calibration.txt, calibration-modbus.txt, ...),
+            # in the build tree or installed: this axis's own here.
+            text = re.sub(r"(%s|/var/lib/idmd)/calibration[-\w]*\.txt" % re.escape(tmp),
+                          os.path.join(tmp, "calibration-%s.txt" % name), text)
             if key == "sim":  # each simulated stage its own noise
                 text = edit(text, [("seed: 1", "seed: %d" % (index + 1))], "sim:")
             out.append("    %s:" % key)
