@@ -105,6 +105,10 @@ struct SetFit {
 };
 
 struct FitOptions {
+  // Told every fit and every decision of the selection, one line each, as they happen (idm-gap
+  // diagnose --explain); empty: nothing is told. Fits run on several threads at once: it must
+  // be safe to call from any of them.
+  std::function<void(const std::string&)> explain;
   int threads = 0;        // 0: all cores
   int grid_1d = 9;        // coarse grid points for one coordinate
   int grid_2d = 7;        // per axis for two

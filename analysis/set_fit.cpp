@@ -37,10 +37,6 @@ std::vector<model::EffectSpec> effects_of(const std::vector<CandidateSpec>& libr
 
 namespace {
 
-bool verbose() {
-  return std::getenv("IDM_GAP_VERBOSE") != nullptr;
-}
-
 // The training gap of a set of effects (alpha and mu refitted around the baseline's mu).
 class Objective {
  public:
@@ -201,24 +197,27 @@ void judge(const std::vector<CandidateSpec>& library, const FittedModel& baselin
         " (the baseline's, or " + model::format_number(kSpreadPartAllowance) + ")");
 }
 
-void log_fit(const char* what, const SetFit& f, std::chrono::steady_clock::time_point t0) {
-  if (!verbose()) return;
+void log_fit(const char* what, const SetFit& f, std::chrono::steady_clock::time_point t0,
+             const FitOptions& opt) {
+  if (!opt.explain) return;
   std::string names;
   for (const std::string& n : f.names()) names += (names.empty() ? "" : "+") + n;
   const GapParts held_out = gap_parts(f.fitted.test);
-  std::fprintf(stderr,
-               "  %s %s: %d evaluations, %.2f s, train gap %.3g, held-out %.3g (mean %.3g, spread "
-               "%.3g, label %.3g, systematic %.3g)%s\n",
-               what, names.c_str(), f.evaluations,
-               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
-               f.train_gap, f.gap, held_out.mean, held_out.spread, held_out.label,
-               systematic_gap(f.fitted), f.plausible ? "" : " (implausible)");
   std::string params;
   for (const model::EffectSpec& e : f.effects)
     for (const auto& [k, v] : e.params)
       params += " " + e.name + "." + k + "=" + model::format_number(v);
-  std::fprintf(stderr, "    mu %.4g alpha %.4g%s\n", f.fitted.model.stage.friction_coefficient,
-               f.fitted.calibration.alpha, params.c_str());
+  char line[640];
+  std::snprintf(line, sizeof line,
+                "%s %s: %d evaluations, %.2f s, train gap %.3g, held-out %.3g (mean %.3g, spread "
+                "%.3g, label %.3g, systematic %.3g)%s%s; mu %.4g alpha %.4g",
+                what, names.c_str(), f.evaluations,
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                f.train_gap, f.gap, held_out.mean, held_out.spread, held_out.label,
+                systematic_gap(f.fitted),
+                f.plausible ? "" : ", implausible: ", f.plausible ? "" : f.note.c_str(),
+                f.fitted.model.stage.friction_coefficient, f.fitted.calibration.alpha);
+  opt.explain(line + params);
 }
 
 }  // namespace
@@ -586,7 +585,7 @@ SetFit fit_single(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
   SetFit out = obj.score({best}, best_value);
   out.evaluations += coarse.evaluations;
   judge(library, baseline, out);
-  log_fit("fit", out, t0);
+  log_fit("fit", out, t0, opt);
   return out;
 }
 
@@ -685,7 +684,7 @@ SetFit fit_on_top(const SweepCells& sweep, const std::vector<CandidateSpec>& lib
     if (other.train_gap < out.train_gap) out = std::move(other);
   }
   out.evaluations = evaluations + coarse.evaluations;
-  log_fit("on top", out, t0);
+  log_fit("on top", out, t0, opt);
   return out;
 }
 
@@ -734,7 +733,7 @@ SetFit fit_joint(const SweepCells& sweep, const std::vector<CandidateSpec>& libr
   }
   SetFit out = obj.score(members, value);
   judge(library, baseline, out);
-  log_fit("joint", out, t0);
+  log_fit("joint", out, t0, opt);
   return out;
 }
 

@@ -17,13 +17,16 @@ namespace idm::tools {
 using model::InputError;
 
 Flags::Flags(int argc, char** argv, int first, const std::vector<std::string>& known,
-             const std::vector<std::string>& repeatable) {
+             const std::vector<std::string>& repeatable, const std::vector<std::string>& switches) {
   for (int i = first; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg.rfind("--", 0) != 0) throw InputError("unexpected argument '" + arg + "'");
     std::string name = arg.substr(2), value;
     const auto eq = name.find('=');
-    if (eq != std::string::npos) {
+    const bool is_switch = std::find(switches.begin(), switches.end(), name) != switches.end();
+    if (is_switch) {
+      value = "1";
+    } else if (eq != std::string::npos) {
       value = name.substr(eq + 1);
       name = name.substr(0, eq);
     } else {

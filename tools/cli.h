@@ -15,8 +15,10 @@ namespace idm::tools {
 // --name value pairs after the subcommand; `repeatable` flags may appear more than once.
 class Flags {
  public:
+  // `switches`: names among `known` that take no value (--explain).
   Flags(int argc, char** argv, int first, const std::vector<std::string>& known,
-        const std::vector<std::string>& repeatable = {});
+        const std::vector<std::string>& repeatable = {},
+        const std::vector<std::string>& switches = {});
   bool has(const std::string& name) const { return values_.count(name) > 0; }
   std::string text(const std::string& name) const;  // throws when missing
   std::vector<std::string> all(const std::string& name) const;

@@ -1,6 +1,7 @@
 // idm-gap: where, why and how far the model and a stage part (the sim-to-real gap diagnosis).
 //
 //   idm-gap diagnose DATASET [--json FILE] [--report DIR] [--threads N] [--effects LIST]
+//                    [--explain]
 //   idm-gap validate [--seeds N] [--first-seed S] [--json FILE] [--cases LIST] [--quick 1]
 //   [--threads N]
 //
@@ -13,6 +14,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <mutex>
 #include <sstream>
 #include <string>
 
@@ -33,6 +35,7 @@ namespace {
 const char* kUsage =
     "usage: idm-gap --version\n"
     "       idm-gap diagnose DATASET [--json FILE] [--report DIR] [--threads N] [--effects LIST]\n"
+    "                        [--explain]\n"
     "       idm-gap validate [--seeds N] [--first-seed S] [--json FILE] [--cases LIST] [--quick 1] "
     "[--threads N]\n"
     "DATASET is a sweep in the format of docs/sweep-dataset.md; LIST is comma-separated effect "
@@ -78,9 +81,19 @@ int diagnose(int argc, char** argv) {
   if (argc < 3 || std::string(argv[2]).rfind("--", 0) == 0)
     throw InputError("DATASET: missing (required)");
   const std::string path = argv[2];
-  const tools::Flags f(argc, argv, 3, {"json", "report", "threads", "effects"});
+  const tools::Flags f(argc, argv, 3, {"json", "report", "threads", "effects", "explain"}, {},
+                       {"explain"});
   if (f.has("json")) check_output_dir("json", f.text("json"));
   analysis::DiagnoseOptions opt;
+  // --explain: every fit and every decision of the selection on stdout as it happens, before the
+  // summary (the fitting threads take turns).
+  std::mutex explain_mutex;
+  if (f.has("explain"))
+    opt.fit.explain = [&explain_mutex](const std::string& line) {
+      const std::lock_guard<std::mutex> lock(explain_mutex);
+      std::printf("explain: %s\n", line.c_str());
+      std::fflush(stdout);
+    };
   opt.fit.threads = static_cast<int>(f.integer_or("threads", 0, 0, 256));
   opt.effects = effect_list(f);
   if (!std::filesystem::is_directory(path)) throw InputError(path + ": no such dataset directory");

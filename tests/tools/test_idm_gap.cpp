@@ -75,6 +75,17 @@ TEST(IdmGap, DiagnoseNamesTheAmplifierAndWritesJsonAndReport) {
   // The ranking plot is inline (the page reads alone) and its caption links the file.
   EXPECT_NE(page.find("Which effect: each alone (<a href=\"ranking.svg\">"), std::string::npos);
   EXPECT_NE(page.find("<svg"), std::string::npos);
+  EXPECT_EQ(r.out.find("explain:"), std::string::npos) << r.out;  // only when asked for
+  // --explain: every fit and every decision, one line each, then the same diagnosis.
+  const Result e = run("diagnose " + ds + " --effects amplifier,tilt --explain");
+  ASSERT_EQ(e.status, 0) << e.out;
+  for (const char* line :
+       {"explain: baseline: held-out gap ", "(significant)",
+        "explain: fit amplifier: ", "explain: single amplifier: held-out ",
+        "explain: single tilt: held-out ", "explain: search from amplifier (held-out ",
+        "explain: forward: ", "explain: named amplifier: the remainder", "diagnosis: amplifier;"})
+    EXPECT_NE(e.out.find(line), std::string::npos) << line << "\n" << e.out;
+  EXPECT_LT(e.out.find("explain: named"), e.out.find("diagnosis: amplifier;")) << e.out;
   std::filesystem::remove_all(ds);
   std::filesystem::remove(json);
   std::filesystem::remove_all(report);
