@@ -3,7 +3,6 @@ a move written to Position (State MOVING then ON, change events, the arrived pos
 the middle of a move, a write outside the soft limits refused, the attributes that mirror the
 daemon's queries, Step, and what a device says when idmd is gone or its name names no axis."""
 import math
-import os
 import tempfile
 import shutil
 import threading

@@ -6,12 +6,9 @@ requests do not bring it down, and pipelined requests are all answered in order.
 Inputs that vary (pipelined requests, how they are cut into pieces) come from hypothesis."""
 import json
 import math
-import os
 import random
 import re
 import socket
-import tempfile
-import shutil
 import threading
 import time
 
