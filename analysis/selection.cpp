@@ -55,11 +55,11 @@ class SetFits {
     for (const SetFit& s : singles) finished_[key_of(s.members)] = s;
   }
 
-  // A line for --explain (FitOptions::explain), when one is asked for.
-  void tell(const std::string& line) const {
-    if (options_.explain) options_.explain(line);
+  // A line for --explain (FitOptions::explain): `line()` is built only when one is asked for.
+  template <class Line>
+  void tell(Line&& line) const {
+    if (options_.explain) options_.explain(std::string(line()));
   }
-  bool telling() const { return static_cast<bool>(options_.explain); }
 
   // Screens every set not screened yet (spread over the threads), and returns them all.
   std::vector<SetFit> screen(const std::vector<std::vector<MemberFit>>& sets) {
@@ -320,45 +320,53 @@ double excess(double gap) {
 
 // --explain's lines of select_from's steps (SetFits::tell), each naming the rule that decided.
 void explain_forward_stop(const SetFits& fits, const SetFit* best, const SetFit& current) {
-  if (!fits.telling()) return;
-  fits.tell(best ? "forward: stop: " + joined(best->names()) + " (held-out " +
-                       model::format_number(best->gap, 3) + " against " +
-                       model::format_number(current.gap, 3) +
-                       ") neither earns its place (earns_place: kMinFurtherShrink of the "
-                       "excess) nor brings the remainder into the noise (into_noise)"
-                 : "forward: stop: no plausible finished lead");
+  fits.tell([&] {
+    return best ? "forward: stop: " + joined(best->names()) + " (held-out " +
+                      model::format_number(best->gap, 3) + " against " +
+                      model::format_number(current.gap, 3) +
+                      ") neither earns its place (earns_place: kMinFurtherShrink of the "
+                      "excess) nor brings the remainder into the noise (into_noise)"
+                : "forward: stop: no plausible finished lead";
+  });
 }
 
 void explain_forward_add(const SetFits& fits, const SetFit& added, const SetFit& current) {
-  if (!fits.telling()) return;
-  fits.tell("forward: add: " + joined(added.names()) + ", held-out " +
-            model::format_number(added.gap, 3) + " from " + model::format_number(current.gap, 3) +
-            (earns_place(added, current) ? " (earns_place)" : " (into_noise)"));
+  fits.tell([&] {
+    return "forward: add: " + joined(added.names()) + ", held-out " +
+           model::format_number(added.gap, 3) + " from " + model::format_number(current.gap, 3) +
+           (earns_place(added, current) ? " (earns_place)" : " (into_noise)");
+  });
 }
 
 void explain_forward_end(const SetFits& fits, const SetFit& current) {
   if (current.members.size() >= kMaxEffects)
-    fits.tell("forward: stop: " + joined(current.names()) + " has kMaxEffects members");
+    fits.tell(
+        [&] { return "forward: stop: " + joined(current.names()) + " has kMaxEffects members"; });
   else if (current.gap <= kFurtherGap)
-    fits.tell("forward: stop: the held-out gap " + model::format_number(current.gap, 3) +
-              " is at most kFurtherGap: nothing more for another effect to explain");
+    fits.tell([&] {
+      return "forward: stop: the held-out gap " + model::format_number(current.gap, 3) +
+             " is at most kFurtherGap: nothing more for another effect to explain";
+    });
 }
 
 // `kept`: the set stays as it is (else `best`, a member less, takes its place).
 void explain_backward(const SetFits& fits, const SetFit& current, const SetFit* best, bool kept) {
-  if (!fits.telling()) return;
   if (kept)
-    fits.tell("backward: keep " + joined(current.names()) + " (held-out " +
-              model::format_number(current.gap, 3) + "): " +
-              (best ? "without a member the best is " + joined(best->names()) + " at " +
-                          model::format_number(best->gap, 3) +
-                          " (grows past kBackwardTolerance while significant, or the member "
-                          "earns its place, or takes the remainder out of the noise)"
-                    : std::string("no plausible set without a member")));
+    fits.tell([&] {
+      return "backward: keep " + joined(current.names()) + " (held-out " +
+             model::format_number(current.gap, 3) + "): " +
+             (best ? "without a member the best is " + joined(best->names()) + " at " +
+                         model::format_number(best->gap, 3) +
+                         " (grows past kBackwardTolerance while significant, or the member "
+                         "earns its place, or takes the remainder out of the noise)"
+                   : std::string("no plausible set without a member"));
+    });
   else
-    fits.tell("backward: remove: " + joined(current.names()) + " -> " + joined(best->names()) +
-              ", held-out " + model::format_number(current.gap, 3) + " -> " +
-              model::format_number(best->gap, 3) + " (within kBackwardTolerance or the noise)");
+    fits.tell([&] {
+      return "backward: remove: " + joined(current.names()) + " -> " + joined(best->names()) +
+             ", held-out " + model::format_number(current.gap, 3) + " -> " +
+             model::format_number(best->gap, 3) + " (within kBackwardTolerance or the noise)";
+    });
 }
 
 // Forward from `first`: every identifiable candidate (`joiners`) joins the set in a joint fit
@@ -399,12 +407,14 @@ SetFit select_from(const SetFit& first, const std::vector<const SetFit*>& joiner
     double best_train = std::numeric_limits<double>::infinity();
     for (std::size_t k = 0; k < leads.size() && k < kFinishedLeads; ++k) {
       const bool worth = worth_finishing(leads[k]->train_gap, here);
-      fits.tell("forward: " + joined(leads[k]->names()) + " screened " +
-                model::format_number(leads[k]->train_gap, 3) + ", the set without it " +
-                model::format_number(here, 3) +
-                (worth ? ": finished"
-                       : ": not finished (worth_finishing: its excess over the "
-                         "noise shrinks by less than kScreenShrink)"));
+      fits.tell([&] {
+        return "forward: " + joined(leads[k]->names()) + " screened " +
+               model::format_number(leads[k]->train_gap, 3) + ", the set without it " +
+               model::format_number(here, 3) +
+               (worth ? ": finished"
+                      : ": not finished (worth_finishing: its excess over the "
+                        "noise shrinks by less than kScreenShrink)");
+      });
       if (!worth) continue;
       const SetFit& f = fits.finish_nested(leads[k]->members, current);
       best_train = std::min(best_train, f.fitted.train.gap);
@@ -526,10 +536,12 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
                                  Diagnosis& d) {
   if (pool.empty() ||
       !(significant_gap(d.baseline) || explains_weak_gap(*pool.front(), d.baseline))) {
-    fits.tell(pool.empty() ? "no set search: no plausible candidate"
-                           : "no set search: the baseline's gap is not significant "
-                             "(significant_gap: kExplainedGap, kSystematicGap) and the best "
-                             "candidate does not explain a weak gap (explains_weak_gap)");
+    fits.tell([&] {
+      return pool.empty() ? "no set search: no plausible candidate"
+                          : "no set search: the baseline's gap is not significant "
+                            "(significant_gap: kExplainedGap, kSystematicGap) and the best "
+                            "candidate does not explain a weak gap (explains_weak_gap)";
+    });
     return std::nullopt;
   }
   std::vector<const SetFit*> firsts{pool.front()};
@@ -538,12 +550,16 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
     firsts.push_back(pool[1]);
   std::optional<SetFit> current;
   const auto start = [&](const SetFit* first) {
-    fits.tell("search from " + joined(first->names()) + " (held-out " +
-              model::format_number(first->gap, 3) + ")");
+    fits.tell([&] {
+      return "search from " + joined(first->names()) + " (held-out " +
+             model::format_number(first->gap, 3) + ")";
+    });
     std::vector<SelectionStep> steps;
     const SetFit end = select_from(*first, joiners, library, fits, steps);
-    fits.tell("search from " + joined(first->names()) + " ends at " + joined(end.names()) +
-              " (held-out " + model::format_number(end.gap, 3) + ")");
+    fits.tell([&] {
+      return "search from " + joined(first->names()) + " ends at " + joined(end.names()) +
+             " (held-out " + model::format_number(end.gap, 3) + ")";
+    });
     if (!current || end.gap < current->gap) {
       current = end;
       d.steps = steps;
@@ -563,8 +579,10 @@ std::optional<SetFit> search_set(const std::vector<const SetFit*>& pool,
     }
   if (current->members.size() == 1 && current->shrink < kMinShrink &&
       !explains_weak_gap(*current, d.baseline)) {
-    fits.tell("none: the set of one, " + joined(current->names()) + ", shrinks the gap by " +
-              model::format_number(current->shrink, 3) + " < kMinShrink");
+    fits.tell([&] {
+      return "none: the set of one, " + joined(current->names()) + ", shrinks the gap by " +
+             model::format_number(current->shrink, 3) + " < kMinShrink";
+    });
     d.steps.clear();
     return std::nullopt;
   }
@@ -670,33 +688,37 @@ Diagnosis diagnose(const SweepCells& sweep, const DiagnoseOptions& options) {
     if (c.plausible) pool.push_back(&c);
   }
   SetFits fits(sweep, library, d.baseline, options.fit, d.candidates);
-  if (fits.telling()) {
-    fits.tell("baseline: held-out gap " + model::format_number(d.baseline.test.gap, 3) +
-              ", systematic " + model::format_number(systematic_gap(d.baseline), 3) +
-              (significant_gap(d.baseline) ? " (significant)" : " (not significant)"));
-    for (const SetFit& c : d.candidates)
-      fits.tell("single " + joined(c.names()) + ": held-out " + model::format_number(c.gap, 3) +
-                ", shrink " + model::format_number(c.shrink, 3) +
-                (c.plausible ? "" : ", implausible: " + c.note));
-  }
+  fits.tell([&] {
+    return "baseline: held-out gap " + model::format_number(d.baseline.test.gap, 3) +
+           ", systematic " + model::format_number(systematic_gap(d.baseline), 3) +
+           (significant_gap(d.baseline) ? " (significant)" : " (not significant)");
+  });
+  for (const SetFit& c : d.candidates)
+    fits.tell([&] {
+      return "single " + joined(c.names()) + ": held-out " + model::format_number(c.gap, 3) +
+             ", shrink " + model::format_number(c.shrink, 3) +
+             (c.plausible ? "" : ", implausible: " + c.note);
+    });
   const std::optional<SetFit> found = search_set(pool, joiners, library, fits, d);
   // honesty: a set that leaves a significant remainder must explain most of the gap
   if (found) {
     d.best = *found;
     d.named = nameable(*found);
-    fits.tell(d.named ? "named " + joined(found->names()) + ": the remainder (held-out " +
-                            model::format_number(found->gap, 3) + ") " +
-                            (significant_gap(found->fitted)
-                                 ? "is significant but the set explains most of the gap (shrink " +
-                                       model::format_number(found->shrink, 3) + " >= kNameShrink)"
-                                 : std::string("is within the noise"))
-                      : "not named: " + joined(found->names()) +
-                            " leaves a significant remainder (held-out " +
-                            model::format_number(found->gap, 3) + ") and shrinks the gap by " +
-                            model::format_number(found->shrink, 3) +
-                            " < kNameShrink: the gap is reported unexplained");
+    fits.tell([&] {
+      return d.named ? "named " + joined(found->names()) + ": the remainder (held-out " +
+                           model::format_number(found->gap, 3) + ") " +
+                           (significant_gap(found->fitted)
+                                ? "is significant but the set explains most of the gap (shrink " +
+                                      model::format_number(found->shrink, 3) + " >= kNameShrink)"
+                                : std::string("is within the noise"))
+                     : "not named: " + joined(found->names()) +
+                           " leaves a significant remainder (held-out " +
+                           model::format_number(found->gap, 3) + ") and shrinks the gap by " +
+                           model::format_number(found->shrink, 3) +
+                           " < kNameShrink: the gap is reported unexplained";
+    });
   } else {
-    fits.tell("nothing named: the gap is reported as it is");
+    fits.tell([&] { return "nothing named: the gap is reported as it is"; });
   }
   if (d.named) {
     d.chosen = d.best.effects;

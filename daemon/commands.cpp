@@ -33,6 +33,11 @@ bool position_trusted(const AxisPublished& p, drivers::LinkState device) {
   return p.motion.position_valid && device == drivers::LinkState::Up;
 }
 
+// The user offsets allowed (POSition:OFFSet, POSition:SET), as a refusal states them.
+std::string offset_range() {
+  return "[" + num(-kMaxUserOffsetM) + ", " + num(kMaxUserOffsetM) + "] m";
+}
+
 }  // namespace
 
 std::string Daemon::identity() {
@@ -221,8 +226,7 @@ CommandError Daemon::set_user_offset(int axis, double offset_m) {
     return {error_code::kNumericDataError, "POSition:OFFSet: the offset is not a number"};
   if (!(std::fabs(offset_m) <= kMaxUserOffsetM))
     return {error_code::kDataOutOfRange,
-            "POSition:OFFSet: " + num(offset_m) + " m is out of range, allowed [" +
-                num(-kMaxUserOffsetM) + ", " + num(kMaxUserOffsetM) + "] m"};
+            "POSition:OFFSet: " + num(offset_m) + " m is out of range, allowed " + offset_range()};
   Axis& a = *axes_.at(static_cast<std::size_t>(axis));
   const double before = a.user_offset_m();
   a.set_user_offset_m(offset_m);
@@ -249,9 +253,9 @@ CommandError Daemon::set_position(int axis, double position_m) {
             "POSition:SET: the position is not known (no valid interferometer reading)"};
   const double offset_m = position_m - p.motion.position_m;
   if (!(std::fabs(offset_m) <= kMaxUserOffsetM))
-    return {error_code::kDataOutOfRange,
-            "POSition:SET: " + num(position_m) + " m would need a user offset of " + num(offset_m) +
-                " m, allowed [" + num(-kMaxUserOffsetM) + ", " + num(kMaxUserOffsetM) + "] m"};
+    return {error_code::kDataOutOfRange, "POSition:SET: " + num(position_m) +
+                                             " m would need a user offset of " + num(offset_m) +
+                                             " m, allowed " + offset_range()};
   return set_user_offset(axis, offset_m);
 }
 

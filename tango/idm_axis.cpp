@@ -326,9 +326,7 @@ void IdmAxis::write_Position(Tango::WAttribute& att) {
   att.get_write_value(target);
   command("MOVE:ABS " + number_text(target), "IdmAxis::write_Position");
   // The motion has started: State and the events say so at once.
-  refresh();
-  apply_status();
-  publish();
+  resync();
 }
 
 void IdmAxis::read_Target(Tango::Attribute& att) {
@@ -393,9 +391,7 @@ void IdmAxis::read_Offset(Tango::Attribute& att) {
 
 void IdmAxis::write_Offset(Tango::WAttribute& att) {
   write_setting(att, "POS:OFFS", "IdmAxis::write_Offset");
-  refresh();  // the position and the soft limits (Position's min/max) moved with it
-  apply_status();
-  publish();
+  resync();  // the position and the soft limits (Position's min/max) moved with it
 }
 
 void IdmAxis::read_StatusBits(Tango::Attribute& att) {
@@ -405,41 +401,38 @@ void IdmAxis::read_StatusBits(Tango::Attribute& att) {
   att.set_value(&status_bits_);
 }
 
-void IdmAxis::stop() {
-  command("STOP", "IdmAxis::Stop");
+// After a command: STATus? now, Tango's state and Position's limits from it, the events.
+void IdmAxis::resync() {
   refresh();
   apply_status();
   publish();
 }
 
+void IdmAxis::stop() {
+  command("STOP", "IdmAxis::Stop");
+  resync();
+}
+
 void IdmAxis::reference() {
   command("REF", "IdmAxis::Reference");
-  refresh();
-  apply_status();
-  publish();
+  resync();
 }
 
 // n is sent as given, sign and all: idmd picks the direction from it.
 void IdmAxis::step(Tango::DevLong cycles) {
   command("STEP " + std::to_string(cycles), "IdmAxis::Step");
-  refresh();
-  apply_status();
-  publish();
+  resync();
 }
 
 void IdmAxis::jog(bool positive) {
   command(positive ? "JOG POS" : "JOG NEG",
           positive ? "IdmAxis::JogPositive" : "IdmAxis::JogNegative");
-  refresh();
-  apply_status();
-  publish();
+  resync();
 }
 
 void IdmAxis::set_position(Tango::DevDouble position_m) {
   command("POS:SET " + number_text(position_m), "IdmAxis::SetPosition");
-  refresh();
-  apply_status();
-  publish();
+  resync();
 }
 
 // ---- The class: attributes, commands, devices ------------------------------------------------

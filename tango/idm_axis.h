@@ -76,6 +76,8 @@ class IdmAxis : public TANGO_BASE_CLASS {
   // Pushes State when it changed, and Position while moving and once when the motion ended.
   // Called with the device's monitor held.
   void publish();
+  // refresh(), apply_status() and publish(): after a command.
+  void resync();
   void monitor_loop();
 
   client::Address address_;
