@@ -337,6 +337,8 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
         " m/s: m/(M+m) times the fast phase's rate); real motion would read as glitches. Raise "
         "it above that, or narrow the map (limits.max_freq_hz, limits.max_stroke_m)");
   build_ladder();
+  landing_rungs_.reserve(ladder_[0].size() + ladder_[1].size());
+  landing_index_.reserve(ladder_[0].size() + ladder_[1].size());
   status_.state = MotionState::Idle;
   status_.window_m = tolerance_m();
 }

@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "control/calibration.h"
+#include "control/landing_plan.h"
 #include "control/motion_gate.h"
 #include "control/planner.h"
 #include "control/region_map.h"
@@ -400,6 +401,10 @@ class Positioner {
   // Backs away from the target (toward -sign) to a distance a rung toward it lands from within
   // the window; false when no rung that way can (or none plays the way back).
   bool back_off(int sign, std::vector<Rung>& toward, double distance, double error);
+  // The landing plan (landing_plan.h) over the live rungs of both ways, against the final chunk
+  // (chosen, cycles) planned the usual way: when a plan is expected to land sooner, its first
+  // chunk is played (a try when it is the only one) and true is returned.
+  bool play_landing_plan(int sign, double error, int chosen, std::uint64_t cycles, double b_final);
   // The live rung and cycles whose chunk is expected to end nearest `distance` (-1: none).
   int nearest_landing(const std::vector<Rung>& ladder, double distance,
                       std::uint64_t& cycles) const;
@@ -457,6 +462,10 @@ class Positioner {
   bool lost_at_rest_ = false;  // the loss came with nothing moving
   int max_chunks_ = 0;
   std::vector<Rung> ladder_[2];
+  // The landing plan's view of the live rungs (capacity reserved with the ladder) and, for each,
+  // its (direction, ladder index).
+  std::vector<LandingRung> landing_rungs_;
+  std::vector<std::pair<int, int>> landing_index_;
   // Learned step over seeded step of the learned rungs (1 until one has learned): scales the
   // seeds of the rungs not yet played (a stage that moves three times the map's step moves its
   // fine rungs three times too, and they are then the ones that land).

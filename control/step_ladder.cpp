@@ -248,6 +248,7 @@ void Positioner::plan_next_chunk(double now_s) {
   if (chosen < 0) {
     final_chunk = true;
     chosen = final_try(ladder, fin, distance, cycles, capped);
+    if (!capped && play_landing_plan(sign, error, chosen, cycles, b_final)) return;
     // A chunk expected to end no nearer the target than the slider is now (the rung's shortest
     // chunk, its first cycle's offset and a step, is longer than twice the error) cannot land
     // from here: back off to where a rung lands within the window, and come back.

@@ -1,0 +1,149 @@
+#include "control/landing_plan.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace idm::control {
+
+namespace {
+
+double chunk_mean_m(const LandingRung& r, std::uint64_t n) {
+  return r.offset_m + static_cast<double>(n) * r.step_m;
+}
+
+// The variance of the estimate of D(n).
+double estimate_var(const LandingRung& r, std::uint64_t n) {
+  const double k = static_cast<double>(n);
+  return std::max(r.p_oo + 2 * k * r.p_os + k * k * r.p_ss, 0.0);
+}
+
+double chunk_sd_m(const LandingRung& r, std::uint64_t n, double mean_m) {
+  const double s = r.rel_sd * mean_m;
+  return std::sqrt(s * s + estimate_var(r, n));
+}
+
+// The farthest a chunk may end: its mean grown by the rung's margin and two of the estimate's
+// standard deviations.
+double chunk_most_m(const LandingRung& r, std::uint64_t n, double mean_m) {
+  return mean_m + r.rel_margin * std::fabs(mean_m) + 2 * std::sqrt(estimate_var(r, n));
+}
+
+double chunk_time_s(const LandingRung& r, std::uint64_t n, double overhead_s) {
+  return static_cast<double>(n) / r.freq_hz + overhead_s;
+}
+
+bool usable(const LandingRung& r) {
+  return r.step_m > 0 && std::isfinite(r.step_m) && std::isfinite(r.offset_m) && r.freq_hz > 0 &&
+         r.rel_sd >= 0 && r.rel_margin >= 0 && (r.direction == 1 || r.direction == -1);
+}
+
+double room_m(const LandingLimits& lim, int direction) {
+  return lim.room_m[direction > 0 ? 1 : 0];
+}
+
+// Whether plan a is better than b: less expected time.
+bool better(const LandingPlan& a, const LandingPlan& b) {
+  if (!(a.probability > 0)) return false;
+  if (!(b.probability > 0)) return true;
+  return a.expected_s() < b.expected_s();
+}
+
+// The best single chunk for `error_m` after a first chunk of variance `prior_var` and time
+// `prior_s` that moved the slider `moved_m` (signed) from where the limits' room was measured;
+// its time_s includes prior_s.
+LandingPlan single(double error_m, const LandingLimits& lim, const LandingRung* rungs,
+                   std::size_t count, double prior_var, double prior_s, double moved_m) {
+  LandingPlan best;
+  const int sign = error_m >= 0 ? 1 : -1;
+  const double distance = std::fabs(error_m);
+  const double room = room_m(lim, sign) - sign * moved_m;
+  for (std::size_t i = 0; i < count; ++i) {
+    const LandingRung& r = rungs[i];
+    if (!usable(r) || r.direction != sign) continue;
+    // The nearest landing and its neighbours, the most cycles the limits allow (where the nearest
+    // passes too far, the chunk is as long as it may be) and the shortest chunks (the least
+    // scatter where a rung's grows with its chunk).
+    const double n_real = std::round((distance - r.offset_m) / r.step_m);
+    const double reach = std::min(distance + lim.max_pass_steps * r.step_m, room);
+    double n_max = std::min(r.max_cycles > 0 ? static_cast<double>(r.max_cycles) : 1e9,
+                            std::floor((reach / (1 + r.rel_margin) - r.offset_m) / r.step_m));
+    // The estimate's margin grows with n: step down to the longest chunk that keeps to reach.
+    while (n_max >= 1 && chunk_most_m(r, static_cast<std::uint64_t>(n_max),
+                                      chunk_mean_m(r, static_cast<std::uint64_t>(n_max))) > reach)
+      n_max -= 1;
+    const double candidates[] = {1, 2, 3, n_real - 1, n_real, n_real + 1, n_max};
+    for (std::size_t k = 0; k < sizeof candidates / sizeof candidates[0]; ++k) {
+      const double n = candidates[k];
+      bool seen = false;  // each cycle count once
+      for (std::size_t j = 0; j < k; ++j) seen = seen || candidates[j] == n;
+      if (seen || !(n >= 1) || n > n_max) continue;
+      const auto cycles = static_cast<std::uint64_t>(n);
+      const double mean = chunk_mean_m(r, cycles);
+      const double sd = chunk_sd_m(r, cycles, mean);
+      const double most = chunk_most_m(r, cycles, mean);
+      if (most - distance > lim.max_pass_steps * r.step_m || most > room) continue;
+      // It aims inside the window: a chunk expected to end outside lands only by its scatter,
+      // and on a stage that repeats itself it would miss the same way at every try.
+      if (std::fabs(mean - distance) > lim.half_window_m) continue;
+      LandingPlan p;
+      p.first = {static_cast<int>(i), cycles};
+      p.probability = landing_probability(
+          mean - distance, std::sqrt(sd * sd + prior_var + lim.read_sd_m * lim.read_sd_m),
+          lim.half_window_m);
+      p.time_s = prior_s + chunk_time_s(r, cycles, lim.chunk_overhead_s);
+      if (p.probability >= kMinLandingProbability && better(p, best)) best = p;
+    }
+  }
+  return best;
+}
+
+}  // namespace
+
+double landing_probability(double miss_m, double sd_m, double half_window_m) {
+  if (!(half_window_m > 0)) return 0;
+  if (!(sd_m > 0)) return std::fabs(miss_m) <= half_window_m ? 1.0 : 0.0;
+  // Phi((w - m) / s) - Phi((-w - m) / s), through erfc for accuracy in the tails.
+  const double k = 1.0 / (sd_m * std::sqrt(2.0));
+  const double p =
+      0.5 * (std::erfc((-half_window_m - miss_m) * k) - std::erfc((half_window_m - miss_m) * k));
+  return std::clamp(p, 0.0, 1.0);
+}
+
+LandingPlan best_single_chunk(double error_m, const LandingLimits& limits, const LandingRung* rungs,
+                              std::size_t count) {
+  return single(error_m, limits, rungs, count, 0.0, 0.0, 0.0);
+}
+
+LandingPlan plan_landing(double error_m, const LandingLimits& limits, const LandingRung* rungs,
+                         std::size_t count) {
+  LandingPlan best = single(error_m, limits, rungs, count, 0.0, 0.0, 0.0);
+  const int sign = error_m >= 0 ? 1 : -1;
+  const double distance = std::fabs(error_m);
+  for (std::size_t i = 0; i < count; ++i) {
+    const LandingRung& r = rungs[i];
+    if (!usable(r)) continue;
+    const std::uint64_t n_max = r.max_cycles > 0 ? std::min(r.max_cycles, limits.max_first_cycles)
+                                                 : limits.max_first_cycles;
+    for (std::uint64_t n = 1; n <= n_max; ++n) {
+      const double mean = chunk_mean_m(r, n);
+      if (!(mean > 0)) continue;
+      const double sd = chunk_sd_m(r, n, mean);
+      const double most = chunk_most_m(r, n, mean);
+      if (most > room_m(limits, r.direction)) break;
+      if (r.direction == sign && most - distance > limits.max_pass_steps * r.step_m) break;
+      const double moved = r.direction * mean;
+      const double rest = error_m - moved;
+      // A first chunk that lands by itself is a single chunk's business.
+      if (std::fabs(rest) <= limits.half_window_m) continue;
+      LandingPlan p = single(rest, limits, rungs, count, sd * sd,
+                             chunk_time_s(r, n, limits.chunk_overhead_s), moved);
+      if (!(p.probability > 0)) continue;
+      p.second = p.first;
+      p.first = {static_cast<int>(i), n};
+      if (better(p, best)) best = p;
+    }
+  }
+  return best;
+}
+
+}  // namespace idm::control

@@ -1,0 +1,77 @@
+// The landing plan: how to end a move within the window when the ladder's rungs step farther than
+// the window is wide. Pure (no state, no allocation): the positioner hands in what its rungs have
+// learned and plays the first chunk of the plan returned, then plans again from the reading. A
+// chunk of rung r with n cycles moves D(n) = offset + n step along the rung's direction, with a
+// standard deviation of rel_sd |D(n)| (the rung's learned scatter), the estimate's own for n cycles
+// (p_oo + 2 n p_os + n^2 p_ss) and the reading's (read_sd_m). Its pessimistic end is D(n) (1 +
+// rel_margin) and two of the estimate's standard deviations. A plan is one chunk toward the target,
+// or two: a first chunk of any rung either way, then the best single chunk from where that is
+// expected to end (a vernier: +62 nm then -57 nm ends 5 nm on). The chunk that lands aims inside
+// the window: its D(n) ends within it. A chunk's cycles are the nearest landing's (round((distance
+// - offset) / step)) or one either side of it, the most the limits allow, or 1-3. Its landing
+// probability is that of a normal end position falling within +/- half_window_m of the target; the
+// plan kept is the one with the least expected time to land, its time over its probability (a
+// failed try costs the plan's time again).
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+namespace idm::control {
+
+// A plan less likely than this to land is no plan (once in a thousand tries, where a move has
+// max_retries of them: 10 by default).
+inline constexpr double kMinLandingProbability = 1e-3;
+
+struct LandingRung {
+  int direction = 1;  // +1 / -1: the way its chunks move the slider
+  double offset_m = 0, step_m = 0;  // D(n) = offset + n step, along direction (step > 0)
+  double rel_sd = 0.5;              // standard deviation of a chunk, as a share of D(n)
+  // The estimate's own covariance of (offset, step), m^2: what D(n) is known to for a cycle
+  // count it has seldom played (a coarse rung's first cycle).
+  double p_oo = 0, p_os = 0, p_ss = 0;
+  // How far a chunk may move beyond D(n), as a share of it (the positioner's pessimistic
+  // burst): what the limits below are kept with.
+  double rel_margin = 1.0;
+  std::uint64_t max_cycles = 0;     // most cycles in one chunk (0: no limit)
+  double freq_hz = 1;
+};
+
+struct LandingChunk {
+  int rung = -1;  // index into the rungs handed in; -1: none
+  std::uint64_t cycles = 0;
+};
+
+struct LandingPlan {
+  LandingChunk first, second;  // second.rung < 0: one chunk
+  double probability = 0;      // of ending within the window (0: no plan)
+  double time_s = 0;           // the plan's cycles plus one overhead per chunk
+  double expected_s() const { return probability > 0 ? time_s / probability : 1e300; }
+  bool two_chunks() const { return second.rung >= 0; }
+};
+
+// What the plan must keep to.
+struct LandingLimits {
+  double half_window_m = 0;     // lands: the end within this of the target
+  double read_sd_m = 0;         // the reading's own standard deviation
+  double chunk_overhead_s = 0;  // a chunk's cost beyond its cycles (settle, read)
+  // How far the slider may go each way from where it is (the soft limits): no chunk's
+  // pessimistic end lies beyond. [0] negative, [1] positive.
+  double room_m[2] = {1e300, 1e300};
+  // A chunk toward the target may pass it, pessimistically, by at most this share of its step.
+  double max_pass_steps = 0.8;
+  std::uint64_t max_first_cycles = 4;  // the first chunk of a two-chunk plan
+};
+
+// P(|X - target| <= half_window) for an end position X normal about target + miss_m with sd_m.
+double landing_probability(double miss_m, double sd_m, double half_window_m);
+
+// The best single chunk for `error_m` (target - position; its sign is the way to go).
+LandingPlan best_single_chunk(double error_m, const LandingLimits& limits, const LandingRung* rungs,
+                              std::size_t count);
+
+// The one- or two-chunk plan with the least expected time to land. probability 0: none.
+LandingPlan plan_landing(double error_m, const LandingLimits& limits, const LandingRung* rungs,
+                         std::size_t count);
+
+}  // namespace idm::control

@@ -1,0 +1,66 @@
+// The positioner's landing plan (control/README.md, "The step ladder", step 4): the live rungs of
+// both directions handed to plan_landing (landing_plan.h), weighed against the usual final chunk.
+// Part of class Positioner.
+#include <cmath>
+
+#include "control/landing_plan.h"
+#include "control/positioner.h"
+
+namespace idm::control {
+
+bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint64_t cycles,
+                                   double b_final) {
+  landing_rungs_.clear();
+  landing_index_.clear();
+  int current = -1;
+  for (int dir : {-1, 1}) {
+    std::vector<Rung>& ladder = ladder_[direction_index(dir)];
+    for (std::size_t i = 0; i < ladder.size(); ++i) {
+      Rung& r = ladder[i];
+      const bool is_current = dir == sign && static_cast<int>(i) == chosen;
+      // The rungs known to move (and the usual chunk's): a rung not yet learned is known to no
+      // better than half its step, and leaving it out keeps the search short (the loop's tick).
+      if (!(is_current || r.proven) || !rung_live(r) ||
+          landing_rungs_.size() == landing_rungs_.capacity())
+        continue;
+      if (is_current) current = static_cast<int>(landing_rungs_.size());
+      LandingRung l;
+      l.direction = dir;
+      l.offset_m = r.est.offset_m;
+      l.step_m = r.est.step_m;
+      l.rel_sd = r.scatter_chunks >= 3 ? std::sqrt(r.scatter_var) : 0.5;
+      l.rel_margin = rung_uncertainty(r);
+      l.p_oo = r.est.p_oo;
+      l.p_os = r.est.p_os;
+      l.p_ss = r.est.p_ss;
+      l.max_cycles = map_.cells()[r.cell].max_cycles;
+      l.freq_hz = map_.cells()[r.cell].freq_hz;
+      landing_rungs_.push_back(l);
+      landing_index_.emplace_back(dir, static_cast<int>(i));
+    }
+  }
+  LandingLimits lim;
+  lim.half_window_m = landing_m();
+  // One reading at rest: a count's quantization (the latched words' noise averages below it).
+  lim.read_sd_m = count_m_ / std::sqrt(12.0);
+  lim.chunk_overhead_s = config_.chunk_overhead_s;
+  lim.room_m[0] = status_.position_m - config_.soft_lower_m;
+  lim.room_m[1] = config_.soft_upper_m - status_.position_m;
+  const LandingPlan plan = plan_landing(error, lim, landing_rungs_.data(), landing_rungs_.size());
+  if (!(plan.probability > 0)) return false;
+  if (current >= 0) {
+    // The usual final chunk, scored the same way.
+    const LandingRung& c = landing_rungs_[static_cast<std::size_t>(current)];
+    const double mean = c.offset_m + static_cast<double>(cycles) * c.step_m;
+    const double sd = std::hypot(c.rel_sd * std::fabs(mean), lim.read_sd_m);
+    const double p = landing_probability(mean - std::fabs(error), sd, lim.half_window_m);
+    const double t = static_cast<double>(cycles) / c.freq_hz + config_.chunk_overhead_s;
+    if (p > 0 && !(plan.expected_s() < t / p)) return false;
+  }
+  const auto [dir, index] = landing_index_[static_cast<std::size_t>(plan.first.rung)];
+  play_rung(ladder_[direction_index(dir)], index, dir, plan.first.cycles, !plan.two_chunks(), false,
+            b_final, error);
+  return true;
+}
+
+}  // namespace idm::control
