@@ -71,7 +71,8 @@ LandingPlan single(double error_m, const LandingLimits& lim, const LandingRung* 
     while (n_max >= 1 && chunk_most_m(r, static_cast<std::uint64_t>(n_max),
                                       chunk_mean_m(r, static_cast<std::uint64_t>(n_max))) > reach)
       n_max -= 1;
-    const double candidates[] = {1, 2, 3, n_real - 1, n_real, n_real + 1, n_max};
+    const double candidates[] = {1,      2,          3,          n_real - 2, n_real - 1,
+                                 n_real, n_real + 1, n_real + 2, n_max - 1,  n_max};
     for (std::size_t k = 0; k < sizeof candidates / sizeof candidates[0]; ++k) {
       const double n = candidates[k];
       bool seen = false;  // each cycle count once
@@ -82,9 +83,9 @@ LandingPlan single(double error_m, const LandingLimits& lim, const LandingRung* 
       const double sd = chunk_sd_m(r, cycles, mean);
       const double most = chunk_most_m(r, cycles, mean);
       if (most - distance > lim.max_pass_steps * r.step_m || most > room) continue;
-      // It aims inside the window: a chunk expected to end outside lands only by its scatter,
-      // and on a stage that repeats itself it would miss the same way at every try.
-      if (std::fabs(mean - distance) > lim.half_window_m) continue;
+      // A chunk expected to end outside the window lands only by its scatter: once it missed in
+      // this move it is not tried so again (a stage that repeats itself misses the same way).
+      if (std::fabs(mean - distance) > lim.half_window_m && cycles == r.missed_cycles) continue;
       LandingPlan p;
       p.first = {static_cast<int>(i), cycles};
       p.probability = landing_probability(

@@ -6,10 +6,10 @@
 // (p_oo + 2 n p_os + n^2 p_ss) and the reading's (read_sd_m). Its pessimistic end is D(n) (1 +
 // rel_margin) and two of the estimate's standard deviations. A plan is one chunk toward the target,
 // or two: a first chunk of any rung either way, then the best single chunk from where that is
-// expected to end (a vernier: +62 nm then -57 nm ends 5 nm on). The chunk that lands aims inside
-// the window: its D(n) ends within it. A chunk's cycles are the nearest landing's (round((distance
-// - offset) / step)) or one either side of it, the most the limits allow, or 1-3. Its landing
-// probability is that of a normal end position falling within +/- half_window_m of the target; the
+// expected to end (a vernier: +62 nm then -57 nm ends 5 nm on). The chunk that lands may aim
+// outside the window (land by its scatter) unless it already missed in this move. A chunk's cycles
+// are the nearest landing's (round((distance - offset) / step)) or up to two either side of it,
+// the most the limits allow or one less, or 1-3. Its landing probability is that of a normal end position falling within +/- half_window_m of the target; the
 // plan kept is the one with the least expected time to land, its time over its probability (a
 // failed try costs the plan's time again).
 #pragma once
@@ -24,7 +24,7 @@ namespace idm::control {
 inline constexpr double kMinLandingProbability = 1e-3;
 
 struct LandingRung {
-  int direction = 1;  // +1 / -1: the way its chunks move the slider
+  int direction = 1;                // +1 / -1: the way its chunks move the slider
   double offset_m = 0, step_m = 0;  // D(n) = offset + n step, along direction (step > 0)
   double rel_sd = 0.5;              // standard deviation of a chunk, as a share of D(n)
   // The estimate's own covariance of (offset, step), m^2: what D(n) is known to for a cycle
@@ -33,7 +33,10 @@ struct LandingRung {
   // How far a chunk may move beyond D(n), as a share of it (the positioner's pessimistic
   // burst): what the limits below are kept with.
   double rel_margin = 1.0;
-  std::uint64_t max_cycles = 0;     // most cycles in one chunk (0: no limit)
+  std::uint64_t max_cycles = 0;  // most cycles in one chunk (0: no limit)
+  // A landing chunk of this many cycles was played in this move and missed (0: none): it is not
+  // aimed outside the window again (on a stage that repeats itself it would miss the same way).
+  std::uint64_t missed_cycles = 0;
   double freq_hz = 1;
 };
 

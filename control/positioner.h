@@ -360,6 +360,8 @@ class Positioner {
     // of per cent), and how many chunks it holds.
     double scatter_var = 0;
     std::uint64_t scatter_chunks = 0;
+    // The cycles of its landing chunk that missed in this move (0: none; landing_plan.h).
+    std::uint64_t missed_cycles = 0;
   };
   // How far this rung's next chunk may move beyond its estimate, as a share of it.
   double rung_uncertainty(const Rung& r) const;
@@ -466,6 +468,12 @@ class Positioner {
   // its (direction, ladder index).
   std::vector<LandingRung> landing_rungs_;
   std::vector<std::pair<int, int>> landing_index_;
+  // The landing chunk the plan played last in this move (rung -1: none): when the final zone
+  // plans again, it missed.
+  struct LandingTry {
+    int direction = 0, rung = -1;
+    std::uint64_t cycles = 0;
+  } landing_try_;
   // Learned step over seeded step of the learned rungs (1 until one has learned): scales the
   // seeds of the rungs not yet played (a stage that moves three times the map's step moves its
   // fine rungs three times too, and they are then the ones that land).

@@ -1,6 +1,7 @@
 // The positioner's landing plan (control/README.md, "The step ladder", step 4): the live rungs of
 // both directions handed to plan_landing (landing_plan.h), weighed against the usual final chunk.
 // Part of class Positioner.
+#include <algorithm>
 #include <cmath>
 
 #include "control/landing_plan.h"
@@ -10,6 +11,13 @@ namespace idm::control {
 
 bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint64_t cycles,
                                    double b_final) {
+  if (landing_try_.rung >= 0) {
+    // Planning again in the final zone: the landing chunk played last did not land.
+    ladder_[direction_index(landing_try_.direction)]
+        .at(static_cast<std::size_t>(landing_try_.rung))
+        .missed_cycles = landing_try_.cycles;
+    landing_try_ = LandingTry{};
+  }
   landing_rungs_.clear();
   landing_index_.clear();
   int current = -1;
@@ -34,6 +42,7 @@ bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint
       l.p_os = r.est.p_os;
       l.p_ss = r.est.p_ss;
       l.max_cycles = map_.cells()[r.cell].max_cycles;
+      l.missed_cycles = r.missed_cycles;
       l.freq_hz = map_.cells()[r.cell].freq_hz;
       landing_rungs_.push_back(l);
       landing_index_.emplace_back(dir, static_cast<int>(i));
@@ -52,12 +61,16 @@ bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint
     // The usual final chunk, scored the same way.
     const LandingRung& c = landing_rungs_[static_cast<std::size_t>(current)];
     const double mean = c.offset_m + static_cast<double>(cycles) * c.step_m;
-    const double sd = std::hypot(c.rel_sd * std::fabs(mean), lim.read_sd_m);
+    const double k = static_cast<double>(cycles);
+    const double est_var = std::max(c.p_oo + 2 * k * c.p_os + k * k * c.p_ss, 0.0);
+    const double sd =
+        std::sqrt(std::pow(c.rel_sd * mean, 2) + est_var + std::pow(lim.read_sd_m, 2));
     const double p = landing_probability(mean - std::fabs(error), sd, lim.half_window_m);
     const double t = static_cast<double>(cycles) / c.freq_hz + config_.chunk_overhead_s;
     if (p > 0 && !(plan.expected_s() < t / p)) return false;
   }
   const auto [dir, index] = landing_index_[static_cast<std::size_t>(plan.first.rung)];
+  if (!plan.two_chunks()) landing_try_ = {dir, index, plan.first.cycles};
   play_rung(ladder_[direction_index(dir)], index, dir, plan.first.cycles, !plan.two_chunks(), false,
             b_final, error);
   return true;

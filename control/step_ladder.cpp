@@ -84,8 +84,10 @@ void Positioner::load_rung_estimates() {
       r.pending_pred_m = 0;
       r.pending_moved_m = 0;
       r.pending_cycles = 0;
+      r.missed_cycles = 0;
     }
   }
+  landing_try_ = LandingTry{};
   update_ladder_gain();
 }
 

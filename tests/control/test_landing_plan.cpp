@@ -74,9 +74,9 @@ struct Brute {
     const int sign = error >= 0 ? 1 : -1;
     return !(r.direction == sign && most - std::fabs(error) > lim.max_pass_steps * r.step_m);
   }
-  // The landing chunk's mean ends within the window.
+  // The landing chunk's mean ends within the window, or it has not missed in this move.
   bool aims_inside(const LandingRung& r, std::uint64_t n, double error) const {
-    return std::fabs(mean(r, n) - std::fabs(error)) <= lim.half_window_m;
+    return std::fabs(mean(r, n) - std::fabs(error)) <= lim.half_window_m || n != r.missed_cycles;
   }
   double expected(const LandingPlan& p) const {
     return p.probability > 0 ? p.time_s / p.probability : 1e300;
@@ -168,6 +168,7 @@ TEST(LandingPlan, FindsTheLeastExpectedTimeOfEveryOneAndTwoChunkPlan) {
       r.p_os = rho * so * ss;
       r.freq_hz = 100 + 1900 * u(rng);
       r.max_cycles = u(rng) < 0.2 ? 1 + rng() % 3 : 0;
+      r.missed_cycles = u(rng) < 0.3 ? 1 + rng() % 40 : 0;
     }
     const LandingPlan plan = plan_landing(error, lim, rungs.data(), rungs.size());
     // The brute force over cycles up to where every chunk passes any target of this size.

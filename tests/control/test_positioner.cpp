@@ -532,36 +532,47 @@ TEST(PositionerRealistic, DeadRungsAreSkippedAndTheMoveConverges) {
 }
 
 // Calibration on the realistic plant: the second round of the same moves needs fewer chunks and
-// cycles than the first (the rung estimates start from what the first round measured).
+// cycles than the first (the rung estimates start from what the first round measured). Summed
+// over three stretches of guide (device seeds 11-13): on one alone the landing's tries vary by
+// tens of per cent. The seeds are fixed: on this plant about one move in 30 of drawn seeds ends
+// at retry_limit (before the landing plan too: seeds 20 and 80 of 8 x 30 moves; with it, 52),
+// which is bench/stages_bench's business, not this test's.
 TEST(PositionerRealistic, CalibrationMakesTheSecondRoundCheaper) {
-  Calibration cal(realistic_map().config().stage);
-  Rig rig(realistic_map(), test_rig::realistic_device(11), {}, &cal);
-  Positioner& p = *rig.positioner;
-  const double targets[] = {25.3e-6, -3.21e-6, 412e-9, -61.7e-6, 1.9e-6};
+  const std::uint64_t base = 11;
   std::uint64_t chunks[2] = {0, 0}, cycles[2] = {0, 0};
   std::uint32_t corrections[2] = {0, 0};
-  for (int round = 0; round < 2; ++round) {
-    for (double target : targets) {
-      for (double t : {target, 0.0}) {
-        ASSERT_EQ(p.move_absolute(t), Refusal::None);
-        ASSERT_EQ(rig.run(), MotionState::Idle) << motion_fault_name(p.status().fault);
-        EXPECT_LE(std::fabs(p.status().position_m - t), p.count_m());
-        chunks[round] += p.move_chunks();
-        cycles[round] += p.move_cycles();
-        corrections[round] += p.status().corrections;
+  for (std::uint64_t device_seed = base; device_seed < base + 3; ++device_seed) {
+    Calibration cal(realistic_map().config().stage);
+    Rig rig(realistic_map(), test_rig::realistic_device(device_seed), {}, &cal);
+    Positioner& p = *rig.positioner;
+    const double targets[] = {25.3e-6, -3.21e-6, 412e-9, -61.7e-6, 1.9e-6};
+    for (int round = 0; round < 2; ++round) {
+      for (double target : targets) {
+        for (double t : {target, 0.0}) {
+          ASSERT_EQ(p.move_absolute(t), Refusal::None) << "device seed " << device_seed;
+          ASSERT_EQ(rig.run(), MotionState::Idle)
+              << motion_fault_name(p.status().fault) << ", device seed " << device_seed;
+          EXPECT_LE(std::fabs(p.status().position_m - t), p.count_m())
+              << "device seed " << device_seed;
+          chunks[round] += p.move_chunks();
+          cycles[round] += p.move_cycles();
+          corrections[round] += p.status().corrections;
+        }
       }
     }
+    EXPECT_GT(cal.state().rung_count[0] + cal.state().rung_count[1], 0);
   }
-  std::printf("realistic plant: chunks %llu -> %llu, cycles %llu -> %llu, corrections %u -> %u\n",
-              static_cast<unsigned long long>(chunks[0]),
-              static_cast<unsigned long long>(chunks[1]),
-              static_cast<unsigned long long>(cycles[0]),
-              static_cast<unsigned long long>(cycles[1]), corrections[0], corrections[1]);
+  std::printf(
+      "realistic plant, device seeds %llu-%llu: chunks %llu -> %llu, cycles %llu -> %llu, "
+      "corrections %u -> %u\n",
+      static_cast<unsigned long long>(base), static_cast<unsigned long long>(base + 2),
+      static_cast<unsigned long long>(chunks[0]), static_cast<unsigned long long>(chunks[1]),
+      static_cast<unsigned long long>(cycles[0]), static_cast<unsigned long long>(cycles[1]),
+      corrections[0], corrections[1]);
   // Chunks are the reads-and-corrections of a move (the motor record's retries count only the
   // final chunks played whole, which a rung with a learned scatter plays more often).
-  EXPECT_LT(chunks[1] * 10, chunks[0] * 8) << "at least 20 % fewer chunks";
-  EXPECT_LT(cycles[1], cycles[0]);
-  EXPECT_GT(cal.state().rung_count[0] + cal.state().rung_count[1], 0);
+  EXPECT_LT(chunks[1] * 10, chunks[0] * 8) << "at least 20 % fewer chunks; seed " << base;
+  EXPECT_LT(cycles[1], cycles[0]) << "seed " << base;
 }
 
 }  // namespace
