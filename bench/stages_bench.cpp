@@ -126,6 +126,10 @@ StageResult run_stage(const DrawnStage& d, const std::vector<double>& targets, b
   PositionerConfig pc = control.positioner;
   pc.soft_lower_m = -kSoftLimitM;
   pc.soft_upper_m = kSoftLimitM;
+  // As the daemon's config (stage.travel_m is required; the soft limits default to it): an end
+  // of travel is looked for only near its ends, a stop met elsewhere is an obstruction (FAULT).
+  pc.travel_lower_m = -kSoftLimitM;
+  pc.travel_upper_m = kSoftLimitM;
   daemon::SimAxis rig(map, device, pc, &cal, control.planner);
   Positioner& p = *rig.positioner;
   const double v_max = fastest_m_s(map);

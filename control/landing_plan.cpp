@@ -48,6 +48,21 @@ bool better(const LandingPlan& a, const LandingPlan& b) {
   return a.expected_s() < b.expected_s();
 }
 
+// Chunk (r, cycles) toward a target `distance` away, after a first chunk of variance prior_var
+// and time prior_s.
+LandingPlan scored(const LandingRung& r, int index, std::uint64_t cycles, double distance,
+                   const LandingLimits& lim, double prior_var, double prior_s) {
+  const double mean = chunk_mean_m(r, cycles);
+  const double sd = chunk_sd_m(r, cycles, mean);
+  LandingPlan p;
+  p.first = {index, cycles};
+  p.probability = landing_probability(
+      mean - distance, std::sqrt(sd * sd + prior_var + lim.read_sd_m * lim.read_sd_m),
+      lim.half_window_m);
+  p.time_s = prior_s + chunk_time_s(r, cycles, lim.chunk_overhead_s);
+  return p;
+}
+
 // The best single chunk for `error_m` after a first chunk of variance `prior_var` and time
 // `prior_s` that moved the slider `moved_m` (signed) from where the limits' room was measured;
 // its time_s includes prior_s.
@@ -67,10 +82,20 @@ LandingPlan single(double error_m, const LandingLimits& lim, const LandingRung* 
     const double reach = std::min(distance + lim.max_pass_steps * r.step_m, room);
     double n_max = std::min(r.max_cycles > 0 ? static_cast<double>(r.max_cycles) : 1e9,
                             std::floor((reach / (1 + r.rel_margin) - r.offset_m) / r.step_m));
-    // The estimate's margin grows with n: step down to the longest chunk that keeps to reach.
-    while (n_max >= 1 && chunk_most_m(r, static_cast<std::uint64_t>(n_max),
-                                      chunk_mean_m(r, static_cast<std::uint64_t>(n_max))) > reach)
-      n_max -= 1;
+    // The estimate's margin grows with n too: the longest chunk that keeps to reach, by
+    // bisection (the pessimistic end grows with n).
+    auto keeps = [&](double n) {
+      const auto c = static_cast<std::uint64_t>(n);
+      return chunk_most_m(r, c, chunk_mean_m(r, c)) <= reach;
+    };
+    if (n_max >= 1 && !keeps(n_max)) {
+      double lo = 0, hi = n_max;  // keeps(lo) (or lo 0: none), !keeps(hi)
+      while (hi - lo > 1) {
+        const double mid = std::floor(0.5 * (lo + hi));
+        (keeps(mid) ? lo : hi) = mid;
+      }
+      n_max = lo;
+    }
     const double candidates[] = {1,      2,          3,          n_real - 2, n_real - 1,
                                  n_real, n_real + 1, n_real + 2, n_max - 1,  n_max};
     for (std::size_t k = 0; k < sizeof candidates / sizeof candidates[0]; ++k) {
@@ -80,18 +105,12 @@ LandingPlan single(double error_m, const LandingLimits& lim, const LandingRung* 
       if (seen || !(n >= 1) || n > n_max) continue;
       const auto cycles = static_cast<std::uint64_t>(n);
       const double mean = chunk_mean_m(r, cycles);
-      const double sd = chunk_sd_m(r, cycles, mean);
       const double most = chunk_most_m(r, cycles, mean);
       if (most - distance > lim.max_pass_steps * r.step_m || most > room) continue;
       // A chunk expected to end outside the window lands only by its scatter: once it missed in
       // this move it is not tried so again (a stage that repeats itself misses the same way).
       if (std::fabs(mean - distance) > lim.half_window_m && cycles == r.missed_cycles) continue;
-      LandingPlan p;
-      p.first = {static_cast<int>(i), cycles};
-      p.probability = landing_probability(
-          mean - distance, std::sqrt(sd * sd + prior_var + lim.read_sd_m * lim.read_sd_m),
-          lim.half_window_m);
-      p.time_s = prior_s + chunk_time_s(r, cycles, lim.chunk_overhead_s);
+      LandingPlan p = scored(r, static_cast<int>(i), cycles, distance, lim, prior_var, prior_s);
       if (p.probability >= kMinLandingProbability && better(p, best)) best = p;
     }
   }
@@ -108,6 +127,12 @@ double landing_probability(double miss_m, double sd_m, double half_window_m) {
   const double p =
       0.5 * (std::erfc((-half_window_m - miss_m) * k) - std::erfc((half_window_m - miss_m) * k));
   return std::clamp(p, 0.0, 1.0);
+}
+
+LandingPlan score_chunk(double error_m, const LandingLimits& limits, const LandingRung* rungs,
+                        std::size_t index, std::uint64_t cycles) {
+  return scored(rungs[index], static_cast<int>(index), cycles, std::fabs(error_m), limits, 0.0,
+                0.0);
 }
 
 LandingPlan best_single_chunk(double error_m, const LandingLimits& limits, const LandingRung* rungs,

@@ -9,9 +9,9 @@
 // expected to end (a vernier: +62 nm then -57 nm ends 5 nm on). The chunk that lands may aim
 // outside the window (land by its scatter) unless it already missed in this move. A chunk's cycles
 // are the nearest landing's (round((distance - offset) / step)) or up to two either side of it,
-// the most the limits allow or one less, or 1-3. Its landing probability is that of a normal end position falling within +/- half_window_m of the target; the
-// plan kept is the one with the least expected time to land, its time over its probability (a
-// failed try costs the plan's time again).
+// the most the limits allow or one less, or 1-3. Its landing probability is that of a normal end
+// position falling within +/- half_window_m of the target; the plan kept is the one with the least
+// expected time to land, its time over its probability (a failed try costs the plan's time again).
 #pragma once
 
 #include <cstddef>
@@ -68,6 +68,11 @@ struct LandingLimits {
 
 // P(|X - target| <= half_window) for an end position X normal about target + miss_m with sd_m.
 double landing_probability(double miss_m, double sd_m, double half_window_m);
+
+// One chunk of rungs[index] with `cycles` cycles toward the target of `error_m`, scored as a
+// plan is (no limit or aim applied): what the positioner's usual final chunk is weighed by.
+LandingPlan score_chunk(double error_m, const LandingLimits& limits, const LandingRung* rungs,
+                        std::size_t index, std::uint64_t cycles);
 
 // The best single chunk for `error_m` (target - position; its sign is the way to go).
 LandingPlan best_single_chunk(double error_m, const LandingLimits& limits, const LandingRung* rungs,

@@ -1,7 +1,6 @@
 // The positioner's landing plan (control/README.md, "The step ladder", step 4): the live rungs of
 // both directions handed to plan_landing (landing_plan.h), weighed against the usual final chunk.
 // Part of class Positioner.
-#include <algorithm>
 #include <cmath>
 
 #include "control/landing_plan.h"
@@ -59,15 +58,9 @@ bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint
   if (!(plan.probability > 0)) return false;
   if (current >= 0) {
     // The usual final chunk, scored the same way.
-    const LandingRung& c = landing_rungs_[static_cast<std::size_t>(current)];
-    const double mean = c.offset_m + static_cast<double>(cycles) * c.step_m;
-    const double k = static_cast<double>(cycles);
-    const double est_var = std::max(c.p_oo + 2 * k * c.p_os + k * k * c.p_ss, 0.0);
-    const double sd =
-        std::sqrt(std::pow(c.rel_sd * mean, 2) + est_var + std::pow(lim.read_sd_m, 2));
-    const double p = landing_probability(mean - std::fabs(error), sd, lim.half_window_m);
-    const double t = static_cast<double>(cycles) / c.freq_hz + config_.chunk_overhead_s;
-    if (p > 0 && !(plan.expected_s() < t / p)) return false;
+    const LandingPlan usual =
+        score_chunk(error, lim, landing_rungs_.data(), static_cast<std::size_t>(current), cycles);
+    if (usual.probability > 0 && !(plan.expected_s() < usual.expected_s())) return false;
   }
   const auto [dir, index] = landing_index_[static_cast<std::size_t>(plan.first.rung)];
   if (!plan.two_chunks()) landing_try_ = {dir, index, plan.first.cycles};
