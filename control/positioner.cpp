@@ -45,7 +45,8 @@ std::vector<model::Param<P>> move_params() {
           [](auto& c) -> auto& { return c.max_chunk_s; }),
       integer<P>(
           "latch_words", "count", 1, RestMean::kMaxWords,
-          "readings averaged for a position at rest (the landing's, and the one shown)",
+          "readings averaged for a position at rest (the one shown, and the landing's: up to 16 "
+          "times as many while its mean is not surely inside the window)",
           [](auto& c) -> auto& { return c.latch_words; }),
       with_relation(with_default(real<P>(
                                      "soft_lower_m", "m", {-10, 10},
@@ -423,8 +424,10 @@ void Positioner::on_reading(const model::AxisEvent& e) {
     target_known_ = true;
   }
   if ((phase_ == Phase::Pending || phase_ == Phase::Settling || phase_ == Phase::Dwell) &&
-      !e.in_segment && e.t_s >= fresh_.after_s && fresh_.count < config_.latch_words) {
+      !e.in_segment && e.t_s >= fresh_.after_s && fresh_.count < fresh_.wanted) {
+    if (fresh_.count == 0) fresh_.first_m = position;
     fresh_.sum_m += position;
+    fresh_.sum_sq_m += (position - fresh_.first_m) * (position - fresh_.first_m);
     ++fresh_.count;
     fresh_.worst_m = std::max(fresh_.worst_m, std::fabs(status_.target_m - position));
   }
@@ -451,19 +454,42 @@ void Positioner::on_reading(const model::AxisEvent& e) {
 void Positioner::want_fresh(double after_s) {
   fresh_ = Fresh{};
   fresh_.after_s = after_s;
+  fresh_.wanted = config_.latch_words;
 }
 
 bool Positioner::fresh_position(double& position_m) {
-  if (fresh_.count >= config_.latch_words) {
-    position_m = fresh_.sum_m / fresh_.count;
-    status_.position_m = position_m;
-    return true;
+  if (fresh_.count >= fresh_.wanted) {
+    const double n = fresh_.count;
+    const double mean = fresh_.sum_m / n;
+    // A mean that says arrived must say it surely: the slider itself within the window. Its
+    // standard error from the readings' own scatter (noise, dithered counts); while the
+    // window's edge lies nearer than kArrivalStandardErrors of it, twice the readings.
+    // A few readings say little of their own scatter (8 of them read it half as large in one
+    // batch of 40): the larger of theirs and the pooled scatter of every batch so far.
+    const double d = mean - fresh_.first_m;
+    const double batch_var = n > 1 ? std::max(fresh_.sum_sq_m / n - d * d, 0.0) * n / (n - 1) : 0.0;
+    if (n > 1) {
+      reading_var_weight_ = kReadingVarForgetting * reading_var_weight_ + (n - 1);
+      reading_var_m2_ += (n - 1) / reading_var_weight_ * (batch_var - reading_var_m2_);
+    }
+    const double var = std::max(batch_var, reading_var_m2_);
+    const double error = std::fabs(status_.target_m - mean);
+    if (status_.closed_loop && error <= landing_m() &&
+        tolerance_m() - error < kArrivalStandardErrors * std::sqrt(var / n) &&
+        fresh_.wanted < kMaxFreshFactor * config_.latch_words) {
+      fresh_.wanted = std::min(2 * fresh_.wanted, kMaxFreshFactor * config_.latch_words);
+      fresh_.requested = false;
+    } else {
+      position_m = mean;
+      status_.position_m = position_m;
+      return true;
+    }
   }
   if (!fresh_.requested && now_s_ >= fresh_.after_s && !request_due_) {
     // Ask for them now rather than wait for the link's rest polling.
     request_ = model::OutputRequest{};
     request_.kind = model::OutputRequest::Kind::Read;
-    request_.readings = static_cast<std::uint32_t>(config_.latch_words);
+    request_.readings = static_cast<std::uint32_t>(fresh_.wanted - fresh_.count);
     request_.seq = seq_;
     request_due_ = true;
     fresh_.requested = true;

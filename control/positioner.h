@@ -314,14 +314,26 @@ class Positioner {
   // Index of a direction in the per-direction arrays: [0] negative, [1] positive.
   static int direction_index(int sign) { return sign > 0 ? 1 : 0; }
   enum class Phase : std::uint8_t { Idle, Pending, Playing, Settling, Fault, Dwell };
-  // Fresh readings: the average of latch_words valid readings taken at or after fresh_after_s_.
+  // Fresh readings: the average of latch_words valid readings taken at or after fresh_after_s_,
+  // more when their mean says arrived but is not known well enough (fresh_position).
   struct Fresh {
     double after_s = 0;
     int count = 0;
+    int wanted = 0;  // readings to average (latch_words, doubled while unsure)
     double sum_m = 0;
+    double sum_sq_m = 0;     // of (reading - the first reading), for their scatter
+    double first_m = 0;
     bool requested = false;  // a Read request went out for them
     double worst_m = 0;      // the largest |target - reading| among them
   };
+  // A mean that says arrived is taken once the window's edge lies this many of its standard
+  // errors beyond it (a slider outside the window read inside: once in 30,000 landings), or
+  // once kMaxFreshFactor x latch_words readings are in.
+  static constexpr double kArrivalStandardErrors = 4.0;
+  static constexpr int kMaxFreshFactor = 16;
+  // The readings' scatter at rest pooled over the batches (weights: their degrees of freedom,
+  // the older forgotten by this factor a batch, so a noisier stretch is seen within a few).
+  static constexpr double kReadingVarForgetting = 0.95;
   struct Chunk {
     double freq_hz = 0, duty = 0, stroke_m = 0;
     std::uint32_t period_samples = 0, extension_samples = 0;
@@ -459,6 +471,7 @@ class Positioner {
   model::OutputRequest request_;
   std::uint32_t seq_ = 0;  // of the last segment requested
   Fresh fresh_;
+  double reading_var_m2_ = 0, reading_var_weight_ = 0;  // the pooled scatter (fresh_position)
   double now_s_ = 0;           // the last tick's time
   bool device_lost_ = false;   // between DeviceLost and DeviceBack
   bool lost_at_rest_ = false;  // the loss came with nothing moving
