@@ -466,12 +466,9 @@ bool Positioner::fresh_position(double& position_m) {
     // window's edge lies nearer than kArrivalStandardErrors of it, twice the readings.
     // A few readings say little of their own scatter (8 of them read it half as large in one
     // batch of 40): the larger of theirs and the pooled scatter of every batch so far.
+    // (A batch joins the pool once, when it is taken.)
     const double d = mean - fresh_.first_m;
     const double batch_var = n > 1 ? std::max(fresh_.sum_sq_m / n - d * d, 0.0) * n / (n - 1) : 0.0;
-    if (n > 1) {
-      reading_var_weight_ = kReadingVarForgetting * reading_var_weight_ + (n - 1);
-      reading_var_m2_ += (n - 1) / reading_var_weight_ * (batch_var - reading_var_m2_);
-    }
     const double var = std::max(batch_var, reading_var_m2_);
     const double error = std::fabs(status_.target_m - mean);
     if (status_.closed_loop && error <= landing_m() &&
@@ -480,6 +477,10 @@ bool Positioner::fresh_position(double& position_m) {
       fresh_.wanted = std::min(2 * fresh_.wanted, kMaxFreshFactor * config_.latch_words);
       fresh_.requested = false;
     } else {
+      if (n > 1) {
+        reading_var_weight_ = kReadingVarForgetting * reading_var_weight_ + (n - 1);
+        reading_var_m2_ += (n - 1) / reading_var_weight_ * (batch_var - reading_var_m2_);
+      }
       position_m = mean;
       status_.position_m = position_m;
       return true;
