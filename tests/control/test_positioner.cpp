@@ -577,7 +577,7 @@ TEST(PositionerRealistic, DeadRungsAreSkippedAndTheMoveConverges) {
 // at retry_limit (before the landing plan too: seeds 20 and 80 of 8 x 30 moves; with it, 52),
 // which is bench/stages_bench's business, not this test's.
 TEST(PositionerRealistic, CalibrationMakesTheSecondRoundCheaper) {
-  const std::uint64_t base = 11;
+  constexpr unsigned long long base = 11;
   std::uint64_t chunks[2] = {0, 0}, cycles[2] = {0, 0};
   std::uint32_t corrections[2] = {0, 0};
   for (std::uint64_t device_seed = base; device_seed < base + 3; ++device_seed) {
@@ -604,10 +604,9 @@ TEST(PositionerRealistic, CalibrationMakesTheSecondRoundCheaper) {
   std::printf(
       "realistic plant, device seeds %llu-%llu: chunks %llu -> %llu, cycles %llu -> %llu, "
       "corrections %u -> %u\n",
-      static_cast<unsigned long long>(base), static_cast<unsigned long long>(base + 2),
-      static_cast<unsigned long long>(chunks[0]), static_cast<unsigned long long>(chunks[1]),
-      static_cast<unsigned long long>(cycles[0]), static_cast<unsigned long long>(cycles[1]),
-      corrections[0], corrections[1]);
+      base, base + 2, static_cast<unsigned long long>(chunks[0]),
+      static_cast<unsigned long long>(chunks[1]), static_cast<unsigned long long>(cycles[0]),
+      static_cast<unsigned long long>(cycles[1]), corrections[0], corrections[1]);
   // Chunks are the reads-and-corrections of a move (the motor record's retries count only the
   // final chunks played whole, which a rung with a learned scatter plays more often).
   EXPECT_LT(chunks[1] * 10, chunks[0] * 8) << "at least 20 % fewer chunks; seed " << base;
