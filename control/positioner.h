@@ -321,7 +321,7 @@ class Positioner {
     int count = 0;
     int wanted = 0;  // readings to average (latch_words, doubled while unsure)
     double sum_m = 0;
-    double sum_sq_m = 0;     // of (reading - the first reading), for their scatter
+    double sum_sq_m = 0;  // of (reading - the first reading), for their scatter
     double first_m = 0;
     bool requested = false;  // a Read request went out for them
     double worst_m = 0;      // the largest |target - reading| among them
@@ -472,9 +472,9 @@ class Positioner {
   std::uint32_t seq_ = 0;  // of the last segment requested
   Fresh fresh_;
   double reading_var_m2_ = 0, reading_var_weight_ = 0;  // the pooled scatter (fresh_position)
-  double now_s_ = 0;           // the last tick's time
-  bool device_lost_ = false;   // between DeviceLost and DeviceBack
-  bool lost_at_rest_ = false;  // the loss came with nothing moving
+  double now_s_ = 0;                                    // the last tick's time
+  bool device_lost_ = false;                            // between DeviceLost and DeviceBack
+  bool lost_at_rest_ = false;                           // the loss came with nothing moving
   int max_chunks_ = 0;
   std::vector<Rung> ladder_[2];
   // The landing plan's view of the live rungs (capacity reserved with the ladder) and, for each,
