@@ -461,12 +461,11 @@ bool Positioner::fresh_position(double& position_m) {
   if (fresh_.count >= fresh_.wanted) {
     const double n = fresh_.count;
     const double mean = fresh_.sum_m / n;
-    // A mean that says arrived must say it surely: the slider itself within the window. Its
-    // standard error from the readings' own scatter (noise, dithered counts); while the
-    // window's edge lies nearer than kArrivalStandardErrors of it, twice the readings.
-    // A few readings say little of their own scatter (8 of them read it half as large in one
-    // batch of 40): the larger of theirs and the pooled scatter of every batch so far.
-    // (A batch joins the pool once, when it is taken.)
+    // A mean that says arrived must say it surely (the slider itself within the window): while
+    // the window's edge lies nearer than kArrivalStandardErrors standard errors, twice the
+    // readings. The scatter is the larger of the batch's and the one pooled over the batches
+    // taken so far (8 readings alone read it half as large in one batch of 40); a batch joins
+    // the pool once, when it is taken.
     const double d = mean - fresh_.first_m;
     const double batch_var = n > 1 ? std::max(fresh_.sum_sq_m / n - d * d, 0.0) * n / (n - 1) : 0.0;
     const double var = std::max(batch_var, reading_var_m2_);
