@@ -676,7 +676,8 @@ def case_user_offset():
         check(e.startswith("-230,"), "POS:SET without a valid position: %s" % e)
         c.send("SIM:FAULT beam_lost,0\n")
         wait_state(c, {"position_valid": "1"})
-        c.send("POS:OFFS %.17g\n" % (offset + 1e-3))
+        # A change of 1 mm toward zero stays inside [-10, 10] m whatever offset the draw left.
+        c.send("POS:OFFS %.17g\n" % (offset - math.copysign(1e-3, offset)))
         c.no_error()
         end = time.time() + 5
         while "user offset" not in d.log() and time.time() < end:
