@@ -42,4 +42,15 @@ double Plan::duration_s() const {
   return t;
 }
 
+std::uint64_t chunk_cycle_limit(const ChunkLimits& limits, double max_chunk_s, double freq_hz,
+                                std::uint32_t period_samples, std::uint64_t max_cycles) {
+  double n = std::floor(max_chunk_s * freq_hz * (1 + 1e-12));
+  if (limits.buffered && period_samples > 0)
+    n = std::min(n, std::floor(static_cast<double>(limits.max_chunk_samples - 1) / period_samples));
+  if (max_cycles > 0) n = std::min(n, static_cast<double>(max_cycles));
+  n = std::min(n, static_cast<double>(limits.max_burst_cycles));
+  if (!limits.buffered) n = std::min(n, static_cast<double>(limits.device_max_cycles));
+  return n < 1 ? 1 : static_cast<std::uint64_t>(n);
+}
+
 }  // namespace idm::control

@@ -1,6 +1,7 @@
-// What the positioner plans with (PlannerConfig) and what it reports of its plans (Burst, Plan):
-// a chunk is one burst of a usable cell of the region map (robustly one-step, within the device
-// limits). The step ladder that chooses it is the positioner's (control/README.md).
+// What the positioner plans with (PlannerConfig), what it reports of its plans (Burst, Plan), and
+// how long one chunk may be (ChunkLimits): a chunk is one burst of a usable cell of the region map
+// (robustly one-step, within the device limits), cut to whole cycles. The step ladder that
+// chooses it is control/step_ladder.h.
 #pragma once
 
 #include <cstddef>
@@ -55,5 +56,19 @@ struct Plan {
   std::uint64_t total_cycles() const;
   double duration_s() const;
 };
+
+// What the device lets one chunk be: the output's buffer (an output that takes samples) or its
+// burst parameters (one that takes a frequency, duty and cycle count), and the map's longest burst.
+struct ChunkLimits {
+  bool buffered = true;                       // the output takes samples
+  std::size_t max_chunk_samples = 0;          // buffered: the longest chunk it takes, samples
+  std::uint64_t max_burst_cycles = 1000000;   // the map's (DeviceLimits::max_burst_cycles)
+  std::uint64_t device_max_cycles = 1000000;  // not buffered: most cycles in one burst
+};
+
+// The most whole cycles (at least 1) one chunk of a cell of freq_hz (period_samples on the sample
+// clock; its max_cycles, 0: no limit) may play: within max_chunk_s and the device's limits.
+std::uint64_t chunk_cycle_limit(const ChunkLimits& limits, double max_chunk_s, double freq_hz,
+                                std::uint32_t period_samples, std::uint64_t max_cycles);
 
 }  // namespace idm::control

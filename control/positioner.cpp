@@ -10,180 +10,6 @@
 
 namespace idm::control {
 
-namespace {
-
-using model::integer;
-using model::real;
-using model::with_default;
-using model::with_relation;
-using P = PositionerConfig;
-
-// The window, the corrections, the stall, the chunks, the readings and the soft limits.
-std::vector<model::Param<P>> move_params() {
-  return {
-      real<P>(
-          "tolerance_m", "m", {0, 1e-3},
-          "the in-position window (RDBD, MOVE:WINDow); 0: one count (the loop aims for half a "
-          "count within it)",
-          [](auto& c) -> auto& { return c.tolerance_m; }),
-      integer<P>(
-          "max_retries", "count", 0, 1000, "correction rounds after the first plan (RTRY)",
-          [](auto& c) -> auto& { return c.max_retries; }),
-      integer<P>(
-          "stall_bursts", "count", 1, 1000, "bursts in a row without progress: a stall fault",
-          [](auto& c) -> auto& { return c.stall_bursts; }),
-      real<P>(
-          "stall_fraction", "1", {0, 1, false, true},
-          "a burst that moved less than this share of its prediction made no progress",
-          [](auto& c) -> auto& { return c.stall_fraction; }),
-      real<P>(
-          "settle_s", "s", {0, 10}, "after a burst, wait this long before the position is read",
-          [](auto& c) -> auto& { return c.settle_s; }),
-      real<P>(
-          "max_chunk_s", "s", {0, 10, true},
-          "the longest piece played at once: what a STOP waits for (must fit the capture)",
-          [](auto& c) -> auto& { return c.max_chunk_s; }),
-      integer<P>(
-          "latch_words", "count", 1, RestMean::kMaxWords,
-          "readings averaged for a position at rest (the one shown, and the landing's: up to 16 "
-          "times as many while its mean is not surely inside the window)",
-          [](auto& c) -> auto& { return c.latch_words; }),
-      with_relation(with_default(real<P>(
-                                     "soft_lower_m", "m", {-10, 10},
-                                     "soft limit (LLM): a move or STEP ending below is refused",
-                                     [](auto& c) -> auto& { return c.soft_lower_m; }),
-                                 "stage.travel_m"),
-                    "< soft_upper_m",
-                    [](const P& c) {
-                      return model::Range{-1e300, c.soft_upper_m, false, true};
-                    }),
-      with_relation(with_default(real<P>(
-                                     "soft_upper_m", "m", {-10, 10},
-                                     "soft limit (HLM): a move or STEP ending above is refused",
-                                     [](auto& c) -> auto& { return c.soft_upper_m; }),
-                                 "stage.travel_m"),
-                    "> soft_lower_m",
-                    [](const P& c) {
-                      return model::Range{c.soft_lower_m, 1e300, true, false};
-                    }),
-  };
-}
-
-// hold_s: -1 (until the next motion) or [0, 86400] s, which one interval cannot say: the real
-// key's range, read, check and assign, each refusing what lies between -1 and 0.
-model::Param<P> hold_param() {
-  const auto get = [](auto& c) -> auto& {
-    return c.hold_s;
-  };
-  model::Param<P> p = real<P>(
-      "hold_s", "s", {-1, 86400},
-      "after a move: keep the target this long (0: no hold, -1: until the next motion; HOLD)", get);
-  p.range = "-1 or [0, 86400]";
-  const auto ok = [](double x) { return x == -1 || (x >= 0 && x <= 86400); };
-  const auto refuse = [range = p.range](double x) {
-    return model::format_number(x) + " is out of range, allowed " + range;
-  };
-  p.read = [ok, refuse, get](P& c, const YAML::Node& v, const std::string& file,
-                             const std::string& key) {
-    const double x = model::read_double(v, file, key, -1e308, 1e308);
-    if (!ok(x)) throw model::InputError(model::located(file, v, key, refuse(x)));
-    get(c) = x;
-  };
-  p.check = [ok, refuse](const P& c, const std::string& key) {
-    if (!ok(c.hold_s)) throw model::InputError(key + ": " + refuse(c.hold_s));
-  };
-  p.assign = [ok, refuse](P& c, double x, const std::string& key) {
-    if (!ok(x)) throw model::InputError(key + ": " + refuse(x) + " s");
-    c.hold_s = x;
-  };
-  return p;
-}
-
-// The approach and the step ladder, and how a motion ends: dwell, timeout, end of travel, hold.
-std::vector<model::Param<P>> ladder_and_end_params() {
-  return {
-      real<P>(
-          "approach_uncertainty", "1", {0, 10},
-          "share by which an approach burst may exceed its prediction",
-          [](auto& c) -> auto& { return c.approach_uncertainty; }),
-      real<P>(
-          "stall_min_counts", "count", {0, 1e6},
-          "chunks predicted to move fewer counts are not judged for a stall",
-          [](auto& c) -> auto& { return c.stall_min_counts; }),
-      integer<P>(
-          "max_chunks_per_move", "count", 0, 100000000,
-          "most chunks in one move (0: the planner's max_bursts)",
-          [](auto& c) -> auto& { return c.max_chunks_per_move; }),
-      real<P>(
-          "final_step_counts", "count", {0.5, 1000},
-          "the last chunks use a rung of at most this step",
-          [](auto& c) -> auto& { return c.final_step_counts; }),
-      with_relation(real<P>(
-                        "min_step_counts", "count", {0, 1000, false, true},
-                        "a rung stepping less per cycle is taken as not moving",
-                        [](auto& c) -> auto& { return c.min_step_counts; }),
-                    "< final_step_counts",
-                    [](const P& c) {
-                      return model::Range{-1e300, c.final_step_counts, false, true};
-                    }),
-      integer<P>(
-          "dead_rung_moves", "count", 1, 1000000,
-          "a rung judged not to move is left out for this many moves",
-          [](auto& c) -> auto& { return c.dead_rung_moves; }),
-      real<P>(
-          "chunk_overhead_s", "s", {0, 10},
-          "time a chunk costs beyond its cycles (planning weight)",
-          [](auto& c) -> auto& { return c.chunk_overhead_s; }),
-      real<P>(
-          "max_speed_m_s", "m/s", {0, 1},
-          "speed limit of a move's approach (0: none; MOVE:VELocity; the final rung plays at its "
-          "own speed)",
-          [](auto& c) -> auto& { return c.max_speed_m_s; }),
-      real<P>(
-          "dwell_s", "s", {0, 60},
-          "a move is done once fresh readings stayed in the window this long (MOVE:DWELl)",
-          [](auto& c) -> auto& { return c.dwell_s; }),
-      real<P>(
-          "move_timeout_s", "s", {0, 86400},
-          "a move not done after this long ends with TIMEOUT (0: no limit)",
-          [](auto& c) -> auto& { return c.move_timeout_s; }),
-      real<P>(
-          "eot_step_m", "m", {0, 1e-3},
-          "end of travel: mean step below this while driving stops the axis (0: off; EOT:STEP)",
-          [](auto& c) -> auto& { return c.eot_step_m; }),
-      integer<P>(
-          "eot_cycles", "count", 1, 100000,
-          "end of travel: the cycles the mean step is taken over (EOT:CYCLes)",
-          [](auto& c) -> auto& { return c.eot_cycles; }),
-      hold_param(),
-      real<P>(
-          "hold_window_m", "m", {0, 1e-3},
-          "a hold corrects when a reading leaves this window (0: the move window; HOLD:WINDow)",
-          [](auto& c) -> auto& { return c.hold_window_m; }),
-  };
-}
-
-}  // namespace
-
-const model::ParamTable<PositionerConfig>& positioner_params() {
-  static const model::ParamTable<P> table(model::join<P>({move_params(), ladder_and_end_params()}));
-  return table;
-}
-
-void validate(const PositionerConfig& c, const std::string& where) {
-  // Infinite soft limits are allowed in code (no limit), as the ends of the range on their side;
-  // files always give finite ones. The table checks the ranges and the relations (lower < upper,
-  // min_step_counts < final_step_counts).
-  PositionerConfig finite = c;
-  if (std::isinf(finite.soft_lower_m)) finite.soft_lower_m = std::copysign(10.0, c.soft_lower_m);
-  if (std::isinf(finite.soft_upper_m)) finite.soft_upper_m = std::copysign(10.0, c.soft_upper_m);
-  positioner_params().validate(finite, where);
-  if (!(c.travel_lower_m < c.travel_upper_m))
-    throw model::InputError(where + ": the travel [" + model::format_number(c.travel_lower_m) +
-                            ", " + model::format_number(c.travel_upper_m) +
-                            "] m is not an interval (stage.travel_m: lower < upper)");
-}
-
 const char* motion_state_name(MotionState s) {
   switch (s) {
     case MotionState::Idle:
@@ -269,7 +95,12 @@ const char* refusal_name(Refusal r) {
 Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
                        const PositionerConfig& config, const AxisDeviceInfo& device,
                        Calibration* calibration)
-    : map_(map), planner_(planner), config_(config), device_(device), calibration_(calibration) {
+    : map_(map),
+      planner_(planner),
+      config_(config),
+      device_(device),
+      calibration_(calibration),
+      ladder_(map_, config_, calibration_) {
   validate(config_);
   if (!(device_.count_m > 0))
     throw model::InputError("control: the interferometer's count must be > 0");
@@ -337,9 +168,11 @@ Positioner::Positioner(const RegionMap& map, const PlannerConfig& planner,
         model::format_number(fastest_m_s) +
         " m/s: m/(M+m) times the fast phase's rate); real motion would read as glitches. Raise "
         "it above that, or narrow the map (limits.max_freq_hz, limits.max_stroke_m)");
-  build_ladder();
-  landing_rungs_.reserve(ladder_[0].size() + ladder_[1].size());
-  landing_index_.reserve(ladder_[0].size() + ladder_[1].size());
+  chunk_limits_.buffered = buffered_;
+  chunk_limits_.max_chunk_samples = max_chunk_samples_;
+  chunk_limits_.max_burst_cycles = limits.max_burst_cycles;
+  chunk_limits_.device_max_cycles = device_.max_cycles;
+  ladder_.build(count_m_, chunk_limits_);
   status_.state = MotionState::Idle;
   status_.window_m = tolerance_m();
 }
@@ -499,16 +332,59 @@ bool Positioner::fresh_position(double& position_m) {
 
 // ---- playing ----
 
-std::uint64_t Positioner::chunk_cycle_limit(double freq_hz, std::uint32_t period_samples,
-                                            std::uint64_t max_cycles) const {
-  double n = std::floor(config_.max_chunk_s * freq_hz * (1 + 1e-12));
-  if (buffered_ && period_samples > 0)
-    n = std::min(n, std::floor(static_cast<double>(max_chunk_samples_ - 1) / period_samples));
-  if (max_cycles > 0) n = std::min(n, static_cast<double>(max_cycles));
-  const DeviceLimits& lim = map_.config().limits;
-  n = std::min(n, static_cast<double>(lim.max_burst_cycles));
-  if (!buffered_) n = std::min(n, static_cast<double>(device_.max_cycles));
-  return n < 1 ? 1 : static_cast<std::uint64_t>(n);
+// The chunk of the ladder's choice (its planned cycles cut to a chunk), and its request.
+void Positioner::play(const StepLadder::Choice& choice, double error) {
+  const int sign = choice.direction;
+  const std::uint64_t cycles = choice.cycles;
+  const StepLadder::Rung& r = ladder_.at(sign, static_cast<std::size_t>(choice.rung));
+  const RegionCell& cell = map_.cells()[r.cell];
+  chunk_ = cell_chunk(cell);
+  chunk_.cell = &cell;
+  chunk_.direction = sign;
+  chunk_.rung = choice.rung;
+  chunk_.cycles =
+      std::min(cycles, chunk_cycle_limit(chunk_limits_, config_.max_chunk_s, cell.freq_hz,
+                                         cell.period_samples, cell.max_cycles));
+  // A try at the target: the whole final burst, expected to end within the window. A final
+  // chunk expected to end short of it (a rung whose chunks cannot be placed finer, creeping in)
+  // is progress, not a try: it counts toward max_chunks_per_move, not max_retries.
+  chunk_.completes_last_burst =
+      choice.final_chunk && !choice.capped && chunk_.cycles == cycles &&
+      std::fabs(std::fabs(error) - r.est.predict_m(cycles)) <= tolerance_m();
+  chunk_.predicted_along_m = r.est.predict_m(chunk_.cycles);
+  chunk_.predicted_m = 0;  // closed loop: judged per rung (the ladder's judge)
+  // The plan of this chunk: one burst of the rung (its planned cycles, before cutting).
+  plan_.target_m = error;
+  plan_.bursts.clear();
+  Burst burst;
+  burst.freq_hz = cell.freq_hz;
+  burst.duty = cell.duty;
+  burst.stroke_m = cell.stroke_m;
+  burst.period_samples = cell.period_samples;
+  burst.extension_samples = cell.extension_samples;
+  burst.cycles = cycles;
+  burst.step_m = sign * r.est.step_m;
+  burst.displacement_m = sign * r.est.predict_m(cycles);
+  burst.cell_index = r.cell;
+  plan_.bursts.push_back(burst);
+  plan_.predicted_m = burst.displacement_m;
+  plan_.final_step_m = choice.final_chunk ? r.est.step_m : choice.final_step_m;
+  start_chunk();
+}
+
+Positioner::RungInfo Positioner::rung(int direction, std::size_t index) const {
+  const StepLadder::Rung& r = ladder_.at(direction, index);
+  RungInfo info;
+  info.cell = r.cell;
+  info.estimate = r.est;
+  info.dead = r.dead;
+  info.proven = r.proven;
+  info.chunks = r.chunks;
+  return info;
+}
+
+void Positioner::mark_rung_dead(int direction, std::size_t index) {
+  ladder_.kill(direction, index, status_.moves);
 }
 
 void Positioner::start_chunk() {
@@ -555,7 +431,8 @@ void Positioner::next_open_loop_chunk(double now_s) {
   }
   chunk_ = open_loop_;
   chunk_.cycles =
-      std::min(open_loop_remaining_, chunk_cycle_limit(chunk_.freq_hz, chunk_.period_samples, 0));
+      std::min(open_loop_remaining_, chunk_cycle_limit(chunk_limits_, config_.max_chunk_s,
+                                                       chunk_.freq_hz, chunk_.period_samples, 0));
   open_loop_remaining_ -= chunk_.cycles;
   const double predicted = open_loop_.predicted_m * static_cast<double>(chunk_.cycles);
   chunk_.predicted_m =
@@ -577,7 +454,7 @@ void Positioner::after_chunk(double now_s, double position) {
     return;
   }
   if (status_.closed_loop && chunk_.rung >= 0) {
-    if (!judge_and_learn(moved)) return;
+    if (!judge_chunk(moved)) return;
   } else if (chunk_.predicted_m != 0) {
     // Open loop. Stall: a chunk that moved less than stall_fraction of its prediction.
     const double along = moved / chunk_.predicted_m;
@@ -617,7 +494,7 @@ void Positioner::after_chunk(double now_s, double position) {
     // judged, or just found not to move, is the ladder learning, not a correction).
     const bool rung_known =
         chunk_.rung < 0 ||
-        ladder_[direction_index(chunk_.direction)][static_cast<std::size_t>(chunk_.rung)].proven;
+        ladder_.at(chunk_.direction, static_cast<std::size_t>(chunk_.rung)).proven;
     last_try_done_ = (chunk_.completes_last_burst && rung_known) || passed;
     plan_next_chunk(now_s);
   } else {

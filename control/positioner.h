@@ -28,87 +28,16 @@
 #include <vector>
 
 #include "control/calibration.h"
-#include "control/landing_plan.h"
 #include "control/motion_gate.h"
 #include "control/planner.h"
+#include "control/positioner_config.h"
 #include "control/region_map.h"
 #include "control/rest_mean.h"
+#include "control/step_ladder.h"
 #include "model/axis_io.h"
 #include "model/param_table.h"
 
 namespace idm::control {
-
-struct PositionerConfig {
-  // The in-position window (MOVE:WINDow): |target - reading| that counts as arrived; 0: one
-  // interferometer count (the loop then aims for half a count: the reading nearest the target).
-  double tolerance_m = 0.0;
-  // Correction rounds after the first plan (the motor record's RTRY); one more -> FAULT.
-  int max_retries = 10;
-  // Bursts in a row that each moved less than stall_fraction of their prediction -> FAULT.
-  int stall_bursts = 3;
-  double stall_fraction = 0.2;
-  // After a burst ends, wait this long before the position is read.
-  double settle_s = 2e-3;
-  // Longest chunk played in one piece (whole cycles; at least one cycle).
-  double max_chunk_s = 0.05;
-  // Readings averaged for a position at rest: the landing judges their mean, and at rest the
-  // position shown is the mean of the latest latch_words readings.
-  int latch_words = 8;
-  // Soft limits: a move whose target lies outside is refused before anything moves.
-  double soft_lower_m = -std::numeric_limits<double>::infinity();
-  double soft_upper_m = std::numeric_limits<double>::infinity();
-  // An approach burst (not the plan's last) is cut so that its prediction, grown by this
-  // share, still stops the planner's approach margin short of the target: the step model's own
-  // error (alpha, which the mu interval of the map does not cover) must not carry it past.
-  double approach_uncertainty = 0.2;
-  // Only chunks predicted to move at least this many interferometer counts are judged for a
-  // stall (a one-count step cannot be told from noise).
-  double stall_min_counts = 3.0;
-  // Most chunks in one move (a guard; 0: the planner's max_bursts).
-  int max_chunks_per_move = 0;
-  // ---- the step ladder (control/README.md, "Positioner") ----
-  // The last chunks of a move use a rung whose learned step is at most this many counts (a step
-  // under two counts, played one cycle at a time, reaches the half-count window within a few
-  // tries).
-  double final_step_counts = 2.0;
-  // A rung whose learned step falls below this many counts per cycle is treated as not moving.
-  double min_step_counts = 0.3;
-  // A rung judged not to move (or to move the wrong way) is left out for this many moves, then
-  // tried again from its seed.
-  int dead_rung_moves = 100;
-  // Time a chunk costs beyond its cycles (device settle, the positioner's settle, the reading),
-  // used to weigh fewer, longer chunks against more, shorter ones.
-  double chunk_overhead_s = 5e-3;
-  // The speed limit (MOVE:VELocity, EPICS VELO): the approach uses only rungs whose learned step
-  // times frequency is at most this; 0: no limit. The final chunks' rung (the finest that lands
-  // within the window) plays whatever its speed: it is the slowest that can arrive.
-  double max_speed_m_s = 0.0;
-  // ---- in position, end of travel, hold (the protocol's MOVE:DWELl, EOT:, HOLD) ----
-  // A move is done once fresh readings have stayed within the window (tolerance_m) of the target
-  // for this long (0: the first fresh reading inside).
-  double dwell_s = 0.0;
-  // A move still not done after this long ends with result TIMEOUT (0: no limit).
-  double move_timeout_s = 120.0;
-  // End of travel: while driving, the mean step over the last eot_cycles cycles below eot_step_m
-  // stops the axis (0: detection off).
-  double eot_step_m = 2e-9;
-  int eot_cycles = 20;
-  // After a move that arrived: keep the target for hold_s (0: no hold; -1: until the next motion
-  // command or STOP), correcting whenever a reading leaves hold_window_m (0: the move's window).
-  double hold_s = 0.0;
-  double hold_window_m = 0.0;
-  // The stage's travel (stage.travel_m; not a key of control:, the daemon fills it in): a
-  // collapse of the step met farther inside it than end_margin_m() from the end it drove toward
-  // is an obstruction (FAULT stall), not the end of travel. Infinite: unknown (every collapse
-  // after stepping that way is the end of travel).
-  double travel_lower_m = -std::numeric_limits<double>::infinity();
-  double travel_upper_m = std::numeric_limits<double>::infinity();
-};
-
-// The keys of PositionerConfig, and the check of values set in code (model::InputError naming the
-// key and the allowed range). The soft limits are checked here as a pair (lower < upper).
-const model::ParamTable<PositionerConfig>& positioner_params();
-void validate(const PositionerConfig& config, const std::string& where = "control");
 
 enum class MotionState : std::uint8_t { Idle, Moving, Settling, Fault };
 const char* motion_state_name(MotionState state);  // "IDLE", "MOVING", "SETTLING", "FAULT"
@@ -206,6 +135,9 @@ class Positioner {
   // overruns its capture, a decoder slower than the map's fastest slider).
   Positioner(const RegionMap& map, const PlannerConfig& planner, const PositionerConfig& config,
              const AxisDeviceInfo& device, Calibration* calibration = nullptr);
+  // The step ladder reads this positioner's settings in place: not copied.
+  Positioner(const Positioner&) = delete;
+  Positioner& operator=(const Positioner&) = delete;
 
   // ---- commands (real-time safe; nothing moves until tick()) ----
   Refusal move_absolute(double target_m);
@@ -303,12 +235,12 @@ class Positioner {
     bool proven = false;       // has moved as predicted in this session
     std::uint64_t chunks = 0;  // chunks played with it since construction
   };
-  std::size_t rung_count(int direction) const { return ladder_[direction > 0 ? 1 : 0].size(); }
+  std::size_t rung_count(int direction) const { return ladder_.size(direction); }
   RungInfo rung(int direction, std::size_t index) const;
   // Marks a rung dead for dead_rung_moves moves (for tests and tools; the loop does it itself).
   void mark_rung_dead(int direction, std::size_t index);
   // The learned step of the finest live rung toward `direction` (0: none).
-  double finest_live_step_m(int direction) const;
+  double finest_live_step_m(int direction) const { return ladder_.finest_live_step_m(direction); }
 
  private:
   // Index of a direction in the per-direction arrays: [0] negative, [1] positive.
@@ -355,73 +287,19 @@ class Positioner {
     c.extension_samples = cell.extension_samples;
     return c;
   }
-  struct Rung {
-    std::size_t cell = 0;
-    int direction = 0;
-    RungEstimate seed;  // the map's prediction, low confidence
-    RungEstimate est;   // current
-    bool dead = false;
-    bool killed_in_streak = false;  // marked dead during the current run of non-moving chunks
-    bool proven = false;
-    std::uint64_t dead_until_move = 0;
-    double pending_pred_m = 0, pending_moved_m = 0;  // small chunks awaiting a stall judgement
-    std::uint64_t pending_cycles = 0;
-    std::uint64_t chunks = 0;
-    // The scatter of its chunks about the estimate: a running mean of the squared relative
-    // error of their displacements (friction along the guide moves a fine rung's step by tens
-    // of per cent), and how many chunks it holds.
-    double scatter_var = 0;
-    std::uint64_t scatter_chunks = 0;
-    // The cycles of its landing chunk that missed in this move (0: none; landing_plan.h).
-    std::uint64_t missed_cycles = 0;
-  };
-  // How far this rung's next chunk may move beyond its estimate, as a share of it.
-  double rung_uncertainty(const Rung& r) const;
-  // A final chunk of rung r for the remaining distance: the cycles that land nearest, cut so that
-  // the pessimistic landing passes by at most 0.8 step (`cut`), never below the cycles predicted
-  // to move half a step; `safe`: the result keeps to that.
-  struct FinalChunk {
-    std::uint64_t cycles = 1;
-    bool cut = false, safe = false;
-  };
-  FinalChunk final_chunk_for(const Rung& r, double distance) const;
-  void build_ladder();
-  void load_rung_estimates();  // at a move's start: from the calibration, or the seeds
-  bool rung_live(Rung& r);     // revives a rung whose dead time is over
-  // A rung never learned: its seed times ladder_gain_ (offset, step; covariance by its square).
-  RungEstimate scaled_seed(const Rung& r) const;
-  void update_ladder_gain();  // ladder_gain_ from the learned rungs
-  void kill_rung(Rung& r);
-  bool judge_and_learn(double moved_m);  // false: a fault was entered
-  // judge_and_learn's two outcomes: a rung that did not move (false: a stall fault or the end of
-  // travel was entered); a rung that moved updates its scatter and its estimate.
-  bool rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign, double along);
-  void learn_rung(Rung& r, int sign, double along, double predicted, double moved_m);
-
   void enter_fault(MotionFault fault);
   void on_reading(const model::AxisEvent& e);
   void want_fresh(double after_s);          // start collecting fresh readings
   bool fresh_position(double& position_m);  // true once they are in (position_m: their mean)
   void start_chunk();                       // the request for chunk_
   void after_chunk(double now_s, double position_m);
+  // The next chunk of a closed-loop motion: arrived, a try counted, or the ladder's choice.
   void plan_next_chunk(double now_s);
-  int final_rung(std::vector<Rung>& ladder);
-  int approach_rung(const std::vector<Rung>& ladder, double distance, double keep,
-                    std::uint64_t& cycles) const;
-  int final_try(const std::vector<Rung>& ladder, int fin, double distance, std::uint64_t& cycles,
-                bool& capped) const;
-  void play_rung(const std::vector<Rung>& ladder, int chosen, int sign, std::uint64_t cycles,
-                 bool final_chunk, bool capped, double b_final, double error);
-  // Backs away from the target (toward -sign) to a distance a rung toward it lands from within
-  // the window; false when no rung that way can (or none plays the way back).
-  bool back_off(int sign, std::vector<Rung>& toward, double distance, double error);
-  // The landing plan (landing_plan.h) over the live rungs of both ways, against the final chunk
-  // (chosen, cycles) planned the usual way: when a plan is expected to land sooner, its first
-  // chunk is played (a try when it is the only one) and true is returned.
-  bool play_landing_plan(int sign, double error, int chosen, std::uint64_t cycles, double b_final);
-  // The live rung and cycles whose chunk is expected to end nearest `distance` (-1: none).
-  int nearest_landing(const std::vector<Rung>& ladder, double distance,
-                      std::uint64_t& cycles) const;
+  // The chunk of the ladder's choice (its planned cycles cut to a chunk), and its request.
+  void play(const StepLadder::Choice& choice, double error);
+  // After a closed-loop chunk: the ladder judges its rung; a run of chunks that did not move is
+  // a stall or the end of travel (false: a fault or the end of travel was entered).
+  bool judge_chunk(double moved_m);
   void next_open_loop_chunk(double now_s);
   // The references: the open-loop drive toward `sign` (false: no cell moves that way), the start
   // of both kinds, and the mark search's steps (the mark found; an end stop met while searching).
@@ -449,8 +327,6 @@ class Positioner {
   void hold_tick(double now_s);
   void dwell_tick(double now_s);
   bool toward_eot(double end_m) const;
-  std::uint64_t chunk_cycle_limit(double freq_hz, std::uint32_t period_samples,
-                                  std::uint64_t max_cycles) const;
   double nominal_open_loop_step_m(double freq_hz, double duty, double stroke_m) const;
 
   const RegionMap& map_;
@@ -476,22 +352,8 @@ class Positioner {
   bool device_lost_ = false;                            // between DeviceLost and DeviceBack
   bool lost_at_rest_ = false;                           // the loss came with nothing moving
   int max_chunks_ = 0;
-  std::vector<Rung> ladder_[2];
-  // The landing plan's view of the live rungs (capacity reserved with the ladder) and, for each,
-  // its (direction, ladder index).
-  std::vector<LandingRung> landing_rungs_;
-  std::vector<std::pair<int, int>> landing_index_;
-  // The landing chunk the plan played last in this move (rung -1: none): when the final zone
-  // plans again, it missed.
-  struct LandingTry {
-    int direction = 0, rung = -1;
-    std::uint64_t cycles = 0;
-  } landing_try_;
-  // Learned step over seeded step of the learned rungs (1 until one has learned): scales the
-  // seeds of the rungs not yet played (a stage that moves three times the map's step moves its
-  // fine rungs three times too, and they are then the ones that land).
-  double ladder_gain_ = 1.0;
-  CalibrationConfig rung_cfg_;  // the calibration's (or the default) RLS settings for the rungs
+  ChunkLimits chunk_limits_;              // what the device lets one chunk be
+  StepLadder ladder_;                     // what to play next toward a target (reads config_)
   std::size_t largest_cell_[2] = {0, 0};  // [0] negative, [1] positive: largest |step|
   double largest_step_m_[2] = {0, 0};     // their |step|
   bool has_largest_cell_[2] = {false, false};

@@ -101,7 +101,7 @@ void Positioner::hold_tick(double now_s) {
   if (!hold_correction_due_ || !status_.position_valid) return;
   hold_correction_due_ = false;
   // A correction back to the target: a move of its own, the hold carrying on after it.
-  load_rung_estimates();
+  ladder_.start_move();
   const std::uint64_t moves = status_.moves;
   start_motion(MotionKind::Move);
   status_.moves = moves;
@@ -123,7 +123,7 @@ bool Positioner::end_of_travel_seen(double moved_m) {
   if (chunk_.rung < 0) {
     expected = std::fabs(open_loop_.predicted_m) >= 5.0 * eot_step;
   } else {
-    const Rung& r = ladder_[direction_index(sign)][static_cast<std::size_t>(chunk_.rung)];
+    const StepLadder::Rung& r = ladder_.at(sign, static_cast<std::size_t>(chunk_.rung));
     expected = r.est.step_m >= std::max(5.0 * eot_step, config_.final_step_counts * count_m_);
     proven = r.proven;
   }
@@ -142,7 +142,7 @@ bool Positioner::end_of_travel_seen(double moved_m) {
   // the stop and the return stroke's does not.
   // (A compliant stage moves a cell the wrong way by a few steps at times: far beyond that only.)
   if (-along > std::max(5.0 * expected_along, 1000.0 * count_m_)) return true;
-  // Closed loop: the run of non-moving chunks that makes a stall (judge_and_learn) decides; one
+  // Closed loop: the run of non-moving chunks that makes a stall (judge_chunk) decides; one
   // rung standing still on a stretch of the guide is the ladder's business.
   if (!proven || chunk_.rung >= 0) return false;
   eot_chunks_[eot_next_] = EotChunk{chunk_.cycles, along};
@@ -233,7 +233,7 @@ void Positioner::move_onto(double now_s, double target_m) {
   referencing_ = false;
   status_.eot = 0;
   status_.closed_loop = true;
-  load_rung_estimates();
+  ladder_.start_move();
   reset_progress();
   plan_next_chunk(now_s);
 }
@@ -253,9 +253,8 @@ bool Positioner::crawl_chunk(int sign, Chunk& out) {
   // fine enough).
   bool found = false, fine = false, proven = false;
   double best_step = 0, best_travel = 0;
-  const std::vector<Rung>& ladder = ladder_[direction_index(sign)];
-  for (std::size_t i = 0; i < ladder.size(); ++i) {
-    const Rung& r = ladder[i];
+  for (std::size_t i = 0; i < ladder_.size(sign); ++i) {
+    const StepLadder::Rung& r = ladder_.at(sign, i);
     if (r.dead || !(r.est.step_m >= config_.min_step_counts * count_m_)) continue;
     Chunk c = cell_chunk(map_.cells()[r.cell]);
     c.predicted_m = sign * r.est.step_m;
@@ -297,9 +296,8 @@ void Positioner::crawl_failed(double now_s) {
   // it should): its rung is left out and the next one tries from the point before the mark, a
   // few times; then the search's reading stands.
   const int sign = crawl_.predicted_m >= 0 ? 1 : -1;
-  std::vector<Rung>& ladder = ladder_[direction_index(sign)];
-  if (crawl_rung_ >= 0 && static_cast<std::size_t>(crawl_rung_) < ladder.size())
-    kill_rung(ladder[static_cast<std::size_t>(crawl_rung_)]);
+  if (crawl_rung_ >= 0 && static_cast<std::size_t>(crawl_rung_) < ladder_.size(sign))
+    ladder_.kill(sign, static_cast<std::size_t>(crawl_rung_), status_.moves);
   if (++crawl_tries_ < kCrawlTries && crawl_chunk(sign, crawl_)) {
     mark_search_ = MarkSearch::Approaching;
     move_onto(now_s, crawl_start_m_);
@@ -323,6 +321,78 @@ void Positioner::mark_search_end_stop(double now_s, int sign) {
   }
   referencing_ = false;
   finish(now_s, stop_requested_ ? stop_result_ : MoveResult::EndOfTravel);
+}
+
+void Positioner::plan_next_chunk(double now_s) {
+  const double error = status_.target_m - status_.position_m;
+  if (std::fabs(error) <= landing_m()) {
+    arrived(now_s);
+    return;
+  }
+  if (last_try_done_) {
+    // A final chunk was played in full, or a chunk passed the target, and the target is not
+    // reached: a correction (the motor record's retry).
+    last_try_done_ = false;
+    if (static_cast<int>(status_.corrections) >= config_.max_retries) {
+      enter_fault(MotionFault::RetryLimit);
+      return;
+    }
+    ++status_.corrections;
+  }
+  if (static_cast<int>(move_chunks_) >= max_chunks_) {
+    enter_fault(MotionFault::RetryLimit);
+    return;
+  }
+  const bool may_correct = static_cast<int>(status_.corrections) < config_.max_retries;
+  const StepLadder::Choice choice =
+      ladder_.next_chunk(error, status_.position_m, landing_m(), may_correct, status_.moves);
+  switch (choice.kind) {
+    case StepLadder::Choice::Kind::NoRungs:
+      enter_fault(MotionFault::NoPlan);
+      return;
+    case StepLadder::Choice::Kind::NoLiveRung:
+      // Every rung that way has been judged not to move.
+      enter_fault(MotionFault::Stall);
+      return;
+    case StepLadder::Choice::Kind::OutOfTries:
+      enter_fault(MotionFault::RetryLimit);
+      return;
+    case StepLadder::Choice::Kind::Play:
+      break;
+  }
+  if (choice.back_off) ++status_.corrections;  // a way back counts as a correction round
+  play(choice, error);
+}
+
+bool Positioner::judge_chunk(double moved_m) {
+  const int sign = chunk_.direction;
+  const StepLadder::Judgement j =
+      ladder_.judge(sign, chunk_.rung, chunk_.cycles, chunk_.predicted_along_m, moved_m,
+                    stall_count_ > 0, status_.moves);
+  if (j.failed) {
+    if (!j.counts_as_stall) return true;
+    streak_cycles_ += chunk_.cycles;
+    streak_along_m_ += sign * moved_m;
+    if (++stall_count_ < config_.stall_bursts) return true;
+    // The slider is stuck: the rungs are not to blame.
+    ladder_.revive_streak();
+    // Driven and not moving: at an end stop when the mean step over the run collapsed (to
+    // nothing: a run that crept the wrong way is friction along the guide, not a stop).
+    if (config_.eot_step_m > 0 && streak_cycles_ > 0 &&
+        (status_.moved_dirs & (1u << direction_index(sign))) &&
+        std::fabs(streak_along_m_ / static_cast<double>(streak_cycles_)) < config_.eot_step_m) {
+      end_of_travel(now_s_, sign);
+      return false;
+    }
+    enter_fault(MotionFault::Stall);
+    return false;
+  }
+  if (j.judged) {
+    stall_count_ = 0;
+    streak_cycles_ = 0;
+    streak_along_m_ = 0;
+  }
+  return true;
 }
 
 }  // namespace idm::control

@@ -63,7 +63,7 @@ Refusal Positioner::move_absolute(double target_m) {
   if (!status_.position_valid) return Refusal::NoPosition;
   if (toward_eot(target_m)) return Refusal::EndOfTravel;
   status_.eot = 0;  // a move away from it
-  load_rung_estimates();
+  ladder_.start_move();
   status_.target_m = target_m;
   target_known_ = true;
   status_.closed_loop = true;

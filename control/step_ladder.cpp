@@ -1,17 +1,20 @@
-// The positioner's step ladder (control/README.md, "Positioner"): the rungs built from the map,
-// what they have learned, and the choice of each closed-loop chunk. Part of class Positioner.
+// The step ladder (step_ladder.h): the rungs built from the map, what they learn, and the choice
+// of each closed-loop chunk. The landing plan's part is step_ladder_landing.cpp.
+#include "control/step_ladder.h"
+
 #include <algorithm>
 #include <cmath>
 
-#include "control/calibration.h"
-#include "control/positioner.h"
-
 namespace idm::control {
 
-// ---- the step ladder ----
+StepLadder::StepLadder(const RegionMap& map, const PositionerConfig& config,
+                       Calibration* calibration)
+    : map_(map), config_(config), calibration_(calibration) {}
 
-void Positioner::build_ladder() {
-  rung_cfg_ = calibration_ != nullptr ? calibration_->config() : CalibrationConfig{};
+void StepLadder::build(double count_m, const ChunkLimits& chunk_limits) {
+  count_m_ = count_m;
+  chunk_limits_ = chunk_limits;
+  rls_ = calibration_ != nullptr ? calibration_->config() : CalibrationConfig{};
   // Frequency bands x bands of the fast phase's share min(duty, 1 - duty): one rung per (stroke,
   // band, share band), so that a rung that does not move on the real stage (stiction near
   // cut-off, the amplifier rounding a short fast phase, the actuator's resonance) has neighbours.
@@ -19,9 +22,9 @@ void Positioner::build_ladder() {
   static constexpr double kShareEdges[] = {0, 0.03, 0.1, 0.25, 0.5};
   constexpr std::size_t kBands = sizeof kBandEdges / sizeof kBandEdges[0] - 1;
   constexpr std::size_t kShares = sizeof kShareEdges / sizeof kShareEdges[0] - 1;
-  const double rel = rung_cfg_.rung_initial_relative_sd;
+  const double rel = rls_.rung_initial_relative_sd;
   for (int dir : {-1, 1}) {
-    std::vector<Rung>& ladder = ladder_[direction_index(dir)];
+    std::vector<Rung>& ladder = ladder_[index(dir)];
     ladder.clear();
     for (double stroke : map_.strokes_m()) {
       for (std::size_t band = 0; band < kBands * kShares; ++band) {
@@ -70,9 +73,11 @@ void Positioner::build_ladder() {
     if (ladder.size() > static_cast<std::size_t>(CalibrationState::kMaxRungs))
       ladder.resize(static_cast<std::size_t>(CalibrationState::kMaxRungs));
   }
+  landing_rungs_.reserve(ladder_[0].size() + ladder_[1].size());
+  landing_index_.reserve(ladder_[0].size() + ladder_[1].size());
 }
 
-void Positioner::load_rung_estimates() {
+void StepLadder::start_move() {
   for (std::vector<Rung>& ladder : ladder_) {
     for (Rung& r : ladder) {
       RungEstimate stored;
@@ -88,12 +93,16 @@ void Positioner::load_rung_estimates() {
     }
   }
   landing_try_ = LandingTry{};
-  update_ladder_gain();
+  update_gain();
 }
 
-bool Positioner::rung_live(Rung& r) {
+bool StepLadder::moves_enough(const Rung& r) const {
+  return r.est.step_m >= config_.min_step_counts * count_m_;
+}
+
+bool StepLadder::live(Rung& r, std::uint64_t moves) {
   if (r.dead) {
-    if (status_.moves < r.dead_until_move) return false;
+    if (moves < r.dead_until_move) return false;
     // Its time is over: try it again from the seed.
     r.dead = false;
     r.killed_in_streak = false;
@@ -106,26 +115,26 @@ bool Positioner::rung_live(Rung& r) {
     // Never learned: its seed, scaled by what the learned rungs show of this stage. A seed
     // under min_step_counts is left out for now, not killed: with the gain it may yet move.
     r.est = scaled_seed(r);
-    return r.est.step_m >= config_.min_step_counts * count_m_;
+    return moves_enough(r);
   }
-  if (!(r.est.step_m >= config_.min_step_counts * count_m_)) {
-    kill_rung(r);
+  if (!moves_enough(r)) {
+    kill(r, moves);
     return false;
   }
   return true;
 }
 
-RungEstimate Positioner::scaled_seed(const Rung& r) const {
+RungEstimate StepLadder::scaled_seed(const Rung& r) const {
   RungEstimate e = r.seed;
-  e.step_m *= ladder_gain_;
-  e.offset_m *= ladder_gain_;
-  e.p_ss *= ladder_gain_ * ladder_gain_;
-  e.p_oo *= ladder_gain_ * ladder_gain_;
-  e.p_os *= ladder_gain_ * ladder_gain_;
+  e.step_m *= gain_;
+  e.offset_m *= gain_;
+  e.p_ss *= gain_ * gain_;
+  e.p_oo *= gain_ * gain_;
+  e.p_os *= gain_ * gain_;
   return e;
 }
 
-void Positioner::update_ladder_gain() {
+void StepLadder::update_gain() {
   // The geometric mean of learned / seeded step over the learned rungs of both directions (the
   // stage's own alpha against the map's: one figure for the whole ladder), kept to [1/4, 4].
   double sum_log = 0;
@@ -136,10 +145,10 @@ void Positioner::update_ladder_gain() {
         sum_log += std::log(x.est.step_m / x.seed.step_m);
         ++n;
       }
-  ladder_gain_ = n > 0 ? std::clamp(std::exp(sum_log / n), 0.25, 4.0) : 1.0;
+  gain_ = n > 0 ? std::clamp(std::exp(sum_log / n), 0.25, 4.0) : 1.0;
 }
 
-double Positioner::rung_uncertainty(const Rung& r) const {
+double StepLadder::rung_uncertainty(const Rung& r) const {
   // Two standard deviations of its scatter once a few chunks have shown it; until then 100 %
   // (on a real stage a rung's first chunks move anywhere from nothing to twice the model's
   // step). Never below the step model's approach uncertainty.
@@ -147,7 +156,13 @@ double Positioner::rung_uncertainty(const Rung& r) const {
   return std::clamp(2.0 * std::sqrt(r.scatter_var), config_.approach_uncertainty, 1.0);
 }
 
-Positioner::FinalChunk Positioner::final_chunk_for(const Rung& r, double distance) const {
+std::uint64_t StepLadder::chunk_limit(const Rung& r) const {
+  const RegionCell& cell = map_.cells()[r.cell];
+  return chunk_cycle_limit(chunk_limits_, config_.max_chunk_s, cell.freq_hz, cell.period_samples,
+                           cell.max_cycles);
+}
+
+StepLadder::FinalChunk StepLadder::final_chunk_for(const Rung& r, double distance) const {
   constexpr double kPassSteps = 0.8;  // planned to pass by at most this share of a step
   const double a = r.est.offset_m, b = r.est.step_m;
   const double u = rung_uncertainty(r);
@@ -174,119 +189,86 @@ Positioner::FinalChunk Positioner::final_chunk_for(const Rung& r, double distanc
   return out;
 }
 
-void Positioner::kill_rung(Rung& r) {
+void StepLadder::kill(Rung& r, std::uint64_t moves) {
   r.dead = true;
   r.proven = false;
-  r.dead_until_move = status_.moves + static_cast<std::uint64_t>(config_.dead_rung_moves);
+  r.dead_until_move = moves + static_cast<std::uint64_t>(config_.dead_rung_moves);
   r.pending_pred_m = r.pending_moved_m = 0;
   r.pending_cycles = 0;
 }
 
-Positioner::RungInfo Positioner::rung(int direction, std::size_t index) const {
-  const Rung& r = ladder_[direction_index(direction)].at(index);
-  RungInfo info;
-  info.cell = r.cell;
-  info.estimate = r.est;
-  info.dead = r.dead;
-  info.proven = r.proven;
-  info.chunks = r.chunks;
-  return info;
+void StepLadder::kill(int direction, std::size_t i, std::uint64_t moves) {
+  kill(ladder_[index(direction)].at(i), moves);
 }
 
-void Positioner::mark_rung_dead(int direction, std::size_t index) {
-  kill_rung(ladder_[direction_index(direction)].at(index));
-}
-
-double Positioner::finest_live_step_m(int direction) const {
+double StepLadder::finest_live_step_m(int direction) const {
   double finest = 0;
-  for (const Rung& r : ladder_[direction_index(direction)]) {
-    if (r.dead || !(r.est.step_m >= config_.min_step_counts * count_m_)) continue;
+  for (const Rung& r : ladder_[index(direction)]) {
+    if (r.dead || !moves_enough(r)) continue;
     if (finest == 0 || r.est.step_m < finest) finest = r.est.step_m;
   }
   return finest;
 }
 
-void Positioner::plan_next_chunk(double now_s) {
-  const double error = status_.target_m - status_.position_m;
-  const double tolerance = landing_m();
-  if (std::fabs(error) <= tolerance) {
-    arrived(now_s);
-    return;
-  }
-  if (last_try_done_) {
-    // A final chunk was played in full, or a chunk passed the target, and the target is not
-    // reached: a correction (the motor record's retry).
-    last_try_done_ = false;
-    if (static_cast<int>(status_.corrections) >= config_.max_retries) {
-      enter_fault(MotionFault::RetryLimit);
-      return;
-    }
-    ++status_.corrections;
-  }
-  if (static_cast<int>(move_chunks_) >= max_chunks_) {
-    enter_fault(MotionFault::RetryLimit);
-    return;
-  }
+StepLadder::Choice StepLadder::next_chunk(double error, double position_m, double landing_m,
+                                          bool may_correct, std::uint64_t moves) {
+  Choice out;
   const int sign = error > 0 ? 1 : -1;
   const double distance = std::fabs(error);
-  std::vector<Rung>& ladder = ladder_[direction_index(sign)];
+  std::vector<Rung>& ladder = ladder_[index(sign)];
   if (ladder.empty()) {
-    enter_fault(MotionFault::NoPlan);
-    return;
+    out.kind = Choice::Kind::NoRungs;
+    return out;
   }
-  const int fin = final_rung(ladder);
+  const int fin = final_rung(ladder, moves);
   if (fin < 0) {
-    // Every rung that way has been judged not to move.
-    enter_fault(MotionFault::Stall);
-    return;
+    out.kind = Choice::Kind::NoLiveRung;
+    return out;
   }
   const double b_final = ladder[static_cast<std::size_t>(fin)].est.step_m;
-  std::uint64_t cycles = 0;
-  bool final_chunk = false, capped = false;
-  int chosen = -1;
+  out.direction = sign;
+  out.final_step_m = b_final;
   // Approach: outside the final zone (ten final steps, at least three counts).
   if (distance > std::max(10.0 * b_final, 3.0 * count_m_))
-    chosen = approach_rung(ladder, distance, 3.0 * b_final + tolerance, cycles);
-  if (chosen < 0) {
-    final_chunk = true;
-    chosen = final_try(ladder, fin, distance, cycles, capped);
-    if (!capped && play_landing_plan(sign, error, chosen, cycles, b_final)) return;
-    // A chunk expected to end no nearer the target than the slider is now (the rung's shortest
-    // chunk, its first cycle's offset and a step, is longer than twice the error) cannot land
-    // from here: back off to where a rung lands within the window, and come back.
-    const double landing_error =
-        std::fabs(distance - ladder[static_cast<std::size_t>(chosen)].est.predict_m(cycles));
-    if (landing_error >= distance) {
-      // Another live rung that way may land nearer: the one whose chunk ends nearest the target.
-      std::uint64_t n_near = 0;
-      const int nearest = nearest_landing(ladder, distance, n_near);
-      if (nearest >= 0 &&
-          std::fabs(distance - ladder[static_cast<std::size_t>(nearest)].est.predict_m(n_near)) <
-              distance) {
-        play_rung(ladder, nearest, sign, n_near, true, false, b_final, error);
-        return;
-      }
-      if (static_cast<int>(status_.corrections) >= config_.max_retries) {
-        enter_fault(MotionFault::RetryLimit);
-        return;
-      }
-      if (back_off(sign, ladder, distance, error)) {
-        ++status_.corrections;
-        return;
-      }
-    }
+    out.rung = approach_rung(ladder, distance, 3.0 * b_final + landing_m, out.cycles);
+  if (out.rung >= 0) return out;
+  out.final_chunk = true;
+  out.rung = final_try(ladder, fin, distance, out.cycles, out.capped);
+  if (!out.capped &&
+      landing_plan(sign, error, position_m, landing_m, out.rung, out.cycles, moves, out))
+    return out;
+  // A chunk expected to end no nearer the target than the slider is now (the rung's shortest
+  // chunk, its first cycle's offset and a step, is longer than twice the error) cannot land
+  // from here: back off to where a rung lands within the window, and come back.
+  const double landing_error =
+      std::fabs(distance - ladder[static_cast<std::size_t>(out.rung)].est.predict_m(out.cycles));
+  if (landing_error < distance) return out;
+  // Another live rung that way may land nearer: the one whose chunk ends nearest the target.
+  std::uint64_t n_near = 0;
+  const int nearest = nearest_landing(ladder, distance, n_near);
+  if (nearest >= 0 && std::fabs(distance - ladder[static_cast<std::size_t>(nearest)].est.predict_m(
+                                               n_near)) < distance) {
+    out.rung = nearest;
+    out.cycles = n_near;
+    out.capped = false;
+    return out;
   }
-  play_rung(ladder, chosen, sign, cycles, final_chunk, capped, b_final, error);
+  if (!may_correct) {
+    out.kind = Choice::Kind::OutOfTries;
+    return out;
+  }
+  back_off(sign, ladder, distance, landing_m, moves, out);
+  return out;
 }
 
-int Positioner::nearest_landing(const std::vector<Rung>& ladder, double distance,
+int StepLadder::nearest_landing(const std::vector<Rung>& ladder, double distance,
                                 std::uint64_t& cycles) const {
   int chosen = -1;
   double best = 0;
   for (std::size_t i = 0; i < ladder.size(); ++i) {
     const Rung& r = ladder[i];
     const double a = r.est.offset_m, b = r.est.step_m;
-    if (r.dead || !r.proven || !(b >= config_.min_step_counts * count_m_)) continue;
+    if (r.dead || !r.proven || !moves_enough(r)) continue;
     const std::uint64_t max_cycles = map_.cells()[r.cell].max_cycles;
     const double n_real = std::clamp(std::round((distance - a) / b), 1.0, 1e6);
     for (double n : {n_real - 1, n_real, n_real + 1}) {
@@ -303,14 +285,15 @@ int Positioner::nearest_landing(const std::vector<Rung>& ladder, double distance
   return chosen;
 }
 
-bool Positioner::back_off(int sign, std::vector<Rung>& toward, double distance, double error) {
+bool StepLadder::back_off(int sign, std::vector<Rung>& toward, double distance, double landing_m,
+                          std::uint64_t moves, Choice& out) {
   // A rung toward the target lands within the window from a distance D when its chunks can be
   // placed that finely: its step (a chunk of n cycles moves offset + n steps) within the window's
   // width, from D at least its shortest moving chunk. The rung needing the least way back.
-  const double width = 2.0 * landing_m();
+  const double width = 2.0 * landing_m;
   double from = 0;
   for (Rung& r : toward) {
-    if (!rung_live(r) || !r.proven) continue;
+    if (!live(r, moves) || !r.proven) continue;
     const double a = r.est.offset_m, b = r.est.step_m;
     if (!(b > 0) || b > width) continue;
     const double n_moving = std::max(1.0, std::ceil((0.5 * b - a) / b));
@@ -323,13 +306,13 @@ bool Positioner::back_off(int sign, std::vector<Rung>& toward, double distance, 
   if (!(from > 0) || !(away > 0)) return false;
   // Away: the live rung whose chunk covers `away` with the least to spare (going farther only
   // costs the way back).
-  std::vector<Rung>& other = ladder_[direction_index(-sign)];
+  std::vector<Rung>& other = ladder_[index(-sign)];
   int chosen = -1;
   std::uint64_t cycles = 0;
   double best = 0;
   for (std::size_t i = 0; i < other.size(); ++i) {
     Rung& r = other[i];
-    if (!rung_live(r)) continue;
+    if (!live(r, moves)) continue;
     const double a = r.est.offset_m, b = r.est.step_m;
     if (!(b > 0)) continue;
     const double n_real = std::max(1.0, std::ceil((away - a) / b));
@@ -346,20 +329,25 @@ bool Positioner::back_off(int sign, std::vector<Rung>& toward, double distance, 
     }
   }
   if (chosen < 0) return false;
-  play_rung(other, chosen, -sign, cycles, false, false,
-            other[static_cast<std::size_t>(chosen)].est.step_m, error);
+  out.direction = -sign;
+  out.rung = chosen;
+  out.cycles = cycles;
+  out.final_chunk = false;
+  out.capped = false;
+  out.back_off = true;
+  out.final_step_m = other[static_cast<std::size_t>(chosen)].est.step_m;
   return true;
 }
 
 // The final rung: the live rung of the final class (learned step <= final_step_counts) with the
 // best progress per second; without one, the finest live rung. -1: no live rung.
-int Positioner::final_rung(std::vector<Rung>& ladder) {
+int StepLadder::final_rung(std::vector<Rung>& ladder, std::uint64_t moves) {
   const double final_bound = config_.final_step_counts * count_m_;
   int fin = -1, finest = -1;
   double fin_rate = 0;
   for (std::size_t i = 0; i < ladder.size(); ++i) {
     Rung& r = ladder[i];
-    if (!rung_live(r)) continue;
+    if (!live(r, moves)) continue;
     const double b = r.est.step_m;
     if (finest < 0 || b < ladder[static_cast<std::size_t>(finest)].est.step_m)
       finest = static_cast<int>(i);
@@ -375,13 +363,13 @@ int Positioner::final_rung(std::vector<Rung>& ladder) {
 // The rung with the most expected progress per second of a chunk (its cycles plus
 // chunk_overhead_s) among those whose planned burst, grown by the approach uncertainty and the
 // rung's own, still stops `keep` short of the target. -1: none (the final zone's business).
-int Positioner::approach_rung(const std::vector<Rung>& ladder, double distance, double keep,
+int StepLadder::approach_rung(const std::vector<Rung>& ladder, double distance, double keep,
                               std::uint64_t& cycles) const {
   int chosen = -1;
   double best_score = 0;
   for (std::size_t i = 0; i < ladder.size(); ++i) {
     const Rung& r = ladder[i];
-    if (r.dead) continue;  // rung_live ran before
+    if (r.dead) continue;  // live() ran before
     const RegionCell& cell = map_.cells()[r.cell];
     const double a = r.est.offset_m, b = r.est.step_m;
     // The speed limit: a rung whose learned speed, grown two standard deviations, exceeds it is
@@ -400,8 +388,7 @@ int Positioner::approach_rung(const std::vector<Rung>& ladder, double distance, 
     std::uint64_t n =
         n_real >= 1e15 ? static_cast<std::uint64_t>(1e15) : static_cast<std::uint64_t>(n_real);
     if (cell.max_cycles > 0) n = std::min(n, cell.max_cycles);
-    const std::uint64_t n_chunk =
-        std::min(n, chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles));
+    const std::uint64_t n_chunk = std::min(n, chunk_limit(r));
     const double progress = a + b * static_cast<double>(n_chunk);
     if (!(progress > 0)) continue;
     const double score =
@@ -422,7 +409,7 @@ int Positioner::approach_rung(const std::vector<Rung>& ladder, double distance, 
 // move at least half a step: a burst's first cycles can move nothing, and a chunk that moves
 // nothing teaches nothing. When even that shortest chunk could pass too far, a finer live rung
 // whose shortest chunk cannot is taken instead.
-int Positioner::final_try(const std::vector<Rung>& ladder, int fin, double distance,
+int StepLadder::final_try(const std::vector<Rung>& ladder, int fin, double distance,
                           std::uint64_t& cycles, bool& capped) const {
   const double b_final = ladder[static_cast<std::size_t>(fin)].est.step_m;
   int chosen = fin;
@@ -431,8 +418,7 @@ int Positioner::final_try(const std::vector<Rung>& ladder, int fin, double dista
     double best_rate = 0;
     for (std::size_t i = 0; i < ladder.size(); ++i) {
       const Rung& x = ladder[i];
-      if (static_cast<int>(i) == fin || x.dead || !(x.est.step_m < b_final) ||
-          !(x.est.step_m >= config_.min_step_counts * count_m_))
+      if (static_cast<int>(i) == fin || x.dead || !(x.est.step_m < b_final) || !moves_enough(x))
         continue;
       const FinalChunk alt = final_chunk_for(x, distance);
       const double rate = x.est.step_m * map_.cells()[x.cell].freq_hz;
@@ -448,132 +434,71 @@ int Positioner::final_try(const std::vector<Rung>& ladder, int fin, double dista
   return chosen;
 }
 
-// The chunk of rung `chosen` (its planned cycles cut to a chunk), and its request.
-void Positioner::play_rung(const std::vector<Rung>& ladder, int chosen, int sign,
-                           std::uint64_t cycles, bool final_chunk, bool capped, double b_final,
-                           double error) {
-  const Rung& r = ladder[static_cast<std::size_t>(chosen)];
-  const RegionCell& cell = map_.cells()[r.cell];
-  chunk_.freq_hz = cell.freq_hz;
-  chunk_.duty = cell.duty;
-  chunk_.stroke_m = cell.stroke_m;
-  chunk_.period_samples = cell.period_samples;
-  chunk_.extension_samples = cell.extension_samples;
-  chunk_.cell = &cell;
-  chunk_.direction = sign;
-  chunk_.rung = chosen;
-  const std::uint64_t limit = chunk_cycle_limit(cell.freq_hz, cell.period_samples, cell.max_cycles);
-  chunk_.cycles = std::min(cycles, limit);
-  // A try at the target: the whole final burst, expected to end within the window. A final
-  // chunk expected to end short of it (a rung whose chunks cannot be placed finer, creeping in)
-  // is progress, not a try: it counts toward max_chunks_per_move, not max_retries.
-  chunk_.completes_last_burst =
-      final_chunk && !capped && chunk_.cycles == cycles &&
-      std::fabs(std::fabs(error) - r.est.predict_m(cycles)) <= tolerance_m();
-  chunk_.predicted_along_m = r.est.predict_m(chunk_.cycles);
-  chunk_.predicted_m = 0;  // closed loop: judged per rung (judge_and_learn)
-  // The plan of this chunk: one burst of the rung (its planned cycles, before cutting).
-  plan_.target_m = error;
-  plan_.bursts.clear();
-  Burst burst;
-  burst.freq_hz = cell.freq_hz;
-  burst.duty = cell.duty;
-  burst.stroke_m = cell.stroke_m;
-  burst.period_samples = cell.period_samples;
-  burst.extension_samples = cell.extension_samples;
-  burst.cycles = cycles;
-  burst.step_m = sign * r.est.step_m;
-  burst.displacement_m = sign * r.est.predict_m(cycles);
-  burst.cell_index = r.cell;
-  plan_.bursts.push_back(burst);
-  plan_.predicted_m = burst.displacement_m;
-  plan_.final_step_m = final_chunk ? r.est.step_m : b_final;
-  start_chunk();
-}
-
-bool Positioner::judge_and_learn(double moved_m) {
-  const int sign = chunk_.direction;
-  std::vector<Rung>& ladder = ladder_[direction_index(sign)];
-  Rung& r = ladder[static_cast<std::size_t>(chunk_.rung)];
+StepLadder::Judgement StepLadder::judge(int sign, int rung, std::uint64_t cycles,
+                                        double predicted_along_m, double moved_m, bool in_stall_run,
+                                        std::uint64_t moves) {
+  std::vector<Rung>& ladder = ladder_[index(sign)];
+  Rung& r = ladder.at(static_cast<std::size_t>(rung));
   ++r.chunks;
   const double along = sign * moved_m;
-  const double predicted = std::max(chunk_.predicted_along_m, 0.0);
+  const double predicted = std::max(predicted_along_m, 0.0);
   r.pending_pred_m += predicted;
   r.pending_moved_m += along;
-  r.pending_cycles += chunk_.cycles;
+  r.pending_cycles += cycles;
+  Judgement j;
   // Judged once the prediction is a few counts and more than one cycle was played (a burst's
   // first cycle can stay in static friction: one cycle alone says little).
-  const bool judged =
-      r.pending_pred_m >= config_.stall_min_counts * count_m_ && r.pending_cycles >= 2;
+  j.judged = r.pending_pred_m >= config_.stall_min_counts * count_m_ && r.pending_cycles >= 2;
   const bool wrong_way = along < -2.0 * count_m_;
   // Not moving: less than stall_fraction of the prediction and less than two counts (a rung
   // that moves a quarter of its seed is slow, not dead: its estimate learns that).
-  const bool failed =
-      wrong_way ||
-      (judged &&
-       r.pending_moved_m < std::min(config_.stall_fraction * r.pending_pred_m, 2.0 * count_m_));
-  if (judged || failed) {
+  j.failed = wrong_way ||
+             (j.judged && r.pending_moved_m <
+                              std::min(config_.stall_fraction * r.pending_pred_m, 2.0 * count_m_));
+  if (j.judged || j.failed) {
     r.pending_pred_m = r.pending_moved_m = 0;
     r.pending_cycles = 0;
   }
-  if (failed) return rung_failed(r, ladder, sign, along);
-  if (judged) {
-    stall_count_ = 0;
-    streak_cycles_ = 0;
-    streak_along_m_ = 0;
+  if (j.failed) {
+    // A rung that does not move (or moves back) is left out; it counts toward a stall only when
+    // it had moved before and is not of the final class, or is one of the coarse rungs (within
+    // half of the largest live step): a fine rung near cut-off that does not move is the map
+    // being wrong, or a stretch of the guide with more friction (where it moved before), not the
+    // slider stuck. A rung that moved the slider the wrong way is left out too, but says nothing
+    // of a stall or an end stop: the slider moved (a compliant stage's cell near cut-off can step
+    // backwards on a stretch of the guide); if every rung that way fails, the ladder is empty
+    // and that is the stall.
+    double largest = 0;
+    for (const Rung& x : ladder)
+      if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
+    const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
+    const bool stuck = along >= -2.0 * count_m_;
+    j.counts_as_stall =
+        stuck && ((r.proven && !fine) || r.est.step_m >= 0.5 * largest || in_stall_run);
+    kill(r, moves);
+    r.killed_in_streak = true;
+    return j;
+  }
+  if (j.judged) {
     r.proven = true;
     for (std::vector<Rung>& l : ladder_)
       for (Rung& x : l) x.killed_in_streak = false;
   }
-  learn_rung(r, sign, along, predicted, moved_m);
-  return true;
+  learn(r, sign, cycles, along, predicted, moved_m, moves);
+  return j;
 }
 
-bool Positioner::rung_failed(Rung& r, const std::vector<Rung>& ladder, int sign, double along) {
-  // A rung that does not move (or moves back) is left out; it is a stall only when it had
-  // moved before and is not of the final class, or is one of the coarse rungs (within half of
-  // the largest live step): a fine rung near cut-off that does not move is the map being
-  // wrong, or a stretch of the guide with more friction (where it moved before), not the
-  // slider stuck. A rung that moved the slider the wrong way is left out too, but says nothing
-  // of a stall or an end stop: the slider moved (a compliant stage's cell near cut-off can step
-  // backwards on a stretch of the guide); if every rung that way fails, the ladder is empty and
-  // that is the stall.
-  double largest = 0;
-  for (const Rung& x : ladder)
-    if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
-  const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
-  const bool stuck = along >= -2.0 * count_m_;
-  const bool counts =
-      stuck && ((r.proven && !fine) || r.est.step_m >= 0.5 * largest || stall_count_ > 0);
-  kill_rung(r);
-  r.killed_in_streak = true;
-  if (counts) {
-    streak_cycles_ += chunk_.cycles;
-    streak_along_m_ += along;
-  }
-  if (counts && ++stall_count_ >= config_.stall_bursts) {
-    // The slider is stuck: the rungs are not to blame.
-    for (std::vector<Rung>& l : ladder_)
-      for (Rung& x : l)
-        if (x.killed_in_streak) {
-          x.dead = false;
-          x.killed_in_streak = false;
-        }
-    // Driven and not moving: at an end stop when the mean step over the run collapsed (to
-    // nothing: a run that crept the wrong way is friction along the guide, not a stop).
-    if (config_.eot_step_m > 0 && streak_cycles_ > 0 &&
-        (status_.moved_dirs & (1u << direction_index(sign))) &&
-        std::fabs(streak_along_m_ / static_cast<double>(streak_cycles_)) < config_.eot_step_m) {
-      end_of_travel(now_s_, sign);
-      return false;
-    }
-    enter_fault(MotionFault::Stall);
-    return false;
-  }
-  return true;
+void StepLadder::revive_streak() {
+  for (std::vector<Rung>& l : ladder_)
+    for (Rung& x : l)
+      if (x.killed_in_streak) {
+        x.dead = false;
+        x.killed_in_streak = false;
+      }
 }
 
-void Positioner::learn_rung(Rung& r, int sign, double along, double predicted, double moved_m) {
+void StepLadder::learn(Rung& r, int sign, std::uint64_t cycles, double along, double predicted,
+                       double moved_m, std::uint64_t moves) {
   if (along > -count_m_ && predicted >= 2.0 * count_m_) {
     // Scored against the estimate the chunk was planned with, before it learns from it.
     const double rel = (along - predicted) / predicted;
@@ -582,15 +507,14 @@ void Positioner::learn_rung(Rung& r, int sign, double along, double predicted, d
     r.scatter_var += w * (rel * rel - r.scatter_var);
   }
   if (along > -count_m_ &&
-      Calibration::rls_update(r.est, chunk_.cycles, along, count_m_,
-                              rung_cfg_.observation_relative_sd, rung_cfg_.rung_forgetting,
-                              r.seed.p_oo, r.seed.p_ss)) {
+      Calibration::rls_update(r.est, cycles, along, count_m_, rls_.observation_relative_sd,
+                              rls_.rung_forgetting, r.seed.p_oo, r.seed.p_ss)) {
     if (calibration_ != nullptr) calibration_->store_rung(sign, r.est);
-    update_ladder_gain();
+    update_gain();
   }
-  if (!(r.est.step_m >= config_.min_step_counts * count_m_)) kill_rung(r);
-  if (calibration_ != nullptr && chunk_.cell != nullptr)
-    calibration_->update(*chunk_.cell, chunk_.cycles, moved_m, count_m_);
+  if (!moves_enough(r)) kill(r, moves);
+  if (calibration_ != nullptr)
+    calibration_->update(map_.cells()[r.cell], cycles, moved_m, count_m_);
 }
 
 }  // namespace idm::control

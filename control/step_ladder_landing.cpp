@@ -1,18 +1,17 @@
-// The positioner's landing plan (control/README.md, "The step ladder", step 4): the live rungs of
-// both directions handed to plan_landing (landing_plan.h), weighed against the usual final chunk.
-// Part of class Positioner.
+// The step ladder's landing plan (control/README.md, "The step ladder", step 4): the proven live
+// rungs of both directions handed to plan_landing (landing_plan.h), weighed against the usual
+// final chunk. Part of class StepLadder (step_ladder.h).
 #include <cmath>
 
-#include "control/landing_plan.h"
-#include "control/positioner.h"
+#include "control/step_ladder.h"
 
 namespace idm::control {
 
-bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint64_t cycles,
-                                   double b_final) {
+bool StepLadder::landing_plan(int sign, double error, double position_m, double landing_m,
+                              int chosen, std::uint64_t cycles, std::uint64_t moves, Choice& out) {
   if (landing_try_.rung >= 0) {
-    // Planning again in the final zone: the landing chunk played last did not land.
-    ladder_[direction_index(landing_try_.direction)]
+    // Planning again in the final zone: the landing chunk chosen last did not land.
+    ladder_[index(landing_try_.direction)]
         .at(static_cast<std::size_t>(landing_try_.rung))
         .missed_cycles = landing_try_.cycles;
     landing_try_ = LandingTry{};
@@ -21,13 +20,13 @@ bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint
   landing_index_.clear();
   int current = -1;
   for (int dir : {-1, 1}) {
-    std::vector<Rung>& ladder = ladder_[direction_index(dir)];
+    std::vector<Rung>& ladder = ladder_[index(dir)];
     for (std::size_t i = 0; i < ladder.size(); ++i) {
       Rung& r = ladder[i];
       const bool is_current = dir == sign && static_cast<int>(i) == chosen;
       // The rungs known to move (and the usual chunk's): a rung not yet learned is known to no
       // better than half its step, and leaving it out keeps the search short (the loop's tick).
-      if (!(is_current || r.proven) || !rung_live(r) ||
+      if (!(is_current || r.proven) || !live(r, moves) ||
           landing_rungs_.size() == landing_rungs_.capacity())
         continue;
       if (is_current) current = static_cast<int>(landing_rungs_.size());
@@ -48,12 +47,12 @@ bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint
     }
   }
   LandingLimits lim;
-  lim.half_window_m = landing_m();
+  lim.half_window_m = landing_m;
   // One reading at rest: a count's quantization (the latched words' noise averages below it).
   lim.read_sd_m = count_m_ / std::sqrt(12.0);
   lim.chunk_overhead_s = config_.chunk_overhead_s;
-  lim.room_m[0] = status_.position_m - config_.soft_lower_m;
-  lim.room_m[1] = config_.soft_upper_m - status_.position_m;
+  lim.room_m[0] = position_m - config_.soft_lower_m;
+  lim.room_m[1] = config_.soft_upper_m - position_m;
   const LandingPlan plan = plan_landing(error, lim, landing_rungs_.data(), landing_rungs_.size());
   if (!(plan.probability > 0)) return false;
   if (current >= 0) {
@@ -62,10 +61,14 @@ bool Positioner::play_landing_plan(int sign, double error, int chosen, std::uint
         score_chunk(error, lim, landing_rungs_.data(), static_cast<std::size_t>(current), cycles);
     if (usual.probability > 0 && !(plan.expected_s() < usual.expected_s())) return false;
   }
-  const auto [dir, index] = landing_index_[static_cast<std::size_t>(plan.first.rung)];
-  if (!plan.two_chunks()) landing_try_ = {dir, index, plan.first.cycles};
-  play_rung(ladder_[direction_index(dir)], index, dir, plan.first.cycles, !plan.two_chunks(), false,
-            b_final, error);
+  const auto [dir, i] = landing_index_[static_cast<std::size_t>(plan.first.rung)];
+  if (!plan.two_chunks()) landing_try_ = {dir, i, plan.first.cycles};
+  out.direction = dir;
+  out.rung = i;
+  out.cycles = plan.first.cycles;
+  out.final_chunk = !plan.two_chunks();
+  out.vernier = plan.two_chunks();
+  out.capped = false;
   return true;
 }
 
