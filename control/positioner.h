@@ -138,6 +138,9 @@ class Positioner {
   // The step ladder reads this positioner's settings in place: not copied.
   Positioner(const Positioner&) = delete;
   Positioner& operator=(const Positioner&) = delete;
+  Positioner(Positioner&&) = delete;
+  Positioner& operator=(Positioner&&) = delete;
+  ~Positioner() = default;
 
   // ---- commands (real-time safe; nothing moves until tick()) ----
   Refusal move_absolute(double target_m);
