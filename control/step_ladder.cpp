@@ -162,6 +162,11 @@ std::uint64_t StepLadder::chunk_limit(const Rung& r) const {
                            cell.max_cycles);
 }
 
+std::uint64_t StepLadder::moving_cycles(const Rung& r) const {
+  const double n_moving = std::ceil((0.5 * r.est.step_m - r.est.offset_m) / r.est.step_m);
+  return n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
+}
+
 StepLadder::FinalChunk StepLadder::final_chunk_for(const Rung& r, double distance) const {
   constexpr double kPassSteps = 0.8;  // planned to pass by at most this share of a step
   const double a = r.est.offset_m, b = r.est.step_m;
@@ -178,9 +183,7 @@ StepLadder::FinalChunk StepLadder::final_chunk_for(const Rung& r, double distanc
                                                 : static_cast<std::uint64_t>(n_real));
   const std::uint64_t max_cycles = map_.cells()[r.cell].max_cycles;
   if (max_cycles > 0) out.cycles = std::min(out.cycles, max_cycles);
-  const double n_moving = std::ceil((0.5 * b - a) / b);
-  const std::uint64_t n_min =
-      n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
+  const std::uint64_t n_min = moving_cycles(r);
   while (out.cycles > n_min && passes(out.cycles)) {
     --out.cycles;
     out.cut = true;
@@ -257,7 +260,15 @@ StepLadder::Choice StepLadder::next_chunk(double error, double position_m, doubl
     out.kind = Choice::Kind::OutOfTries;
     return out;
   }
-  back_off(sign, ladder, distance, landing_m, moves, out);
+  if (back_off(sign, ladder, distance, landing_m, moves, out)) return out;
+  // Neither: the chunk is played as planned, but never one predicted to move less than half a
+  // step. Where a rung's first cycles move nothing, the nearest landing can be a chunk predicted
+  // to move nothing, and such a chunk, never judged, was played 400 times in a row; one that
+  // moves is judged and teaches the rung.
+  const Rung& r = ladder[static_cast<std::size_t>(out.rung)];
+  const std::uint64_t max_cycles = map_.cells()[r.cell].max_cycles;
+  const std::uint64_t n_min = moving_cycles(r);
+  out.cycles = std::max(out.cycles, max_cycles > 0 ? std::min(n_min, max_cycles) : n_min);
   return out;
 }
 

@@ -117,6 +117,8 @@ class StepLadder {
     bool cut = false, safe = false;
   };
   FinalChunk final_chunk_for(const Rung& r, double distance) const;
+  // The fewest cycles rung r is predicted to move at least half a step with.
+  std::uint64_t moving_cycles(const Rung& r) const;
   // How far this rung's next chunk may move beyond its estimate, as a share of it.
   double rung_uncertainty(const Rung& r) const;
   bool live(Rung& r, std::uint64_t moves);  // revives a rung whose dead time is over

@@ -103,6 +103,7 @@ TEST(StepLadder, ChoicesKeepTheirPromisesAndMovesArriveOnAStageOfAnotherAlpha) {
   std::mt19937_64 rng(s);
   std::uniform_real_distribution<double> u(0, 1);
   int arrived = 0, moves_total = 0;
+  std::ostringstream misses;
   for (int k = 0; k < 3; ++k) {
     std::string what;
     const RegionMap map(drawn_stage(rng, what));
@@ -122,9 +123,11 @@ TEST(StepLadder, ChoicesKeepTheirPromisesAndMovesArriveOnAStageOfAnotherAlpha) {
       double target = position + (u(rng) < 0.5 ? -d : d);
       if (std::fabs(target) > 4e-3) target = position - (target - position);
       ladder.start_move();
+      // The reading: the position quantized to a count (no noise: the plant repeats itself).
+      const auto reading = [&] { return std::round(position / kCountM) * kCountM; };
       int chunks = 0;
       for (; chunks < 400; ++chunks) {
-        const double error = target - position;
+        const double error = target - reading();
         if (std::fabs(error) <= landing) break;
         const StepLadder::Choice c =
             ladder.next_chunk(error, position, landing, true, static_cast<std::uint64_t>(move));
@@ -159,14 +162,21 @@ TEST(StepLadder, ChoicesKeepTheirPromisesAndMovesArriveOnAStageOfAnotherAlpha) {
                      static_cast<std::uint64_t>(move));
         position += moved;
       }
-      if (std::fabs(target - position) <= landing) ++arrived;
+      if (std::fabs(target - reading()) <= landing) {
+        ++arrived;
+      } else {
+        misses << "\n  " << what << ": move " << move << " ends " << (target - reading()) / kCountM
+               << " counts off after " << chunks << " chunks";
+      }
     }
     // What the ladder learned of the stage: the gain of its learned rungs, near g (within the
     // ladder's [1/4, 4]).
     EXPECT_NEAR(std::log(ladder.gain()), std::log(std::clamp(gain, 0.25, 4.0)), 0.25) << what;
   }
-  // Landing within half a count of a 10 % scatter takes tries; 400 chunks are plenty.
-  EXPECT_GE(arrived, moves_total * 95 / 100) << "seed " << s;
+  // Landing within half a count of a 10 % scatter takes tries; 400 chunks are plenty. (A rung
+  // whose first cycles move nothing once planned chunks predicted to move nothing, forever: 6 of
+  // 75 moves on seed 13.)
+  EXPECT_GE(arrived, moves_total * 95 / 100) << "seed " << s << misses.str();
 }
 
 TEST(StepLadder, ARungThatDoesNotMoveIsLeftOutThenTriedAgain) {
