@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <functional>
@@ -318,11 +319,15 @@ int main(int argc, char** argv) {
   for (const MoveOutcome& m : ours.moves) t_ours.push_back(m.time_s);
   for (const MoveOutcome& m : base.moves) t_base.push_back(m.time_s);
   {
-    int by_fault[6] = {};
-    for (const MoveOutcome& m : ours.moves) ++by_fault[static_cast<int>(m.fault)];
+    // Every fault control names (the enum's underlying type bounds it).
+    int by_fault[256] = {};
+    for (const MoveOutcome& m : ours.moves) ++by_fault[static_cast<std::uint8_t>(m.fault)];
     std::printf("ours: faults by kind:");
-    for (int f = 1; f < 6; ++f)
-      std::printf(" %s %d", motion_fault_name(static_cast<MotionFault>(f)), by_fault[f]);
+    for (int f = 1; f < 256; ++f) {
+      const char* name = motion_fault_name(static_cast<MotionFault>(f));
+      if (std::strcmp(name, "?") == 0) break;
+      std::printf(" %s %d", name, by_fault[f]);
+    }
     std::printf("\n");
   }
   // The ratio is of the median time to target; the median time to the end of the move

@@ -97,6 +97,7 @@ double measured_alpha(const DrawnStage& d) {
 
 struct StageResult {
   std::size_t moves = 0, arrived = 0, arrived_true = 0, not_ok = 0, false_ok = 0, faults = 0;
+  std::size_t unreachable = 0;  // FAULT window_unreachable: said before the first try
   std::vector<double> done_s, ratio_to_min;
   std::vector<double> ours_both_s, vendor_both_s;  // moves both arrived at
 };
@@ -145,6 +146,7 @@ StageResult run_stage(const DrawnStage& d, const std::vector<double>& targets, b
     s.arrived_true += r.within_count_fresh_true;
     s.not_ok += r.not_ok || r.faulted;
     s.faults += r.faulted;
+    s.unreachable += r.faulted && r.fault == MotionFault::WindowUnreachable;
     const bool false_ok = ok && true_error > p.count_m();
     s.false_ok += false_ok;
     s.done_s.push_back(r.time_s);
@@ -177,10 +179,10 @@ void append(std::vector<double>& to, const std::vector<double>& from) {
 
 void print_row(const char* name, const StageResult& s) {
   const double n = static_cast<double>(std::max<std::size_t>(s.moves, 1));
-  std::printf("%-8s %5zu %7.1f %% %7.1f %% %5zu %5zu %5zu %8.4f %8.4f %7.2f %7.2f", name, s.moves,
-              100.0 * static_cast<double>(s.arrived) / n,
+  std::printf("%-8s %5zu %7.1f %% %7.1f %% %5zu %5zu %5zu %5zu %8.4f %8.4f %7.2f %7.2f", name,
+              s.moves, 100.0 * static_cast<double>(s.arrived) / n,
               100.0 * static_cast<double>(s.arrived_true) / n, s.not_ok, s.false_ok, s.faults,
-              percentile(s.done_s, 0.5), percentile(s.done_s, 0.95),
+              s.unreachable, percentile(s.done_s, 0.5), percentile(s.done_s, 0.95),
               percentile(s.ratio_to_min, 0.5), percentile(s.ratio_to_min, 0.95));
   if (!s.vendor_both_s.empty())
     std::printf("  %5zu %6.3f %6.3f", s.ours_both_s.size(),
@@ -224,9 +226,9 @@ int main(int argc, char** argv) {
       "stages_bench: %d drawn stages x %d moves (seed %llu), realistic plant, daemon default "
       "control\n",
       stages, moves, static_cast<unsigned long long>(seed));
-  std::printf("%-8s %5s %9s %9s %5s %5s %5s %8s %8s %7s %7s  %5s %6s %6s\n", "stage", "moves",
-              "arrived", "truth", "notOK", "falOK", "fault", "t50[s]", "t95[s]", "min50", "min95",
-              "both", "v50", "v95");
+  std::printf("%-8s %5s %9s %9s %5s %5s %5s %5s %8s %8s %7s %7s  %5s %6s %6s\n", "stage", "moves",
+              "arrived", "truth", "notOK", "falOK", "fault", "unrch", "t50[s]", "t95[s]", "min50",
+              "min95", "both", "v50", "v95");
   StageResult all;
   for (int k = 0; k < stages; ++k) {
     const DrawnStage d = draw_stage(rng);
@@ -254,6 +256,7 @@ int main(int argc, char** argv) {
     all.not_ok += s.not_ok;
     all.false_ok += s.false_ok;
     all.faults += s.faults;
+    all.unreachable += s.unreachable;
     append(all.done_s, s.done_s);
     append(all.ratio_to_min, s.ratio_to_min);
     append(all.ours_both_s, s.ours_both_s);
@@ -263,7 +266,8 @@ int main(int argc, char** argv) {
   std::printf(
       "columns: arrived / truth = fresh reading / true position within one count 5 ms after done; "
       "notOK = result other than OK (FAULT included); falOK = OK with the truth beyond one "
-      "count; min50/min95 = time to target / physical minimum; both, v50, v95 = "
+      "count; unrch = of the faults, window_unreachable (said before the first landing try); "
+      "min50/min95 = time to target / physical minimum; both, v50, v95 = "
       "moves both arrived at and ours/vendor time ratios (median, p95)\n");
   return 0;
 }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 
 namespace idm::control {
 
@@ -127,6 +128,96 @@ double landing_probability(double miss_m, double sd_m, double half_window_m) {
   const double p =
       0.5 * (std::erfc((-half_window_m - miss_m) * k) - std::erfc((half_window_m - miss_m) * k));
   return std::clamp(p, 0.0, 1.0);
+}
+
+double grid_landing_probability(double half_spacing_m, double sd_m, double half_window_m) {
+  const double h = std::max(half_spacing_m, 0.0), s = std::max(sd_m, 0.0), w = half_window_m;
+  if (!(w > 0)) return 0;
+  const double scale = h + s + w;
+  if (h <= 1e-9 * scale) return landing_probability(0.0, s, w);
+  if (s <= 1e-9 * scale) return std::min(1.0, w / h);
+  // (1 / 2h) int_{-h}^{h} [Phi((w - u) / s) - Phi((-w - u) / s)] du, with
+  // int Phi(x) dx = x Phi(x) + phi(x) =: G(x).
+  const auto G = [](double x) {
+    return x * 0.5 * std::erfc(-x / std::sqrt(2.0)) +
+           std::exp(-0.5 * x * x) * std::numbers::inv_sqrtpi / std::numbers::sqrt2;
+  };
+  const double p =
+      s / (2 * h) * (G((w + h) / s) - G((w - h) / s) - G((h - w) / s) + G((-w - h) / s));
+  return std::clamp(p, 0.0, 1.0);
+}
+
+namespace {
+
+// The shortest chunk of r predicted to move half a step (the ladder's moving_cycles), its mean.
+double shortest_moving_m(const LandingRung& r) {
+  const double n = std::max(1.0, std::ceil((0.5 * r.step_m - r.offset_m) / r.step_m));
+  return r.offset_m + n * r.step_m;
+}
+
+double try_probability(const LandingRung* rungs, std::size_t count, double half_window_m,
+                       double read_sd_m, std::uint64_t max_first_cycles) {
+  // The vernier's first chunks: how many there are, and the least scatter among them.
+  double first_chunks = 0, first_var = -1;
+  for (std::size_t i = 0; i < count; ++i) {
+    const LandingRung& r = rungs[i];
+    if (!usable(r)) continue;
+    const std::uint64_t n_max =
+        r.max_cycles > 0 ? std::min(r.max_cycles, max_first_cycles) : max_first_cycles;
+    for (std::uint64_t n = 1; n <= n_max; ++n) {
+      const double mean = chunk_mean_m(r, n);
+      if (!(mean > 0)) continue;
+      first_chunks += 1;
+      const double v = (r.rel_sd * mean) * (r.rel_sd * mean);
+      if (first_var < 0 || v < first_var) first_var = v;
+    }
+  }
+  double best = 0;
+  const double read_var = read_sd_m * read_sd_m;
+  for (std::size_t i = 0; i < count; ++i) {
+    const LandingRung& r = rungs[i];
+    if (!usable(r)) continue;
+    const double sd = r.rel_sd * shortest_moving_m(r);
+    const double var = sd * sd + read_var;
+    best = std::max(best, grid_landing_probability(0.5 * r.step_m, std::sqrt(var), half_window_m));
+    if (first_chunks > 0)
+      best = std::max(best, grid_landing_probability(0.5 * r.step_m / first_chunks,
+                                                     std::sqrt(var + first_var), half_window_m));
+  }
+  return best;
+}
+
+}  // namespace
+
+LandingReach landing_reach(const LandingRung* rungs, std::size_t count, double half_window_m,
+                           double read_sd_m, std::uint64_t max_first_cycles, int tries) {
+  LandingReach out;
+  out.try_probability = try_probability(rungs, count, half_window_m, read_sd_m, max_first_cycles);
+  out.arrival_probability =
+      1.0 - std::pow(1.0 - out.try_probability, static_cast<double>(std::max(tries, 1)));
+  return out;
+}
+
+double least_half_window_m(const LandingRung* rungs, std::size_t count, double read_sd_m,
+                           std::uint64_t max_first_cycles, int tries) {
+  double hi = read_sd_m;
+  for (std::size_t i = 0; i < count; ++i)
+    if (usable(rungs[i])) hi = std::max(hi, rungs[i].step_m + shortest_moving_m(rungs[i]));
+  const auto meets = [&](double w) {
+    return landing_reach(rungs, count, w, read_sd_m, max_first_cycles, tries).reachable();
+  };
+  if (!(hi > 0)) return 0;
+  double lo = 0;
+  for (int k = 0; k < 60 && !meets(hi); ++k) {  // scatter wider than the grid: widen
+    lo = hi;
+    hi *= 2;
+  }
+  if (!meets(hi)) return 0;  // !meets(lo) (a window of nothing), meets(hi)
+  while (hi - lo > 0.01 * hi) {
+    const double mid = 0.5 * (lo + hi);
+    (meets(mid) ? hi : lo) = mid;
+  }
+  return hi;
 }
 
 LandingPlan score_chunk(double error_m, const LandingLimits& limits, const LandingRung* rungs,

@@ -23,6 +23,11 @@ namespace idm::control {
 // max_retries of them: 10 by default).
 inline constexpr double kMinLandingProbability = 1e-3;
 
+// A window whose landing tries, all of a move's, are less likely than this to meet it cannot be
+// met: hunting for it is more likely to end in retry_limit than in the window, so the move says
+// so before its first try (landing_reach).
+inline constexpr double kMinArrivalProbability = 0.5;
+
 struct LandingRung {
   int direction = 1;                // +1 / -1: the way its chunks move the slider
   double offset_m = 0, step_m = 0;  // D(n) = offset + n step, along direction (step > 0)
@@ -68,6 +73,30 @@ struct LandingLimits {
 
 // P(|X - target| <= half_window) for an end position X normal about target + miss_m with sd_m.
 double landing_probability(double miss_m, double sd_m, double half_window_m);
+
+// P(|U + N| <= half_window) for U uniform on [-half_spacing, half_spacing] and N normal (0, sd):
+// a chunk whose nearest end lies anywhere on a grid of that spacing about the target, with that
+// scatter (a target's place on the rungs' grid is not known before the move).
+double grid_landing_probability(double half_spacing_m, double sd_m, double half_window_m);
+
+// Whether a window can be met at all: how likely one landing try is to end within it for a target
+// anywhere, and `tries` of them. A try is the better of one chunk of any rung (ends a step apart,
+// its scatter at its shortest chunk predicted to move half a step) and a vernier (a first chunk of
+// 1..max_first_cycles cycles of any rung, then a chunk of any rung: the first chunks' ends spread
+// evenly over the second's step, their scatters added). Optimistic wherever it guesses (the
+// spread even, the estimates exact, rel_sd as handed in): a window it calls unreachable is met
+// by luck only.
+struct LandingReach {
+  double try_probability = 0;
+  double arrival_probability = 0;  // 1 - (1 - try)^tries
+  bool reachable() const { return arrival_probability >= kMinArrivalProbability; }
+};
+LandingReach landing_reach(const LandingRung* rungs, std::size_t count, double half_window_m,
+                           double read_sd_m, std::uint64_t max_first_cycles, int tries);
+// The narrowest half window that `tries` tries meet (landing_reach) with kMinArrivalProbability,
+// to 1 %; 0 without a usable rung.
+double least_half_window_m(const LandingRung* rungs, std::size_t count, double read_sd_m,
+                           std::uint64_t max_first_cycles, int tries);
 
 // One chunk of rungs[index] with `cycles` cycles toward the target of `error_m`, scored as a
 // plan is (no limit or aim applied): what the positioner's usual final chunk is weighed by.

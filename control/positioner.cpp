@@ -42,6 +42,8 @@ const char* motion_fault_name(MotionFault f) {
       return "capture_overrun";
     case MotionFault::DeviceLost:
       return "device_lost";
+    case MotionFault::WindowUnreachable:
+      return "window_unreachable";
   }
   return "?";
 }
@@ -182,10 +184,14 @@ double Positioner::tolerance_m() const {
 }
 
 double Positioner::landing_m() const {
-  // Within a window of up to one count the loop aims for the reading nearest the target (half a
-  // count), so that the slider itself, read again later with noise, stays inside the window;
-  // a wider window is aimed at as it is.
-  return tolerance_m() > count_m_ * (1 + 1e-9) ? tolerance_m() : 0.5 * count_m_;
+  // Inside the window by half a count: a slider read at k counts lies anywhere within half a
+  // count of it, so a reading within tolerance - count / 2 keeps the slider itself inside. Never
+  // finer than the reading nearest the target (a window of a count or less: half a count).
+  return std::max(0.5 * count_m_, tolerance_m() - 0.5 * count_m_);
+}
+
+double Positioner::window_for_landing_m(double landing_m) const {
+  return landing_m + 0.5 * count_m_;
 }
 
 bool Positioner::at_rest() const {
@@ -312,6 +318,7 @@ bool Positioner::fresh_position(double& position_m) {
       if (n > 1) {
         reading_var_weight_ = kReadingVarForgetting * reading_var_weight_ + (n - 1);
         reading_var_m2_ += (n - 1) / reading_var_weight_ * (batch_var - reading_var_m2_);
+        ladder_.set_reading_sd_m(std::sqrt(reading_var_m2_ / config_.latch_words));
       }
       position_m = mean;
       status_.position_m = position_m;

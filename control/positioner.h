@@ -52,6 +52,11 @@ enum class MotionFault : std::uint8_t {
   CaptureOverrun,  // the interferometer's capture filled before it was read (a chunk too long for
                    // it)
   DeviceLost,      // the device stopped answering (the link reconnects by itself)
+  // The window cannot be met: the live rungs' finest placement (their steps, verniers and learned
+  // scatter) is less likely than not to land within it in max_retries + 1 tries
+  // (landing_plan.h, landing_reach). Said at the first landing try, never after the hunting;
+  // MotionStatus::least_window_m is the narrowest window that can be met.
+  WindowUnreachable,
 };
 const char* motion_fault_name(MotionFault fault);  // "none", "invalid_sample", ...
 
@@ -113,7 +118,10 @@ struct MotionStatus {
   bool in_window = false;        // at rest within the window of the target
   std::uint64_t references = 0;  // references found since construction
   double window_m = 0.0;         // the move window in force (MOVE:WINDow)
-  double offset_m = 0.0;         // readings are the device's plus this (set by a reference)
+  // When the last motion ended in FAULT window_unreachable: the narrowest window the axis is
+  // expected to meet (MOVE:WINDow); 0 otherwise.
+  double least_window_m = 0.0;
+  double offset_m = 0.0;  // readings are the device's plus this (set by a reference)
 };
 
 // What the positioner knows of its device: plain numbers the daemon takes from the drivers'
@@ -210,6 +218,8 @@ class Positioner {
   const PositionerConfig& config() const { return config_; }
   double tolerance_m() const;  // the in-position window
   double landing_m() const;    // what a move aims for inside it
+  // The window (MOVE:WINDow) whose landing_m() is landing_m.
+  double window_for_landing_m(double landing_m) const;
   // How far inside the travel's end a stop may lie and still be that end: five actuator strokes
   // (stage.stroke_m; no cycle moves the slider farther than one), so a stop a few cycles' travel
   // before the end stage.travel_m gives is the end; one farther inside is an obstruction.

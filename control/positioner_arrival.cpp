@@ -360,6 +360,17 @@ void Positioner::plan_next_chunk(double now_s) {
     case StepLadder::Choice::Kind::Play:
       break;
   }
+  if (choice.final_chunk || choice.back_off || choice.vernier) {
+    // About to try for the window: can it be met at all? (Said before the first try, never after
+    // max_retries of hunting.)
+    const double least =
+        ladder_.unreachable_landing_m(landing_m(), config_.max_retries + 1, status_.moves);
+    if (least > 0) {
+      status_.least_window_m = window_for_landing_m(least);
+      enter_fault(MotionFault::WindowUnreachable);
+      return;
+    }
+  }
   if (choice.back_off) ++status_.corrections;  // a way back counts as a correction round
   play(choice, error);
 }

@@ -29,6 +29,7 @@ void Positioner::start_motion(MotionKind kind) {
   status_.result = MoveResult::None;
   status_.corrections = 0;
   status_.fault = MotionFault::None;
+  status_.least_window_m = 0;
   status_.in_window = false;
   arrived_ = false;
   status_.holding = false;

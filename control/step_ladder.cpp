@@ -459,13 +459,13 @@ StepLadder::Judgement StepLadder::judge(int sign, int rung, std::uint64_t cycles
   Judgement j;
   // Judged once the prediction is a few counts and more than one cycle was played (a burst's
   // first cycle can stay in static friction: one cycle alone says little).
-  j.judged = r.pending_pred_m >= config_.stall_min_counts * count_m_ && r.pending_cycles >= 2;
-  const bool wrong_way = along < -2.0 * count_m_;
+  j.judged = r.pending_pred_m >= config_.stall_min_counts * resolution_m() && r.pending_cycles >= 2;
+  const bool wrong_way = along < -2.0 * resolution_m();
   // Not moving: less than stall_fraction of the prediction and less than two counts (a rung
   // that moves a quarter of its seed is slow, not dead: its estimate learns that).
   j.failed = wrong_way ||
-             (j.judged && r.pending_moved_m <
-                              std::min(config_.stall_fraction * r.pending_pred_m, 2.0 * count_m_));
+             (j.judged && r.pending_moved_m < std::min(config_.stall_fraction * r.pending_pred_m,
+                                                       2.0 * resolution_m()));
   if (j.judged || j.failed) {
     r.pending_pred_m = r.pending_moved_m = 0;
     r.pending_cycles = 0;
@@ -483,7 +483,7 @@ StepLadder::Judgement StepLadder::judge(int sign, int rung, std::uint64_t cycles
     for (const Rung& x : ladder)
       if (!x.dead && &x != &r) largest = std::max(largest, x.est.step_m);
     const bool fine = r.est.step_m <= config_.final_step_counts * count_m_;
-    const bool stuck = along >= -2.0 * count_m_;
+    const bool stuck = along >= -2.0 * resolution_m();
     j.counts_as_stall =
         stuck && ((r.proven && !fine) || r.est.step_m >= 0.5 * largest || in_stall_run);
     kill(r, moves);
@@ -510,15 +510,15 @@ void StepLadder::revive_streak() {
 
 void StepLadder::learn(Rung& r, int sign, std::uint64_t cycles, double along, double predicted,
                        double moved_m, std::uint64_t moves) {
-  if (along > -count_m_ && predicted >= 2.0 * count_m_) {
+  if (along > -resolution_m() && predicted >= 2.0 * resolution_m()) {
     // Scored against the estimate the chunk was planned with, before it learns from it.
     const double rel = (along - predicted) / predicted;
     ++r.scatter_chunks;
     const double w = std::max(0.1, 1.0 / static_cast<double>(r.scatter_chunks));
     r.scatter_var += w * (rel * rel - r.scatter_var);
   }
-  if (along > -count_m_ &&
-      Calibration::rls_update(r.est, cycles, along, count_m_, rls_.observation_relative_sd,
+  if (along > -resolution_m() &&
+      Calibration::rls_update(r.est, cycles, along, resolution_m(), rls_.observation_relative_sd,
                               rls_.rung_forgetting, r.seed.p_oo, r.seed.p_ss)) {
     if (calibration_ != nullptr) calibration_->store_rung(sign, r.est);
     update_gain();

@@ -9,6 +9,8 @@
 // counts the tries and stalls, and ends the motion. Pure: no device, no allocation after build().
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <utility>
@@ -102,6 +104,15 @@ class StepLadder {
   const Rung& at(int direction, std::size_t i) const { return ladder_[index(direction)].at(i); }
   // Leaves rung i out for dead_rung_moves moves.
   void kill(int direction, std::size_t i, std::uint64_t moves);
+  // Whether a window of +/- landing_m can be met by the live rungs of both ways in `tries` landing
+  // tries (landing_plan.h, landing_reach): 0 when it can, else the narrowest half window that
+  // can. A rung's scatter is its own once three chunks showed it, else the least any rung has
+  // shown (none yet: 0, the benefit of the doubt).
+  double unreachable_landing_m(double landing_m, int tries, std::uint64_t moves);
+  // The standard deviation of the mean of the latched readings at rest, as the positioner measures
+  // it (0 until it has): where the reading's noise is larger than a count (a fine interferometer)
+  // it, not the count, is what a landing is read to.
+  void set_reading_sd_m(double sd_m) { reading_sd_m_ = sd_m; }
   // The learned step of the finest live rung toward `direction` (0: none).
   double finest_live_step_m(int direction) const;
   // What the rungs learned over what the map seeded them with (1 until one has learned).
@@ -142,6 +153,10 @@ class StepLadder {
   // cycles) planned the usual way: true with `out` set when a plan is expected to land sooner.
   bool landing_plan(int sign, double error, double position_m, double landing_m, int chosen,
                     std::uint64_t cycles, std::uint64_t moves, Choice& out);
+  // What a reading at rest is known to: the larger of a count's quantization and the noise of the
+  // mean of the latched words (set_reading_sd_m; noise that large dithers the quantization away,
+  // so the two do not add). On the common interferometers with 1-3 nm noise the count's.
+  double read_sd_m() const { return std::max(count_m_ / std::sqrt(12.0), reading_sd_m_); }
   // The most cycles one chunk of rung r may play (the device and max_chunk_s).
   std::uint64_t chunk_limit(const Rung& r) const;
   void learn(Rung& r, int sign, std::uint64_t cycles, double along, double predicted,
@@ -151,6 +166,11 @@ class StepLadder {
   const PositionerConfig& config_;
   Calibration* calibration_;
   double count_m_ = 0;
+  // The least displacement two readings at rest tell apart: a count, or where the noise of the
+  // latched mean is larger (a fine interferometer), the difference of two such means (sqrt 2 of
+  // its standard deviation). What a chunk's judgement and learning measure their thresholds in.
+  double resolution_m() const { return std::max(count_m_, std::sqrt(2.0) * reading_sd_m_); }
+  double reading_sd_m_ = 0;
   ChunkLimits chunk_limits_;
   CalibrationConfig rls_;        // the calibration's (or the default) RLS settings
   std::vector<Rung> ladder_[2];  // [0] negative, [1] positive

@@ -48,8 +48,7 @@ bool StepLadder::landing_plan(int sign, double error, double position_m, double 
   }
   LandingLimits lim;
   lim.half_window_m = landing_m;
-  // One reading at rest: a count's quantization (the latched words' noise averages below it).
-  lim.read_sd_m = count_m_ / std::sqrt(12.0);
+  lim.read_sd_m = read_sd_m();
   lim.chunk_overhead_s = config_.chunk_overhead_s;
   lim.room_m[0] = position_m - config_.soft_lower_m;
   lim.room_m[1] = config_.soft_upper_m - position_m;
@@ -70,6 +69,36 @@ bool StepLadder::landing_plan(int sign, double error, double position_m, double 
   out.vernier = plan.two_chunks();
   out.capped = false;
   return true;
+}
+
+double StepLadder::unreachable_landing_m(double landing_m, int tries, std::uint64_t moves) {
+  double least_var = -1;
+  for (const std::vector<Rung>& l : ladder_)
+    for (const Rung& r : l)
+      if (r.scatter_chunks >= 3 && (least_var < 0 || r.scatter_var < least_var))
+        least_var = r.scatter_var;
+  const double least_rel_sd = least_var > 0 ? std::sqrt(least_var) : 0.0;
+  landing_rungs_.clear();
+  for (std::vector<Rung>& l : ladder_)
+    for (Rung& r : l) {
+      if (!live(r, moves) || !moves_enough(r)) continue;
+      LandingRung x;
+      x.direction = r.direction;
+      x.offset_m = r.est.offset_m;
+      x.step_m = r.est.step_m;
+      x.rel_sd = r.scatter_chunks >= 3 ? std::sqrt(r.scatter_var) : least_rel_sd;
+      x.max_cycles = map_.cells()[r.cell].max_cycles;
+      x.freq_hz = map_.cells()[r.cell].freq_hz;
+      landing_rungs_.push_back(x);
+    }
+  const double read_sd = read_sd_m();
+  const LandingLimits lim;
+  if (landing_reach(landing_rungs_.data(), landing_rungs_.size(), landing_m, read_sd,
+                    lim.max_first_cycles, tries)
+          .reachable())
+    return 0;
+  return least_half_window_m(landing_rungs_.data(), landing_rungs_.size(), read_sd,
+                             lim.max_first_cycles, tries);
 }
 
 }  // namespace idm::control

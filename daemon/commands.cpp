@@ -449,6 +449,7 @@ InstrumentStatus Daemon::status(int axis) {
   s.cycles = p.motion.cycles;
   s.result = control::move_result_name(p.motion.result);
   s.result_distance_m = p.motion.result_distance_m;
+  s.least_window_m = p.motion.least_window_m;
   s.motion = p.motion.kind == control::MotionKind::Move        ? "move"
              : p.motion.kind == control::MotionKind::Step      ? "step"
              : p.motion.kind == control::MotionKind::Reference ? "reference"

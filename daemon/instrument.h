@@ -50,6 +50,7 @@ inline constexpr int kFaultDriver = 104;
 inline constexpr int kFaultNoPlan = 105;
 inline constexpr int kFaultCaptureOverrun = 106;
 inline constexpr int kFaultDeviceLost = 107;
+inline constexpr int kFaultWindowUnreachable = 108;
 // A move (or a STEP) that ended without reaching its window, without a fault or a STOP: see
 // kMoveResults.
 inline constexpr int kMoveLimit = 111;
@@ -88,6 +89,7 @@ inline constexpr DeviceFault kDeviceFaults[] = {
     {"no_plan", error_code::kFaultNoPlan, "No plan"},
     {"capture_overrun", error_code::kFaultCaptureOverrun, "Capture overrun"},
     {"device_lost", error_code::kFaultDeviceLost, "Device lost"},
+    {"window_unreachable", error_code::kFaultWindowUnreachable, "Window unreachable"},
 };
 
 // SWEEP's per-cell trials and per-trial cycles: the protocol's check and the daemon's; the
@@ -133,6 +135,8 @@ struct InstrumentStatus {
   // final distance to its target; the motion: "move", "step", "reference", "" before any.
   std::string result = "NONE";
   double result_distance_m = 0;
+  // After FAULT window_unreachable: the narrowest window the axis is expected to meet, m; else 0.
+  double least_window_m = 0;
   std::string motion;
   int eot = 0;               // -1 / +1: stopped at the end of travel that way
   bool in_position = false;  // at rest within the window of the target

@@ -257,7 +257,11 @@ void Session::notice_motion_end() {
     started_axes_ &= ~bit;
     const InstrumentStatus s = instrument_.status(a);
     if (s.fault != "none" && !s.fault.empty()) {
-      push(fault_error(s.fault));
+      CommandError e = fault_error(s.fault);
+      if (s.least_window_m > 0)
+        e.text += ": axis " + s.name + " cannot meet a window narrower than " +
+                  format_value(s.least_window_m) + " m (*RST, then MOVE:WINDow)";
+      push(e);
       continue;
     }
     // Stopped, and not by this client: another client's STOP or *RST ended it.

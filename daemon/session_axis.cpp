@@ -30,6 +30,8 @@ std::string fault_reason(const std::string& fault) {
       {"no_plan", "no cell of the map moves toward the target"},
       {"capture_overrun", "the interferometer capture overflowed during a burst"},
       {"device_lost", "the device stopped answering"},
+      {"window_unreachable",
+       "the window is narrower than the stage's finest steps can land in (least_window)"},
   };
   for (const auto& r : kReasons)
     if (fault == r.name) return r.words;
@@ -235,7 +237,8 @@ CommandError Session::status(const Args&, std::string& reply) {
           " in_position=" + (s.in_position ? "1" : "0") + " holding=" + (s.holding ? "1" : "0") +
           " referencing=" + (s.referencing ? "1" : "0") +
           " fault_reason=" + word(fault_reason(s.fault)) +
-          " offset=" + format_value(s.user_offset_m);
+          " offset=" + format_value(s.user_offset_m) +
+          " least_window=" + format_value(s.least_window_m);
   return {};
 }
 

@@ -94,7 +94,7 @@ class QueryError(ScpiError):
 class DeviceFault(ScpiError):
     """A positive code: a motion this connection started ended in a device fault
     (101 invalid_sample, 102 stall, 103 retry_limit, 104 driver, 105 no_plan,
-    106 capture_overrun, 107 device_lost, ...)."""
+    106 capture_overrun, 107 device_lost, 108 window_unreachable, ...)."""
 
 
 def error_from_code(code: int, text: str, command: Optional[str] = None,

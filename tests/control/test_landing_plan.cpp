@@ -236,5 +236,102 @@ TEST(LandingPlan, TwoCoarseRungsOfDifferentStepsLandWhereNeitherCanAlone) {
   EXPECT_EQ(plan_landing(error, lim, rungs.data(), rungs.size()).probability, 0);
 }
 
+// P(|U + N| <= w) by Simpson's rule over u of the normal mass (integrated_probability) for U
+// uniform on [-h, h].
+double integrated_grid_probability(double h, double sd, double half) {
+  const int n = 400;
+  const double step = 2 * h / n;
+  double sum = integrated_probability(-h, sd, half) + integrated_probability(h, sd, half);
+  for (int i = 1; i < n; ++i)
+    sum += (i % 2 ? 4 : 2) * integrated_probability(-h + i * step, sd, half);
+  return sum * step / 3 / (2 * h);
+}
+
+TEST(LandingReach, GridProbabilityIsTheMassOfAUniformPlusANormalInsideTheWindow) {
+  std::mt19937_64 rng(seed());
+  std::uniform_real_distribution<double> u(0, 1);
+  for (int k = 0; k < 12; ++k) {
+    const double h = 1e-9 * (0.2 + 40 * u(rng));
+    const double sd = 1e-9 * (0.2 + 20 * u(rng));
+    const double half = 1e-9 * (0.1 + 10 * u(rng));
+    EXPECT_NEAR(grid_landing_probability(h, sd, half), integrated_grid_probability(h, sd, half),
+                1e-6)
+        << "h " << h << " sd " << sd << " half " << half;
+  }
+  // The limits: no scatter (the grid alone), no grid (the normal alone), no window.
+  EXPECT_DOUBLE_EQ(grid_landing_probability(10e-9, 0, 2e-9), 0.2);
+  EXPECT_DOUBLE_EQ(grid_landing_probability(1e-9, 0, 2e-9), 1.0);
+  EXPECT_DOUBLE_EQ(grid_landing_probability(0, 3e-9, 2e-9), landing_probability(0, 3e-9, 2e-9));
+  EXPECT_EQ(grid_landing_probability(10e-9, 1e-9, 0), 0.0);
+}
+
+// Rungs drawn as a stage's fine rungs are: steps of 2-80 nm, a first cycle's offset of -1..+3
+// steps, a scatter of 2-30 %.
+std::vector<LandingRung> drawn_fine_rungs(std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u(0, 1);
+  std::vector<LandingRung> rungs(2 + rng() % 6);
+  for (LandingRung& r : rungs) {
+    r.direction = u(rng) < 0.5 ? -1 : 1;
+    r.step_m = 1e-9 * (2 + 78 * u(rng));
+    r.offset_m = r.step_m * (4 * u(rng) - 1);
+    r.rel_sd = 0.02 + 0.28 * u(rng);
+    r.rel_margin = 2 * r.rel_sd;
+    r.freq_hz = 200 + 2000 * u(rng);
+  }
+  return rungs;
+}
+
+// What the header promises: optimistic. Over targets drawn anywhere in the final zone, the plan
+// the landing plan chooses (one chunk or a vernier) lands on average no more often than one try
+// of landing_reach; and the narrowest window it names is met, a narrower one not.
+TEST(LandingReach, IsAnOptimisticBoundOfWhatThePlansLand) {
+  const std::uint64_t s = seed();
+  std::mt19937_64 rng(s);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (int k = 0; k < 30; ++k) {
+    const std::vector<LandingRung> rungs = drawn_fine_rungs(rng);
+    LandingLimits lim;
+    lim.half_window_m = 1e-9 * (0.05 + 3 * u(rng));
+    lim.read_sd_m = 1e-9 * 0.3 * u(rng);
+    lim.chunk_overhead_s = 5e-3;
+    double finest = 1e300;
+    for (const LandingRung& r : rungs) finest = std::min(finest, r.step_m);
+    double sum = 0;
+    const int targets = 400;
+    for (int t = 0; t < targets; ++t) {
+      const double error = (u(rng) < 0.5 ? -1 : 1) * finest * (0.5 + 10 * u(rng));
+      sum += plan_landing(error, lim, rungs.data(), rungs.size()).probability;
+    }
+    const LandingReach reach = landing_reach(rungs.data(), rungs.size(), lim.half_window_m,
+                                             lim.read_sd_m, lim.max_first_cycles, 11);
+    // 400 targets: the mean's own scatter is under 0.025.
+    EXPECT_LE(sum / targets, reach.try_probability + 0.03)
+        << "seed " << s << " draw " << k << " window " << lim.half_window_m;
+    EXPECT_NEAR(reach.arrival_probability, 1 - std::pow(1 - reach.try_probability, 11), 1e-12);
+    const double least =
+        least_half_window_m(rungs.data(), rungs.size(), lim.read_sd_m, lim.max_first_cycles, 11);
+    ASSERT_GT(least, 0);
+    EXPECT_TRUE(
+        landing_reach(rungs.data(), rungs.size(), least, lim.read_sd_m, lim.max_first_cycles, 11)
+            .reachable());
+    EXPECT_FALSE(landing_reach(rungs.data(), rungs.size(), 0.98 * least, lim.read_sd_m,
+                               lim.max_first_cycles, 11)
+                     .reachable());
+  }
+}
+
+TEST(LandingReach, AWindowFarNarrowerThanTheScatterIsUnreachableAndAWideOneIsNot) {
+  // One rung: 20 nm a cycle, 10 % scatter: its shortest moving chunk (one cycle) scatters 2 nm.
+  std::vector<LandingRung> rungs(1);
+  rungs[0] = {.direction = 1, .step_m = 20e-9, .rel_sd = 0.1, .freq_hz = 1000};
+  const auto reach = [&](double half) { return landing_reach(rungs.data(), 1, half, 0, 4, 11); };
+  EXPECT_FALSE(reach(0.05e-9).reachable());              // a tenth of a nanometre wide
+  EXPECT_TRUE(reach(10e-9).reachable());                 // half a step either side: every try lands
+  EXPECT_NEAR(reach(10e-9).try_probability, 1.0, 5e-3);  // but for the scatter at the edges
+  // A vernier needs a second rung; with the same rung's first chunks (1-4 cycles, four ends a
+  // step apart) the grid it spreads over is a quarter of a step.
+  EXPECT_GT(reach(1e-9).try_probability, grid_landing_probability(10e-9, 2e-9, 1e-9));
+}
+
 }  // namespace
 }  // namespace idm::control

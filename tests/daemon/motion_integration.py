@@ -476,6 +476,61 @@ def case_fresh_reading():
               % (n - len(misses), n, worst * 1e9, misses))
 
 
+def case_window_unreachable():
+    """A window the stage cannot meet is said before the hunting: a lambda/16384 interferometer (a
+    count of 0.04 nm, the window one count) on the realistic plant, whose finest chunks scatter
+    by nanometres. The move ends FAULT window_unreachable with 108 queued naming the narrowest
+    window not ruled out (STAT? least_window, above the window), in far less time than the
+    hunting takes; motion is refused until *RST; with MOVE:WINDow at ten times that window, a
+    move is not called unreachable."""
+    fine = ("  optics: single_beam_linear\n", "  optics: custom\n  divisor: 16384\n")
+    with Daemon(config(edits=REALISTIC + (fine,))) as d:
+        c = Client(d)
+        count = float(c.ask("RES?"))
+        check(abs(count - 632.991e-9 / 16384) < 1e-15, "RES? is the custom optics' count: %g" % count)
+        here = float(c.ask("MOVE?"))
+        unreachable, least = 0, 0.0
+        for k in range(4):
+            target = here + (k + 1) * 3.7e-6
+            t0 = time.monotonic()
+            c.send("MOVE:ABS %.12g\n" % target)
+            check(c.ask("*OPC?") == "1", "move %d done" % k)
+            took = time.monotonic() - t0
+            st = c.status()
+            if st["fault"] != "window_unreachable":
+                c.send("*RST\n")
+                check(c.ask("*OPC?") == "1", "*RST")
+                errors(c)
+                continue
+            unreachable += 1
+            check(result(c)[0] == "FAULT", "MOVE:RES? says FAULT")
+            check(st["fault_reason"].startswith("the_window_is_narrower"),
+                  "STAT? says why in words: %s" % st["fault_reason"])
+            window = float(c.ask("MOVE:WIND?"))
+            least = float(st["least_window"])
+            check(least > window, "least_window %g above the window %g" % (least, window))
+            errs = errors(c)
+            check(len(errs) == 1 and errs[0].startswith("108,") and "%.3g" % least
+                  in "%.3g" % float(re.search(r"narrower than ([0-9.eE+-]+) m", errs[0]).group(1)),
+                  "108 queued, naming the least window: %s" % errs)
+            check(took < 5.0, "said at once (%.2f s)" % took)
+            c.send("MOVE:ABS %.12g\n" % here)
+            refusal = errors(c)
+            check(refusal[0].startswith("108,") and "*RST" in refusal[0],
+                  "motion refused in FAULT: %s" % refusal)
+            c.send("*RST\n")
+            check(c.ask("*OPC?") == "1", "*RST")
+        check(unreachable >= 3, "%d of 4 moves said window_unreachable" % unreachable)
+        c.send("MOVE:WIND %.6g\n" % (10 * least))
+        check(errors(c) == [], "the wider window accepted")
+        c.send("MOVE:ABS %.12g\n" % (here - 2.1e-6))
+        check(c.ask("*OPC?") == "1", "the move with the wider window done")
+        st = c.status()
+        check(st["fault"] != "window_unreachable" and float(st["least_window"]) == 0,
+              "a window ten times the least is not called unreachable: %s %s"
+              % (st["fault"], st["least_window"]))
+
+
 def case_reference_kept():
     """reference_file: the reference outlives idmd while the device keeps its count (a Modbus
     device, a process of its own, its boot_id unchanged); not once the device restarted, nor on
@@ -743,6 +798,7 @@ def case_shipped_configs():
 CASES = {
     "user_offset": case_user_offset,
     "fresh_reading": case_fresh_reading,
+    "window_unreachable": case_window_unreachable,
     "status_bits": case_status_bits,
     "bad_settings": case_bad_settings,
     "window_and_dwell": case_window_and_dwell,

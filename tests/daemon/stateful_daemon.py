@@ -78,7 +78,7 @@ WITHOUT = [w for w in os.environ.get("IDM_STATEFUL_WITHOUT", "").split(",") if w
 
 
 def motion_end_error(code):
-    """An error a motion's end leaves (README's error table: 101-107 faults, 111-113 LIMIT,
+    """An error a motion's end leaves (README's error table: 101-108 faults, 111-113 LIMIT,
     END_OF_TRAVEL, TIMEOUT, -200 a fault without a code of its own); the negative others are
     refusals of commands."""
     return code > 0 or code == -200

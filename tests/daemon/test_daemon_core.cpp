@@ -24,6 +24,7 @@
 #include "control/positioner.h"
 #include "daemon/config.h"
 #include "daemon/daemon.h"
+#include "daemon/protocol.h"
 #include "daemon/rt_loop.h"
 #include "drivers/lockfree.h"
 #include "model/yaml_util.h"
@@ -39,6 +40,21 @@ using namespace idm::daemon::test;
 
 void count_on_this_thread(bool entering) {
   idm::test_alloc::t_counting = entering;
+}
+
+TEST(DeviceFaults, EveryFaultControlCanEnterHasACodeOfItsOwn) {
+  // A fault missing from kDeviceFaults would reach a client as -200 with no code of its own.
+  int faults = 0;
+  for (int k = 1; k < 256; ++k) {
+    const std::string name =
+        idm::control::motion_fault_name(static_cast<idm::control::MotionFault>(k));
+    if (name == "?") break;
+    ++faults;
+    const CommandError e = fault_error(name);
+    EXPECT_GT(e.code, 100) << name;
+    EXPECT_NE(e.text.find(name), std::string::npos) << e.text;
+  }
+  EXPECT_EQ(faults, static_cast<int>(std::size(kDeviceFaults)));
 }
 
 TEST(AllocationHook, CountsOnTheFlaggedThreadOnly) {

@@ -118,7 +118,7 @@ INSTANTIATE_TEST_SUITE_P(
             "upper=0.001 moves=0 bursts=0 cycles=0 errors=0 last_error=0 daemon_error=none axis=x "
             "referenced=0 device=up "
             "result=NONE eot=none in_position=0 holding=0 referencing=0 fault_reason=none "
-            "offset=0"},
+            "offset=0 least_window=0"},
         CommandCase{
             {"SWEEP /tmp/s,100:300:100,0.1;0.2,3", "sweep \"/tmp/s\", 100:300:100, 0.1;0.2, 3"},
             "sweep(/tmp/s,100;200;300,0.1;0.2,3,12)",
