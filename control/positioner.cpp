@@ -265,6 +265,11 @@ void Positioner::on_reading(const model::AxisEvent& e) {
   if ((phase_ == Phase::Pending || phase_ == Phase::Settling || phase_ == Phase::Dwell) &&
       !e.in_segment && e.t_s >= fresh_.after_s && fresh_.count < fresh_.wanted) {
     if (fresh_.count == 0) fresh_.first_m = position;
+    // A fresh reading is one at rest: it joins the mean shown at rest too, so that the position
+    // read just after a move ends is the mean the landing judged, not its first single word (a
+    // slider resting near a count's edge read one count off by POS? now and then, on a loaded
+    // machine where a client asks before the next words).
+    rest_mean_.add(position);
     fresh_.sum_m += position;
     fresh_.sum_sq_m += (position - fresh_.first_m) * (position - fresh_.first_m);
     ++fresh_.count;

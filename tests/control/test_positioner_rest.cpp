@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <random>
+#include <vector>
 
 #include "positioner_rig.h"
 
@@ -82,22 +83,40 @@ TEST(Positioner, AtRestThePositionShownIsTheMeanOfTheLatestReadings) {
   EXPECT_DOUBLE_EQ(p.status().position_m, 3e-6);
   reading(0.007, 4e-6, true);
   EXPECT_DOUBLE_EQ(p.status().position_m, 4e-6);
-  // Stopped: at rest again, the mean starts from the readings at rest.
+  // Stopped: at rest again, the mean starts from the readings at rest: the fresh ones the end of
+  // the motion asked for (after the settle) are its first, none of the move's.
   p.stop();
   model::AxisEvent done;
   done.kind = model::AxisEvent::Kind::SegmentDone;
   done.seq = r.seq;
   done.t_s = 0.008;
   p.on_event(done);
+  const double c = device.count_m;
+  std::vector<double> at_rest;  // every reading at rest since the stop, in order
+  const auto mean_of_latest_four = [&at_rest] {
+    double sum = 0;
+    for (std::size_t i = at_rest.size() - 4; i < at_rest.size(); ++i) sum += at_rest[i];
+    return sum / 4;
+  };
   for (double t = 0.008; t < 0.05 && !p.at_rest(); t += 0.001) {
     if (p.tick(t, r) && r.kind == model::OutputRequest::Kind::Read)
-      for (std::uint32_t i = 0; i < r.readings; ++i) reading(t, 5e-6);
+      for (std::uint32_t i = 0; i < r.readings; ++i) {
+        at_rest.push_back(5e-6 + static_cast<double>(at_rest.size() % 2) * c);
+        reading(t, at_rest.back());
+      }
   }
   ASSERT_TRUE(p.at_rest());
-  reading(0.06, 5e-6 + device.count_m);
-  EXPECT_DOUBLE_EQ(p.status().position_m, 5e-6 + device.count_m);  // no reading of the move in it
-  reading(0.061, 5e-6);
-  EXPECT_DOUBLE_EQ(p.status().position_m, 5e-6 + 0.5 * device.count_m);
+  ASSERT_GE(at_rest.size(), 4u);
+  // Right at the end: the mean of the latest four fresh readings (two at 5 um, two a count on),
+  // not the last single word; then the mean goes on over the readings at rest.
+  EXPECT_DOUBLE_EQ(p.status().position_m, mean_of_latest_four());
+  EXPECT_NEAR(p.status().position_m, 5e-6 + 0.5 * c, 1e-15);
+  for (int k = 0; k < 4; ++k) {
+    at_rest.push_back(5e-6 + c);
+    reading(0.06 + 0.001 * k, at_rest.back());
+    EXPECT_DOUBLE_EQ(p.status().position_m, mean_of_latest_four()) << k;
+  }
+  EXPECT_DOUBLE_EQ(p.status().position_m, 5e-6 + c);
 }
 
 // A scripted stage on the pure interface: every chunk played moves the slider by what
