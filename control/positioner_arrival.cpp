@@ -185,6 +185,7 @@ void Positioner::end_of_travel(double now_s, int sign) {
     // At the stop: this is where the reference lies.
     const double shift = reference_position_m_ - status_.position_m;
     offset_m_ += shift;
+    rest_mean_.shift(shift);  // the readings at rest it holds, in the new frame
     status_.eot_position_m += shift;
     status_.offset_m = offset_m_;
     status_.position_m = reference_position_m_;
@@ -203,6 +204,7 @@ void Positioner::mark_found(double now_s) {
   // move with the offset.
   const double shift = reference_position_m_ - mark_reading_m_;
   offset_m_ += shift;
+  rest_mean_.shift(shift);
   status_.offset_m = offset_m_;
   status_.position_m += shift;
   status_.eot_position_m += shift;

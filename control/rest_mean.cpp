@@ -27,4 +27,9 @@ double RestMean::add(double position_m) {
   return sum_m_ / count_;
 }
 
+void RestMean::shift(double dx_m) {
+  for (int i = 0; i < count_; ++i) ring_m_[static_cast<std::size_t>(i)] += dx_m;
+  sum_m_ += count_ * dx_m;
+}
+
 }  // namespace idm::control

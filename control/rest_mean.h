@@ -16,6 +16,8 @@ class RestMean {
   // Adds a reading; returns the mean of the latest min(words, readings since the reset).
   double add(double position_m);
   int count() const { return count_; }
+  // Moves every reading held by dx_m (the readings' frame moved: a reference set the offset).
+  void shift(double dx_m);
 
  private:
   std::array<double, kMaxWords> ring_m_{};

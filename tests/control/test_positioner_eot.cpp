@@ -68,6 +68,12 @@ TEST(PositionerEndOfTravel, AStopFarInsideTheTravelIsAStallFault) {
   EXPECT_EQ(p.status().result, MoveResult::Ok);
   EXPECT_EQ(p.status().references, 1u);
   EXPECT_NEAR(p.status().position_m, -5e-3, 1e-7);
+  // And it stays there at rest: the readings the mean at rest held from before the offset was
+  // set move with it (they once read the position 0.11 mm off, in the old frame, for a moment).
+  for (int k = 0; k < 40; ++k) {
+    rig.run_for(1e-3);
+    ASSERT_NEAR(p.status().position_m, -5e-3, 2 * p.count_m()) << k;
+  }
 }
 
 // The same obstruction met by open-loop STEPs.

@@ -46,6 +46,15 @@ TEST(RestMean, TheMeanOfTheLatestWordsWithoutDrift) {
   for (int i = 0; i < RestMean::kMaxWords + 10; ++i) m.add(i < 10 ? 1e6 : 2.0);
   EXPECT_EQ(m.count(), RestMean::kMaxWords);
   EXPECT_DOUBLE_EQ(m.add(2.0), 2.0);
+  // A shift of the frame moves every reading held, the partial ring too: the mean goes on in the
+  // new frame (a reference that set the offset while fresh readings were held).
+  m.reset(4);
+  m.add(1.0);
+  m.add(3.0);
+  m.shift(10.0);
+  EXPECT_DOUBLE_EQ(m.add(12.0), 12.0);   // 11, 13, 12
+  EXPECT_DOUBLE_EQ(m.add(16.0), 13.0);   // 11, 13, 12, 16
+  EXPECT_DOUBLE_EQ(m.add(16.0), 14.25);  // the oldest (11) left
 }
 
 // At rest the position shown is the mean of the latest latch_words readings (a slider at a
