@@ -130,6 +130,10 @@ double landing_probability(double miss_m, double sd_m, double half_window_m) {
   return std::clamp(p, 0.0, 1.0);
 }
 
+double moving_cycles(double offset_m, double step_m) {
+  return std::max(1.0, std::ceil((0.5 * step_m - offset_m) / step_m));  // NaN: 1
+}
+
 double grid_landing_probability(double half_spacing_m, double sd_m, double half_window_m) {
   const double h = std::max(half_spacing_m, 0.0), s = std::max(sd_m, 0.0), w = half_window_m;
   if (!(w > 0)) return 0;
@@ -149,10 +153,9 @@ double grid_landing_probability(double half_spacing_m, double sd_m, double half_
 
 namespace {
 
-// The shortest chunk of r predicted to move half a step (the ladder's moving_cycles), its mean.
+// The shortest chunk of r predicted to move half a step, its mean.
 double shortest_moving_m(const LandingRung& r) {
-  const double n = std::max(1.0, std::ceil((0.5 * r.step_m - r.offset_m) / r.step_m));
-  return r.offset_m + n * r.step_m;
+  return r.offset_m + moving_cycles(r.offset_m, r.step_m) * r.step_m;
 }
 
 double try_probability(const LandingRung* rungs, std::size_t count, double half_window_m,

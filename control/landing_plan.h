@@ -74,6 +74,11 @@ struct LandingLimits {
 // P(|X - target| <= half_window) for an end position X normal about target + miss_m with sd_m.
 double landing_probability(double miss_m, double sd_m, double half_window_m);
 
+// The fewest cycles (at least one) of a rung moving offset + n step that are predicted to move
+// at least half a step: a burst's first cycles can move nothing, and a chunk that moves nothing
+// teaches nothing.
+double moving_cycles(double offset_m, double step_m);
+
 // P(|U + N| <= half_window) for U uniform on [-half_spacing, half_spacing] and N normal (0, sd):
 // a chunk whose nearest end lies anywhere on a grid of that spacing about the target, with that
 // scatter (a target's place on the rungs' grid is not known before the move).

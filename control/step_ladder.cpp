@@ -163,8 +163,8 @@ std::uint64_t StepLadder::chunk_limit(const Rung& r) const {
 }
 
 std::uint64_t StepLadder::moving_cycles(const Rung& r) const {
-  const double n_moving = std::ceil((0.5 * r.est.step_m - r.est.offset_m) / r.est.step_m);
-  return n_moving >= 1 ? static_cast<std::uint64_t>(std::min(n_moving, 1e6)) : 1;
+  return static_cast<std::uint64_t>(
+      std::min(control::moving_cycles(r.est.offset_m, r.est.step_m), 1e6));
 }
 
 StepLadder::FinalChunk StepLadder::final_chunk_for(const Rung& r, double distance) const {
@@ -307,7 +307,7 @@ bool StepLadder::back_off(int sign, std::vector<Rung>& toward, double distance, 
     if (!live(r, moves) || !r.proven) continue;
     const double a = r.est.offset_m, b = r.est.step_m;
     if (!(b > 0) || b > width) continue;
-    const double n_moving = std::max(1.0, std::ceil((0.5 * b - a) / b));
+    const double n_moving = control::moving_cycles(a, b);
     const double shortest = a + n_moving * b;
     if (!(shortest > 0)) continue;
     const double d = shortest + 0.5 * b;

@@ -128,6 +128,8 @@ class StepLadder {
     bool cut = false, safe = false;
   };
   FinalChunk final_chunk_for(const Rung& r, double distance) const;
+  // What the landing plan (and the window's reach) see of rung r, with the scatter rel_sd.
+  LandingRung landing_rung(const Rung& r, double rel_sd) const;
   // The fewest cycles rung r is predicted to move at least half a step with.
   std::uint64_t moving_cycles(const Rung& r) const;
   // How far this rung's next chunk may move beyond its estimate, as a share of it.

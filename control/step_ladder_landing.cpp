@@ -7,6 +7,22 @@
 
 namespace idm::control {
 
+LandingRung StepLadder::landing_rung(const Rung& r, double rel_sd) const {
+  LandingRung l;
+  l.direction = r.direction;
+  l.offset_m = r.est.offset_m;
+  l.step_m = r.est.step_m;
+  l.rel_sd = rel_sd;
+  l.rel_margin = rung_uncertainty(r);
+  l.p_oo = r.est.p_oo;
+  l.p_os = r.est.p_os;
+  l.p_ss = r.est.p_ss;
+  l.max_cycles = map_.cells()[r.cell].max_cycles;
+  l.missed_cycles = r.missed_cycles;
+  l.freq_hz = map_.cells()[r.cell].freq_hz;
+  return l;
+}
+
 bool StepLadder::landing_plan(int sign, double error, double position_m, double landing_m,
                               int chosen, std::uint64_t cycles, std::uint64_t moves, Choice& out) {
   if (landing_try_.rung >= 0) {
@@ -30,19 +46,8 @@ bool StepLadder::landing_plan(int sign, double error, double position_m, double 
           landing_rungs_.size() == landing_rungs_.capacity())
         continue;
       if (is_current) current = static_cast<int>(landing_rungs_.size());
-      LandingRung l;
-      l.direction = dir;
-      l.offset_m = r.est.offset_m;
-      l.step_m = r.est.step_m;
-      l.rel_sd = r.scatter_chunks >= 3 ? std::sqrt(r.scatter_var) : 0.5;
-      l.rel_margin = rung_uncertainty(r);
-      l.p_oo = r.est.p_oo;
-      l.p_os = r.est.p_os;
-      l.p_ss = r.est.p_ss;
-      l.max_cycles = map_.cells()[r.cell].max_cycles;
-      l.missed_cycles = r.missed_cycles;
-      l.freq_hz = map_.cells()[r.cell].freq_hz;
-      landing_rungs_.push_back(l);
+      landing_rungs_.push_back(
+          landing_rung(r, r.scatter_chunks >= 3 ? std::sqrt(r.scatter_var) : 0.5));
       landing_index_.emplace_back(dir, static_cast<int>(i));
     }
   }
@@ -82,14 +87,8 @@ double StepLadder::unreachable_landing_m(double landing_m, int tries, std::uint6
   for (std::vector<Rung>& l : ladder_)
     for (Rung& r : l) {
       if (!live(r, moves) || !moves_enough(r)) continue;
-      LandingRung x;
-      x.direction = r.direction;
-      x.offset_m = r.est.offset_m;
-      x.step_m = r.est.step_m;
-      x.rel_sd = r.scatter_chunks >= 3 ? std::sqrt(r.scatter_var) : least_rel_sd;
-      x.max_cycles = map_.cells()[r.cell].max_cycles;
-      x.freq_hz = map_.cells()[r.cell].freq_hz;
-      landing_rungs_.push_back(x);
+      landing_rungs_.push_back(
+          landing_rung(r, r.scatter_chunks >= 3 ? std::sqrt(r.scatter_var) : least_rel_sd));
     }
   const double read_sd = read_sd_m();
   const LandingLimits lim;
