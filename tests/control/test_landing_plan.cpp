@@ -21,17 +21,22 @@ std::uint64_t seed() {
   return s != nullptr ? std::strtoull(s, nullptr, 10) : std::random_device{}();
 }
 
+// Simpson's rule for f over [a, b] with n (even) intervals.
+template <class F>
+double simpson(F&& f, double a, double b, int n) {
+  const double h = (b - a) / n;
+  double sum = f(a) + f(b);
+  for (int i = 1; i < n; ++i) sum += (i % 2 ? 4 : 2) * f(a + i * h);
+  return sum * h / 3;
+}
+
 // Simpson's rule over the window of a normal density.
 double integrated_probability(double miss, double sd, double half) {
-  const int n = 20000;
-  const double a = -half, b = half, h = (b - a) / n;
   auto pdf = [&](double x) {
     const double z = (x - miss) / sd;
     return std::exp(-0.5 * z * z) / (sd * std::sqrt(2 * M_PI));
   };
-  double sum = pdf(a) + pdf(b);
-  for (int i = 1; i < n; ++i) sum += (i % 2 ? 4 : 2) * pdf(a + i * h);
-  return sum * h / 3;
+  return simpson(pdf, -half, half, 20000);
 }
 
 TEST(LandingPlan, ProbabilityIsTheNormalMassInsideTheWindow) {
@@ -239,12 +244,8 @@ TEST(LandingPlan, TwoCoarseRungsOfDifferentStepsLandWhereNeitherCanAlone) {
 // P(|U + N| <= w) by Simpson's rule over u of the normal mass (integrated_probability) for U
 // uniform on [-h, h].
 double integrated_grid_probability(double h, double sd, double half) {
-  const int n = 400;
-  const double step = 2 * h / n;
-  double sum = integrated_probability(-h, sd, half) + integrated_probability(h, sd, half);
-  for (int i = 1; i < n; ++i)
-    sum += (i % 2 ? 4 : 2) * integrated_probability(-h + i * step, sd, half);
-  return sum * step / 3 / (2 * h);
+  return simpson([&](double u) { return integrated_probability(u, sd, half); }, -h, h, 400) /
+         (2 * h);
 }
 
 TEST(LandingReach, GridProbabilityIsTheMassOfAUniformPlusANormalInsideTheWindow) {
